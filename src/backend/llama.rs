@@ -1,0 +1,243 @@
+//! The llama.cpp runtime through `llama-cpp-2`: mmap load, batched prompt evaluation,
+//! last-position logits, and a KV cache trimmed to a kept prefix so a later turn only
+//! evaluates its new tokens.
+//!
+//! Tokenization is llama.cpp's own; the vocabulary table is read back from it so the
+//! rest of ferrosa (detokenization, grammars) sees exactly what llama.cpp samples.
+
+use std::mem::ManuallyDrop;
+use std::num::NonZeroU32;
+use std::sync::OnceLock;
+
+use llama_cpp_2::context::params::LlamaContextParams;
+use llama_cpp_2::context::LlamaContext;
+use llama_cpp_2::llama_backend::LlamaBackend;
+use llama_cpp_2::llama_batch::LlamaBatch;
+use llama_cpp_2::model::params::LlamaModelParams;
+use llama_cpp_2::model::LlamaModel;
+use llama_cpp_2::token::LlamaToken;
+use llama_cpp_2::token_type::LlamaTokenAttr;
+
+use super::vocab::{TokenKind, Vocab};
+use super::{Backend, BackendError, ChatTemplate, Gguf, LoadOptions, TokenId};
+
+const NAME: &str = "llama.cpp";
+
+/// llama.cpp's global state may be initialised once per process.
+fn runtime() -> Result<&'static LlamaBackend, BackendError> {
+    static RUNTIME: OnceLock<Result<LlamaBackend, String>> = OnceLock::new();
+    RUNTIME
+        .get_or_init(|| {
+            // llama.cpp prints to stderr by default; route it through tracing, where the
+            // default filter keeps only warnings.
+            llama_cpp_2::send_logs_to_tracing(llama_cpp_2::LogOptions::default());
+            LlamaBackend::init().map_err(|e| e.to_string())
+        })
+        .as_ref()
+        .map_err(|e| BackendError::Load {
+            backend: NAME,
+            path: Default::default(),
+            reason: e.clone(),
+        })
+}
+
+pub struct LlamaCpp {
+    // Field order is drop order: the context borrows the model, so it goes first.
+    ctx: ManuallyDrop<LlamaContext<'static>>,
+    /// Leaked in `load` to give the context a `'static` borrow; freed in `Drop`.
+    model: *mut LlamaModel,
+    batch: LlamaBatch<'static>,
+    n_batch: usize,
+    n_ctx: usize,
+    /// Tokens in the KV cache.
+    n_past: usize,
+    logits: Vec<f32>,
+    vocab: Vocab,
+    template: ChatTemplate,
+}
+
+// SAFETY: `model` is owned by this value alone (leaked Box, freed once in Drop) and
+// llama.cpp models are immutable after load; the context and batch are Send already.
+unsafe impl Send for LlamaCpp {}
+
+impl Drop for LlamaCpp {
+    fn drop(&mut self) {
+        // SAFETY: the context is dropped before the model it borrows, and neither is
+        // used again; `model` came from Box::into_raw in `load`.
+        unsafe {
+            ManuallyDrop::drop(&mut self.ctx);
+            drop(Box::from_raw(self.model));
+        }
+    }
+}
+
+impl LlamaCpp {
+    pub fn load(gguf: &Gguf, opts: &LoadOptions) -> Result<LlamaCpp, BackendError> {
+        let rt = runtime()?;
+        let fail = |reason: String| BackendError::Load {
+            backend: NAME,
+            path: opts.path.clone(),
+            reason,
+        };
+        let template = ChatTemplate::for_model(gguf, opts.family.as_deref())?;
+        let params = LlamaModelParams::default().with_use_mmap(true);
+        let model = LlamaModel::load_from_file(rt, &opts.path, &params).map_err(|e| {
+            fail(format!(
+                "{e} (architecture '{}'; is it supported by this llama.cpp?)",
+                gguf.architecture().unwrap_or("unknown")
+            ))
+        })?;
+        let model: &'static mut LlamaModel = Box::leak(Box::new(model));
+        let model_ptr: *mut LlamaModel = model;
+        // SAFETY: re-borrow of the leaked box; it lives until Drop frees it after the
+        // context (or until the error path below frees it, with no context made).
+        let model_ref: &'static LlamaModel = unsafe { &*model_ptr };
+
+        let train_ctx = model_ref.n_ctx_train() as usize;
+        let n_ctx = opts.max_context.min(train_ctx.max(1)).max(16);
+        let n_batch = opts.batch.clamp(1, n_ctx);
+        let threads = opts.threads.max(1) as i32;
+        let cparams = LlamaContextParams::default()
+            .with_n_ctx(NonZeroU32::new(n_ctx as u32))
+            .with_n_batch(n_batch as u32)
+            .with_n_ubatch(n_batch as u32)
+            .with_n_threads(threads)
+            .with_n_threads_batch(threads);
+        let ctx = match model_ref.new_context(rt, cparams) {
+            Ok(ctx) => ctx,
+            Err(e) => {
+                // SAFETY: no context borrows the model; this is its only owner.
+                unsafe { drop(Box::from_raw(model_ptr)) };
+                return Err(fail(format!("cannot create a context of {n_ctx} tokens: {e}")));
+            }
+        };
+        let vocab = read_vocab(model_ref);
+        Ok(LlamaCpp {
+            ctx: ManuallyDrop::new(ctx),
+            model: model_ptr,
+            batch: LlamaBatch::new(n_batch, 1),
+            n_batch,
+            n_ctx,
+            n_past: 0,
+            logits: vec![0.0; vocab.len()],
+            vocab,
+            template,
+        })
+    }
+}
+
+fn read_vocab(model: &LlamaModel) -> Vocab {
+    let v = model.vocab();
+    let n = v.n_tokens().max(0) as usize;
+    let mut pieces = Vec::with_capacity(n);
+    let mut kinds = Vec::with_capacity(n);
+    let mut eog = Vec::new();
+    for i in 0..n {
+        let t = LlamaToken(i as i32);
+        pieces.push(v.token_to_piece(t, true, None));
+        let attr = v.attr(t);
+        kinds.push(if attr.contains(LlamaTokenAttr::Control) {
+            TokenKind::Control
+        } else if attr.contains(LlamaTokenAttr::UserDefined) {
+            TokenKind::UserDefined
+        } else if attr.contains(LlamaTokenAttr::Byte) {
+            TokenKind::Byte
+        } else if attr.contains(LlamaTokenAttr::Unused) {
+            TokenKind::Unused
+        } else if attr.contains(LlamaTokenAttr::Unknown) {
+            TokenKind::Unknown
+        } else {
+            TokenKind::Normal
+        });
+        if v.is_eog(t) {
+            eog.push(i as TokenId);
+        }
+    }
+    let bos = v.bos();
+    let bos = (bos.0 >= 0).then_some(bos.0 as TokenId);
+    Vocab::new(pieces, kinds, eog, bos, v.should_add_bos())
+}
+
+impl Backend for LlamaCpp {
+    fn name(&self) -> &'static str {
+        NAME
+    }
+
+    fn vocab(&self) -> &Vocab {
+        &self.vocab
+    }
+
+    fn chat_template(&self) -> &ChatTemplate {
+        &self.template
+    }
+
+    fn context_len(&self) -> usize {
+        self.n_ctx
+    }
+
+    fn tokenize(&self, text: &str, special: bool) -> Result<Vec<TokenId>, BackendError> {
+        // SAFETY: see the `model` field; it outlives `self`.
+        let model = unsafe { &*self.model };
+        Ok(model
+            .vocab()
+            .tokenize(text.as_bytes(), false, special)
+            .into_iter()
+            .map(|t| t.0 as TokenId)
+            .collect())
+    }
+
+    fn forward(&mut self, keep: usize, tokens: &[TokenId]) -> Result<&mut [f32], BackendError> {
+        let _span = tracing::trace_span!("forward", n = tokens.len()).entered();
+        if tokens.is_empty() {
+            return Err(BackendError::Eval {
+                backend: NAME,
+                reason: "forward called with no tokens".into(),
+            });
+        }
+        let keep = keep.min(self.n_past);
+        let needed = keep + tokens.len();
+        if needed > self.n_ctx {
+            return Err(BackendError::ContextFull {
+                needed,
+                limit: self.n_ctx,
+            });
+        }
+        let n_vocab = self.vocab.len();
+        if let Some(&bad) = tokens.iter().find(|&&t| t as usize >= n_vocab) {
+            return Err(BackendError::BadToken(bad));
+        }
+        if keep < self.n_past {
+            self.ctx
+                .kv_cache_seq_rm(0, Some(keep as u32), None)
+                .map_err(|e| BackendError::Eval {
+                    backend: NAME,
+                    reason: e.to_string(),
+                })?;
+        }
+        self.n_past = keep;
+        for chunk in tokens.chunks(self.n_batch) {
+            self.batch.clear();
+            let last = chunk.len() - 1;
+            for (i, &t) in chunk.iter().enumerate() {
+                self.batch
+                    .add(LlamaToken(t as i32), (self.n_past + i) as i32, &[0], i == last)
+                    .map_err(|e| BackendError::Eval {
+                        backend: NAME,
+                        reason: e.to_string(),
+                    })?;
+            }
+            if let Err(e) = self.ctx.decode(&mut self.batch) {
+                // The cache may hold part of this chunk; drop it so `n_past` stays true.
+                let _ = self.ctx.kv_cache_seq_rm(0, Some(self.n_past as u32), None);
+                return Err(BackendError::Eval {
+                    backend: NAME,
+                    reason: e.to_string(),
+                });
+            }
+            self.n_past += chunk.len();
+        }
+        let out = self.ctx.get_logits_ith(self.batch.n_tokens() - 1);
+        self.logits.copy_from_slice(&out[..n_vocab]);
+        Ok(&mut self.logits)
+    }
+}

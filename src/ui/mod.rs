@@ -1,0 +1,9 @@
+//! Front ends: what the operator runs. Each command here wires library parts together
+//! and prints; none holds logic another front end would need.
+//!
+//! Layout:
+//! - `generate`: `ferrosa generate`, streaming text from a model, with `--stats`
+//! - `models`: `ferrosa models list|fetch|verify`
+
+pub mod generate;
+pub mod models;
