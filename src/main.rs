@@ -11,10 +11,19 @@ use ferrosa::models::fetch::FetchOptions;
 use ferrosa::ui;
 
 #[derive(Parser)]
-#[command(name = "ferrosa", version, about = "On-device agent for offline robots")]
+#[command(
+    name = "ferrosa",
+    version,
+    about = "On-device agent for offline robots"
+)]
 struct Cli {
     /// Directory holding model weights (and an optional catalog.toml override).
-    #[arg(long, global = true, env = "FERROSA_MODELS_DIR", default_value = "models")]
+    #[arg(
+        long,
+        global = true,
+        env = "FERROSA_MODELS_DIR",
+        default_value = "models"
+    )]
     models_dir: PathBuf,
     #[command(subcommand)]
     command: Command,
@@ -94,8 +103,9 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     tracing_subscriber::fmt()
         .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_env("FERROSA_LOG")
-                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn")),
+            tracing_subscriber::EnvFilter::try_from_env("FERROSA_LOG").unwrap_or_else(|_| {
+                tracing_subscriber::EnvFilter::new("warn,llama-cpp-2=error,rustdds=error")
+            }),
         )
         .with_writer(std::io::stderr)
         .init();

@@ -13,7 +13,8 @@ use super::gguf::Gguf;
 use super::vocab::{gpt2_byte_decoder, TokenKind, Vocab};
 use super::TokenId;
 
-const GPT2_WORDS: &str = r"'s|'t|'re|'ve|'m|'ll|'d| ?\p{L}+| ?\p{N}+| ?[^\s\p{L}\p{N}]+|\s+(?!\S)|\s+";
+const GPT2_WORDS: &str =
+    r"'s|'t|'re|'ve|'m|'ll|'d| ?\p{L}+| ?\p{N}+| ?[^\s\p{L}\p{N}]+|\s+(?!\S)|\s+";
 
 pub struct Bpe {
     /// Pre-tokenizer stages, applied in order; each splits the pieces of the previous one.
@@ -97,7 +98,11 @@ impl Bpe {
         let mut out = Vec::with_capacity(text.len() / 3 + 1);
         let mut rest = text;
         while !rest.is_empty() {
-            let next = if special { self.next_special(rest) } else { None };
+            let next = if special {
+                self.next_special(rest)
+            } else {
+                None
+            };
             match next {
                 Some((at, tok, len)) => {
                     self.encode_plain(&rest[..at], &mut out);
@@ -171,7 +176,10 @@ impl Bpe {
                 Some(&id) => out.push(id),
                 // Every single byte char is in a byte-level vocabulary; a symbol missing
                 // from it means an inconsistent file, so fall back to its bytes' chars.
-                None => out.extend(s.chars().filter_map(|c| self.ids.get(&c.to_string()).copied())),
+                None => out.extend(
+                    s.chars()
+                        .filter_map(|c| self.ids.get(&c.to_string()).copied()),
+                ),
             }
         }
     }

@@ -221,9 +221,21 @@ impl Llama {
         for layer in &mut self.layers {
             let _span = tracing::trace_span!("layer").entered();
             let h = candle_nn::ops::rms_norm(&x, &layer.attn_norm, self.eps as f32)?;
-            let q = layer.wq.forward(&h)?.reshape((1, seq, nh, hd))?.transpose(1, 2)?;
-            let k = layer.wk.forward(&h)?.reshape((1, seq, nkv, hd))?.transpose(1, 2)?;
-            let v = layer.wv.forward(&h)?.reshape((1, seq, nkv, hd))?.transpose(1, 2)?;
+            let q = layer
+                .wq
+                .forward(&h)?
+                .reshape((1, seq, nh, hd))?
+                .transpose(1, 2)?;
+            let k = layer
+                .wk
+                .forward(&h)?
+                .reshape((1, seq, nkv, hd))?
+                .transpose(1, 2)?;
+            let v = layer
+                .wv
+                .forward(&h)?
+                .reshape((1, seq, nkv, hd))?
+                .transpose(1, 2)?;
             let q = candle_nn::rotary_emb::rope_i(&q.contiguous()?, &cos, &sin)?;
             let k = candle_nn::rotary_emb::rope_i(&k.contiguous()?, &cos, &sin)?;
             let v = v.contiguous()?;
@@ -281,10 +293,21 @@ impl Layer {
                 *cache = Some(fresh);
             }
             // Unwrap: set just above when missing.
-            cache.as_ref().expect("cache allocated").slice_set(new, 2, pos)?;
+            cache
+                .as_ref()
+                .expect("cache allocated")
+                .slice_set(new, 2, pos)?;
         }
-        let k_all = self.k_cache.as_ref().expect("cache allocated").narrow(2, 0, need)?;
-        let v_all = self.v_cache.as_ref().expect("cache allocated").narrow(2, 0, need)?;
+        let k_all = self
+            .k_cache
+            .as_ref()
+            .expect("cache allocated")
+            .narrow(2, 0, need)?;
+        let v_all = self
+            .v_cache
+            .as_ref()
+            .expect("cache allocated")
+            .narrow(2, 0, need)?;
         Ok((k_all.contiguous()?, v_all.contiguous()?))
     }
 }

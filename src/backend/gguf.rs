@@ -347,7 +347,10 @@ impl Gguf {
 
     /// Total parameter count, from the tensor directory.
     pub fn n_params(&self) -> u64 {
-        self.tensors.iter().map(|t| t.dims.iter().product::<u64>()).sum()
+        self.tensors
+            .iter()
+            .map(|t| t.dims.iter().product::<u64>())
+            .sum()
     }
 }
 
@@ -391,7 +394,8 @@ fn read_string<R: Read>(cur: &mut Cursor<R>) -> Result<String, ReadError> {
     cur.inner.read_exact(&mut buf)?;
     cur.pos += len;
     // Token texts may hold invalid UTF-8 in old conversions; keep them readable, not fatal.
-    Ok(String::from_utf8(buf).unwrap_or_else(|e| String::from_utf8_lossy(e.as_bytes()).into_owned()))
+    Ok(String::from_utf8(buf)
+        .unwrap_or_else(|e| String::from_utf8_lossy(e.as_bytes()).into_owned()))
 }
 
 fn read_value<R: Read>(cur: &mut Cursor<R>, ty: u32, depth: u32) -> Result<MetaValue, ReadError> {

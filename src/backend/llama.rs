@@ -102,13 +102,18 @@ impl LlamaCpp {
             .with_n_batch(n_batch as u32)
             .with_n_ubatch(n_batch as u32)
             .with_n_threads(threads)
-            .with_n_threads_batch(threads);
+            .with_n_threads_batch(threads)
+            // Sliding-window layers (Gemma 3) keep every position so a kept prefix can be
+            // extended after its tail is dropped; a window-sized cache would have evicted it.
+            .with_swa_full(true);
         let ctx = match model_ref.new_context(rt, cparams) {
             Ok(ctx) => ctx,
             Err(e) => {
                 // SAFETY: no context borrows the model; this is its only owner.
                 unsafe { drop(Box::from_raw(model_ptr)) };
-                return Err(fail(format!("cannot create a context of {n_ctx} tokens: {e}")));
+                return Err(fail(format!(
+                    "cannot create a context of {n_ctx} tokens: {e}"
+                )));
             }
         };
         let vocab = read_vocab(model_ref);
@@ -220,7 +225,12 @@ impl Backend for LlamaCpp {
             let last = chunk.len() - 1;
             for (i, &t) in chunk.iter().enumerate() {
                 self.batch
-                    .add(LlamaToken(t as i32), (self.n_past + i) as i32, &[0], i == last)
+                    .add(
+                        LlamaToken(t as i32),
+                        (self.n_past + i) as i32,
+                        &[0],
+                        i == last,
+                    )
                     .map_err(|e| BackendError::Eval {
                         backend: NAME,
                         reason: e.to_string(),

@@ -12,8 +12,14 @@ use super::gguf::Gguf;
 
 /// Fallback templates compiled in, by family.
 const FALLBACKS: &[(&str, &str)] = &[
-    ("gemma3", include_str!("../../prompts/templates/gemma3.jinja")),
-    ("chatml", include_str!("../../prompts/templates/chatml.jinja")),
+    (
+        "gemma3",
+        include_str!("../../prompts/templates/gemma3.jinja"),
+    ),
+    (
+        "chatml",
+        include_str!("../../prompts/templates/chatml.jinja"),
+    ),
 ];
 
 const NAME: &str = "chat";
@@ -96,9 +102,12 @@ impl ChatTemplate {
         env.set_trim_blocks(true);
         env.set_lstrip_blocks(true);
         env.set_unknown_method_callback(minijinja_contrib::pycompat::unknown_method_callback);
-        env.add_function("raise_exception", |msg: String| -> Result<Value, minijinja::Error> {
-            Err(minijinja::Error::new(ErrorKind::InvalidOperation, msg))
-        });
+        env.add_function(
+            "raise_exception",
+            |msg: String| -> Result<Value, minijinja::Error> {
+                Err(minijinja::Error::new(ErrorKind::InvalidOperation, msg))
+            },
+        );
         env.add_function("strftime_now", strftime_now);
         env.add_template_owned(NAME, source.to_string())
             .map_err(|e| TemplateError::Parse(e.to_string()))?;
@@ -129,9 +138,7 @@ impl ChatTemplate {
         if let Some(src) = g.chat_template() {
             return ChatTemplate::new(src, TemplateOrigin::File, &bos, &eos);
         }
-        let family = family
-            .or_else(|| g.architecture())
-            .unwrap_or("chatml");
+        let family = family.or_else(|| g.architecture()).unwrap_or("chatml");
         let (name, src) = FALLBACKS
             .iter()
             .find(|(f, _)| family.starts_with(f))
@@ -176,8 +183,18 @@ fn strftime_now(fmt: String) -> String {
     let (y, m, d) = civil_from_days(secs.div_euclid(86_400));
     let tod = secs.rem_euclid(86_400);
     const MONTHS: [&str; 12] = [
-        "January", "February", "March", "April", "May", "June", "July", "August", "September",
-        "October", "November", "December",
+        "January",
+        "February",
+        "March",
+        "April",
+        "May",
+        "June",
+        "July",
+        "August",
+        "September",
+        "October",
+        "November",
+        "December",
     ];
     let month = MONTHS[(m - 1) as usize];
     fmt.replace("%Y", &y.to_string())
@@ -215,8 +232,8 @@ mod tests {
 
     #[test]
     fn chatml_fallback_renders_generation_prompt() {
-        let t = ChatTemplate::new(FALLBACKS[1].1, TemplateOrigin::Fallback("chatml"), "", "")
-            .unwrap();
+        let t =
+            ChatTemplate::new(FALLBACKS[1].1, TemplateOrigin::Fallback("chatml"), "", "").unwrap();
         let out = t.render(&convo(), None, true).unwrap();
         assert_eq!(
             out,
@@ -226,8 +243,13 @@ mod tests {
 
     #[test]
     fn gemma_fallback_folds_system_into_first_user_turn() {
-        let t = ChatTemplate::new(FALLBACKS[0].1, TemplateOrigin::Fallback("gemma3"), "<bos>", "<eos>")
-            .unwrap();
+        let t = ChatTemplate::new(
+            FALLBACKS[0].1,
+            TemplateOrigin::Fallback("gemma3"),
+            "<bos>",
+            "<eos>",
+        )
+        .unwrap();
         let out = t.render(&convo(), None, true).unwrap();
         assert_eq!(
             out,
@@ -237,22 +259,31 @@ mod tests {
 
     #[test]
     fn tool_calls_and_results_render() {
-        let t = ChatTemplate::new(FALLBACKS[1].1, TemplateOrigin::Fallback("chatml"), "", "")
-            .unwrap();
+        let t =
+            ChatTemplate::new(FALLBACKS[1].1, TemplateOrigin::Fallback("chatml"), "", "").unwrap();
         let mut call = ChatMessage::new(Role::Assistant, "");
-        call.tool_calls = vec![serde_json::json!({"name": "calc_mean", "arguments": {"values": [1, 2]}})];
+        call.tool_calls =
+            vec![serde_json::json!({"name": "calc_mean", "arguments": {"values": [1, 2]}})];
         let mut result = ChatMessage::new(Role::Tool, "{\"mean\": 1.5}");
         result.name = Some("calc_mean".into());
         let out = t.render(&[call, result], None, false).unwrap();
         assert!(out.contains("<tool_call>\n{\"arguments\":{\"values\":[1,2]},\"name\":\"calc_mean\"}\n</tool_call>")
             || out.contains("\"name\":\"calc_mean\""), "{out}");
-        assert!(out.contains("<|im_start|>tool\n{\"mean\": 1.5}<|im_end|>"), "{out}");
+        assert!(
+            out.contains("<|im_start|>tool\n{\"mean\": 1.5}<|im_end|>"),
+            "{out}"
+        );
     }
 
     #[test]
     fn raise_exception_is_a_render_error() {
-        let t = ChatTemplate::new("{{ raise_exception('no system role') }}", TemplateOrigin::File, "", "")
-            .unwrap();
+        let t = ChatTemplate::new(
+            "{{ raise_exception('no system role') }}",
+            TemplateOrigin::File,
+            "",
+            "",
+        )
+        .unwrap();
         let err = t.render(&convo(), None, true).unwrap_err();
         assert!(err.to_string().contains("no system role"), "{err}");
     }

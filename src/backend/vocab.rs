@@ -50,6 +50,17 @@ const EOG_TEXTS: &[&str] = &[
     "<|end_of_text|>",
     "<|return|>",
     "<|call|>",
+    // Fill-in-the-middle padding, repository and file separators also end a generation
+    // in llama.cpp (they only appear where a code model starts a new document).
+    "<|fim_pad|>",
+    "<fim-pad>",
+    "<PAD>",
+    "<|fim_repo|>",
+    "<|repo_name|>",
+    "<fim-repo>",
+    "<REPO>",
+    "<reponame>",
+    "<|file_sep|>",
 ];
 
 #[derive(Debug, Clone)]
@@ -175,7 +186,13 @@ impl Vocab {
             .get("tokenizer.ggml.add_bos_token")
             .map(|v| matches!(v, MetaValue::Bool(true)))
             .unwrap_or(model == "llama");
-        Ok(Vocab::new(pieces, kinds, eog, id("tokenizer.ggml.bos_token_id"), add_bos))
+        Ok(Vocab::new(
+            pieces,
+            kinds,
+            eog,
+            id("tokenizer.ggml.bos_token_id"),
+            add_bos,
+        ))
     }
 }
 
@@ -243,7 +260,10 @@ impl Detokenizer {
                 Err(e) => {
                     let valid = e.valid_up_to();
                     // Safe: `valid_up_to` bytes were just checked to be UTF-8.
-                    out.push_str(std::str::from_utf8(&self.pending[start..start + valid]).unwrap_or_default());
+                    out.push_str(
+                        std::str::from_utf8(&self.pending[start..start + valid])
+                            .unwrap_or_default(),
+                    );
                     start += valid;
                     match e.error_len() {
                         Some(bad) => {

@@ -183,7 +183,9 @@ mod tests {
         let logits = [1.0, 1.0, 0.9, -5.0, 0.0];
         let run = |cfg| {
             let mut s = Sampler::new(cfg, 5);
-            (0..200).map(|_| s.sample(&logits).unwrap()).collect::<Vec<_>>()
+            (0..200)
+                .map(|_| s.sample(&logits).unwrap())
+                .collect::<Vec<_>>()
         };
         let a = run(cfg);
         assert_eq!(a, run(cfg));
@@ -216,7 +218,9 @@ mod tests {
         };
         let mut s = Sampler::new(cfg, 4);
         for _ in 0..500 {
-            let t = s.sample(&[0.0, f32::NEG_INFINITY, 0.0, f32::NEG_INFINITY]).unwrap();
+            let t = s
+                .sample(&[0.0, f32::NEG_INFINITY, 0.0, f32::NEG_INFINITY])
+                .unwrap();
             assert!(t == 0 || t == 2);
         }
     }

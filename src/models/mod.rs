@@ -20,9 +20,13 @@ pub enum ModelError {
     Catalog(#[from] CatalogError),
     #[error("unknown model '{name}'; the catalog has: {known}. Pass one of those or a path to a .gguf file")]
     Unknown { name: String, known: String },
-    #[error("model {name} is not installed ({path} is missing); run `ferrosa models fetch {name}`")]
+    #[error(
+        "model {name} is not installed ({path} is missing); run `ferrosa models fetch {name}`"
+    )]
     NotInstalled { name: String, path: PathBuf },
-    #[error("no model file at {0}; check the path, or pass a catalog name (see `ferrosa models list`)")]
+    #[error(
+        "no model file at {0}; check the path, or pass a catalog name (see `ferrosa models list`)"
+    )]
     NoSuchFile(PathBuf),
     #[error("{path} does not match the catalog's sha256 (expected {expected}, found {found}); run `ferrosa models fetch {name} --force` to replace it")]
     HashMismatch {

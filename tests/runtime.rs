@@ -1,0 +1,248 @@
+//! The llama.cpp runtime on the real weights: generation, KV prefix reuse, batching,
+//! tokenization round trips, templates, and the errors a bad input must give.
+
+use ferrosa::backend::{BackendError, BackendKind, ChatMessage, Detokenizer, Role};
+use ferrosa::decode::{generate, Finish, Sampler, SamplerConfig, Session};
+
+use crate::util::{greedy, load};
+
+const SMOL: &str = "smollm2-135m";
+
+fn text_of(model: &dyn ferrosa::backend::Backend, ids: &[u32]) -> String {
+    let mut d = Detokenizer::new(false);
+    let mut s = String::new();
+    for &t in ids {
+        d.push(model.vocab(), t, &mut s);
+    }
+    d.finish(&mut s);
+    s
+}
+
+#[test]
+fn smollm2_answers_in_english() {
+    let mut m = load(SMOL, BackendKind::Llama, 2048);
+    let prompt = m
+        .chat_template()
+        .render(&[ChatMessage::new(Role::User, "What is ROS?")], None, true)
+        .unwrap();
+    let ids = greedy(m.as_mut(), &prompt, 48);
+    let text = text_of(m.as_ref(), &ids);
+    let words: Vec<&str> = text
+        .split_whitespace()
+        .filter(|w| {
+            w.chars()
+                .all(|c| c.is_ascii_alphabetic() || ",.'\"()-".contains(c))
+        })
+        .collect();
+    assert!(words.len() >= 20, "not English prose: {text:?}");
+    assert!(text.contains("ROS"), "{text:?}");
+    assert!(!text.contains('\u{FFFD}'), "{text:?}");
+}
+
+#[test]
+fn kv_prefix_reuse_gives_the_same_logits_as_a_fresh_evaluation() {
+    let mut m = load(SMOL, BackendKind::Llama, 1024);
+    let prefix = m
+        .tokenize("The robot arm moved the red block onto the", false)
+        .unwrap();
+    let tail_a = m.tokenize(" table and then", false).unwrap();
+    let tail_b = m.tokenize(" blue block, so the", false).unwrap();
+    let all_a: Vec<u32> = prefix.iter().chain(&tail_a).copied().collect();
+    let all_b: Vec<u32> = prefix.iter().chain(&tail_b).copied().collect();
+    m.forward(0, &all_a).unwrap();
+    // Keep the shared prefix, evaluate only B's tail.
+    let reused = m.forward(prefix.len(), &tail_b).unwrap().to_vec();
+    let fresh = m.forward(0, &all_b).unwrap().to_vec();
+    let diff = reused
+        .iter()
+        .zip(&fresh)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0f32, f32::max);
+    assert!(diff < 0.05, "max logit difference {diff}");
+    assert_eq!(
+        ferrosa::decode::sample::argmax(&reused),
+        ferrosa::decode::sample::argmax(&fresh)
+    );
+}
+
+#[test]
+fn a_second_turn_evaluates_only_its_new_tokens() {
+    let mut m = load(SMOL, BackendKind::Llama, 2048);
+    let t = m.chat_template();
+    let turn1 = vec![ChatMessage::new(Role::User, "Name a colour.")];
+    let p1 = m
+        .tokenize(&t.render(&turn1, None, true).unwrap(), true)
+        .unwrap();
+    let mut session = Session::new();
+    let mut sampler = Sampler::new(SamplerConfig::default(), m.vocab().len());
+    let mut answer = Vec::new();
+    generate(m.as_mut(), &mut session, &p1, 16, &mut sampler, |tok| {
+        answer.push(tok);
+        std::ops::ControlFlow::Continue(())
+    })
+    .unwrap();
+    let reply = text_of(m.as_ref(), &answer);
+    let turn2 = vec![
+        ChatMessage::new(Role::User, "Name a colour."),
+        ChatMessage::new(Role::Assistant, reply.trim()),
+        ChatMessage::new(Role::User, "Another one?"),
+    ];
+    let t = m.chat_template();
+    let p2 = m
+        .tokenize(&t.render(&turn2, None, true).unwrap(), true)
+        .unwrap();
+    let (_, stats) = generate(m.as_mut(), &mut session, &p2, 4, &mut sampler, |_| {
+        std::ops::ControlFlow::Continue(())
+    })
+    .unwrap();
+    assert!(
+        stats.reused_tokens >= p1.len(),
+        "reused {} of {} (first turn was {})",
+        stats.reused_tokens,
+        p2.len(),
+        p1.len()
+    );
+}
+
+#[test]
+fn small_batches_and_one_big_batch_agree() {
+    let text = "Robots in the field run with no network. ".repeat(12);
+    let mut big = load(SMOL, BackendKind::Llama, 1024);
+    let ids = big.tokenize(&text, false).unwrap();
+    let a = big.forward(0, &ids).unwrap().to_vec();
+    let path = crate::util::model_path(SMOL);
+    let mut opts = ferrosa::backend::LoadOptions::new(path);
+    opts.batch = 7;
+    opts.max_context = 1024;
+    let mut small = ferrosa::backend::load(BackendKind::Llama, &opts).unwrap();
+    let b = small.forward(0, &ids).unwrap().to_vec();
+    assert_eq!(
+        ferrosa::decode::sample::argmax(&a),
+        ferrosa::decode::sample::argmax(&b)
+    );
+}
+
+#[test]
+fn tokenize_then_detokenize_round_trips_unicode() {
+    let m = load(SMOL, BackendKind::Llama, 256);
+    for s in [
+        "move 2.5 m forward",
+        "température: 23 °C — ok",
+        "emoji 🤖 and 日本語",
+        "  leading and trailing  ",
+        "<|im_start|> as plain text",
+    ] {
+        let ids = m.tokenize(s, false).unwrap();
+        assert_eq!(text_of_all(m.as_ref(), &ids), s);
+    }
+    // With `special`, the marker is one control token.
+    let ids = m.tokenize("<|im_start|>user", true).unwrap();
+    assert_eq!(m.vocab().piece(ids[0]), b"<|im_start|>");
+}
+
+fn text_of_all(model: &dyn ferrosa::backend::Backend, ids: &[u32]) -> String {
+    let mut d = Detokenizer::new(true);
+    let mut s = String::new();
+    for &t in ids {
+        d.push(model.vocab(), t, &mut s);
+    }
+    d.finish(&mut s);
+    s
+}
+
+#[test]
+fn smollm2_end_tokens_come_from_the_file() {
+    let m = load(SMOL, BackendKind::Llama, 256);
+    let im_end = m.vocab().find("<|im_end|>").unwrap();
+    assert!(m.vocab().is_eog(im_end));
+    assert_eq!(m.vocab().bos(), None, "SmolLM2 adds no BOS");
+}
+
+#[test]
+fn short_answers_stop_at_end_of_turn() {
+    let mut m = load(SMOL, BackendKind::Llama, 1024);
+    let t = m.chat_template();
+    let msgs = vec![ChatMessage::new(
+        Role::User,
+        "Reply with the single word: yes",
+    )];
+    let p = m
+        .tokenize(&t.render(&msgs, None, true).unwrap(), true)
+        .unwrap();
+    let mut sampler = Sampler::new(SamplerConfig::default(), m.vocab().len());
+    let (finish, _) = generate(
+        m.as_mut(),
+        &mut Session::new(),
+        &p,
+        200,
+        &mut sampler,
+        |_| std::ops::ControlFlow::Continue(()),
+    )
+    .unwrap();
+    assert_eq!(finish, Finish::EndOfGeneration);
+}
+
+#[test]
+fn smollm2_template_golden() {
+    let m = load(SMOL, BackendKind::Llama, 256);
+    let t = m.chat_template();
+    let out = t
+        .render(
+            &[
+                ChatMessage::new(Role::System, "You are a turtle robot."),
+                ChatMessage::new(Role::User, "Where are you?"),
+                ChatMessage::new(Role::Assistant, "At (5.5, 5.5)."),
+                ChatMessage::new(Role::User, "Move."),
+            ],
+            None,
+            true,
+        )
+        .unwrap();
+    assert_eq!(
+        out,
+        "<|im_start|>system\nYou are a turtle robot.<|im_end|>\n\
+         <|im_start|>user\nWhere are you?<|im_end|>\n\
+         <|im_start|>assistant\nAt (5.5, 5.5).<|im_end|>\n\
+         <|im_start|>user\nMove.<|im_end|>\n\
+         <|im_start|>assistant\n"
+    );
+    // Without a system message the file's template supplies its own.
+    let out = t
+        .render(&[ChatMessage::new(Role::User, "Hi")], None, false)
+        .unwrap();
+    assert_eq!(
+        out,
+        "<|im_start|>system\nYou are a helpful AI assistant named SmolLM, trained by Hugging Face<|im_end|>\n\
+         <|im_start|>user\nHi<|im_end|>\n"
+    );
+}
+
+#[test]
+fn a_full_context_is_an_error_not_a_crash() {
+    let mut m = load(SMOL, BackendKind::Llama, 32);
+    let ids = m.tokenize(&"word ".repeat(64), false).unwrap();
+    match m.forward(0, &ids) {
+        Err(BackendError::ContextFull { limit, .. }) => assert_eq!(limit, 32),
+        Err(e) => panic!("wrong error {e}"),
+        Ok(_) => panic!("64 tokens fit a 32-token context"),
+    }
+    // The backend is still usable afterwards.
+    m.forward(0, &ids[..8]).unwrap();
+    assert!(matches!(
+        m.forward(0, &[999_999]),
+        Err(BackendError::BadToken(999_999))
+    ));
+}
+
+#[test]
+fn gemma3_base_model_continues_text_with_the_fallback_template() {
+    let mut m = load("gemma3-270m", BackendKind::Llama, 512);
+    assert_eq!(
+        m.chat_template().origin(),
+        &ferrosa::backend::template::TemplateOrigin::Fallback("gemma3")
+    );
+    assert!(m.vocab().bos().is_some(), "Gemma adds BOS");
+    let ids = greedy(m.as_mut(), "The Eiffel Tower is located in the city of", 8);
+    let text = text_of(m.as_ref(), &ids);
+    assert!(text.contains("Paris"), "{text:?}");
+}
