@@ -4,6 +4,11 @@
 
 mod util;
 
+mod alloc;
+
+#[global_allocator]
+static COUNTING: alloc::Counting = alloc::Counting;
+
 #[cfg(feature = "candle")]
 mod candle_parity;
 mod cli;

@@ -243,8 +243,9 @@ impl Llama {
             // Grouped-query attention: each KV head serves nh / nkv query heads.
             let rep = nh / nkv;
             let q = q.reshape((nkv, rep * seq, hd))?;
-            let k_all = k_all.reshape((nkv, kv_len, hd))?;
-            let v_all = v_all.reshape((nkv, kv_len, hd))?;
+            // Views into the cache (rows contiguous, heads `capacity` apart): no copy.
+            let k_all = k_all.squeeze(0)?;
+            let v_all = v_all.squeeze(0)?;
             let att = (q.matmul(&k_all.t()?)? / (hd as f64).sqrt())?; // (nkv, rep*seq, kv)
             let att = match &mask {
                 Some(m) => att
@@ -308,7 +309,7 @@ impl Layer {
             .as_ref()
             .expect("cache allocated")
             .narrow(2, 0, need)?;
-        Ok((k_all.contiguous()?, v_all.contiguous()?))
+        Ok((k_all, v_all))
     }
 }
 

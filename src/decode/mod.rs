@@ -114,6 +114,10 @@ pub fn generate(
     stats.reused_tokens = keep;
     session.tokens.truncate(keep);
     let n_ctx = backend.context_len();
+    // Room for every token this call can add, so the per-token loop never reallocates.
+    session
+        .tokens
+        .reserve((prompt.len() - keep + max_tokens).min(n_ctx));
     let mut logits = match backend.forward(keep, &prompt[keep..]) {
         Ok(l) => l,
         Err(e) => {

@@ -1,0 +1,56 @@
+//! The per-token path allocates nothing on the Rust side: a counting allocator (per
+//! thread, so other tests do not interfere) sees no allocation while sampling and
+//! evaluating one token at a time. llama.cpp's own C allocations are not counted here.
+
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::cell::Cell;
+
+use ferrosa::backend::BackendKind;
+use ferrosa::decode::{Sampler, SamplerConfig};
+
+pub struct Counting;
+
+thread_local! {
+    static ALLOCS: Cell<u64> = const { Cell::new(0) };
+}
+
+// SAFETY: forwards to the system allocator; the counter is a thread-local Cell.
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        ALLOCS.with(|c| c.set(c.get() + 1));
+        unsafe { System.alloc(layout) }
+    }
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        unsafe { System.dealloc(ptr, layout) }
+    }
+    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        ALLOCS.with(|c| c.set(c.get() + 1));
+        unsafe { System.realloc(ptr, layout, new_size) }
+    }
+}
+
+fn allocations() -> u64 {
+    ALLOCS.with(Cell::get)
+}
+
+#[test]
+fn llama_token_loop_allocates_nothing() {
+    let mut m = crate::util::load("smollm2-135m", BackendKind::Llama, 512);
+    let prompt = m.tokenize("The robot reported", false).unwrap();
+    let cfg = SamplerConfig {
+        temperature: 0.8,
+        top_k: 40,
+        top_p: 0.9,
+        seed: 1,
+    };
+    let mut sampler = Sampler::new(cfg, m.vocab().len());
+    let mut tok = sampler.sample(m.forward(0, &prompt).unwrap()).unwrap();
+    let mut pos = prompt.len();
+    let before = allocations();
+    for _ in 0..32 {
+        let logits = m.forward(pos, &[tok]).unwrap();
+        tok = sampler.sample(logits).unwrap();
+        pos += 1;
+    }
+    assert_eq!(allocations() - before, 0, "allocations in 32 token steps");
+}
