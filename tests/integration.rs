@@ -12,4 +12,5 @@ static COUNTING: alloc::Counting = alloc::Counting;
 #[cfg(feature = "candle")]
 mod candle_parity;
 mod cli;
+mod decoding;
 mod runtime;

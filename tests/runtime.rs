@@ -76,10 +76,18 @@ fn a_second_turn_evaluates_only_its_new_tokens() {
     let mut session = Session::new();
     let mut sampler = Sampler::new(SamplerConfig::default(), m.vocab().len());
     let mut answer = Vec::new();
-    generate(m.as_mut(), &mut session, &p1, 16, &mut sampler, |tok| {
-        answer.push(tok);
-        std::ops::ControlFlow::Continue(())
-    })
+    generate(
+        m.as_mut(),
+        &mut session,
+        &p1,
+        16,
+        &mut sampler,
+        None,
+        |tok| {
+            answer.push(tok);
+            std::ops::ControlFlow::Continue(())
+        },
+    )
     .unwrap();
     let reply = text_of(m.as_ref(), &answer);
     let turn2 = vec![
@@ -91,7 +99,7 @@ fn a_second_turn_evaluates_only_its_new_tokens() {
     let p2 = m
         .tokenize(&t.render(&turn2, None, true).unwrap(), true)
         .unwrap();
-    let (_, stats) = generate(m.as_mut(), &mut session, &p2, 4, &mut sampler, |_| {
+    let (_, stats) = generate(m.as_mut(), &mut session, &p2, 4, &mut sampler, None, |_| {
         std::ops::ControlFlow::Continue(())
     })
     .unwrap();
@@ -176,6 +184,7 @@ fn short_answers_stop_at_end_of_turn() {
         &p,
         200,
         &mut sampler,
+        None,
         |_| std::ops::ControlFlow::Continue(()),
     )
     .unwrap();

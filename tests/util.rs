@@ -34,10 +34,18 @@ pub fn greedy(model: &mut dyn Backend, prompt: &str, n: usize) -> Vec<u32> {
     ids.extend(model.tokenize(prompt, true).unwrap());
     let mut sampler = Sampler::new(SamplerConfig::default(), model.vocab().len());
     let mut out = Vec::new();
-    generate(model, &mut Session::new(), &ids, n, &mut sampler, |t| {
-        out.push(t);
-        std::ops::ControlFlow::Continue(())
-    })
+    generate(
+        model,
+        &mut Session::new(),
+        &ids,
+        n,
+        &mut sampler,
+        None,
+        |t| {
+            out.push(t);
+            std::ops::ControlFlow::Continue(())
+        },
+    )
     .unwrap();
     out
 }

@@ -185,6 +185,12 @@ impl Bpe {
     }
 }
 
+impl super::Tokenize for Bpe {
+    fn tokenize(&self, text: &str, special: bool) -> Vec<TokenId> {
+        self.encode(text, special)
+    }
+}
+
 /// Split `s` by the matches of `re`, keeping matches and the text between them as pieces.
 fn split_keep<'a>(re: &Regex, s: &'a str, out: &mut Vec<&'a str>) {
     let mut last = 0;

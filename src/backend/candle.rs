@@ -9,14 +9,14 @@
 
 use std::fs::File;
 use std::io::BufReader;
-use std::sync::Once;
+use std::sync::{Arc, Once};
 
 use candle_core::quantized::{gguf_file, QMatMul, QTensor};
 use candle_core::{DType, Device, Module, Tensor};
 
 use super::bpe::Bpe;
 use super::vocab::Vocab;
-use super::{Backend, BackendError, ChatTemplate, Gguf, LoadOptions, TokenId};
+use super::{Backend, BackendError, ChatTemplate, Gguf, LoadOptions, TokenId, Tokenize};
 
 const NAME: &str = "candle";
 /// Positions the KV cache grows by when full (amortises the copy).
@@ -59,7 +59,7 @@ struct Llama {
 
 pub struct Candle {
     model: Llama,
-    bpe: Bpe,
+    bpe: Arc<Bpe>,
     vocab: Vocab,
     template: ChatTemplate,
     n_ctx: usize,
@@ -92,7 +92,7 @@ impl Candle {
                 .build_global();
         });
         let vocab = Vocab::from_gguf(gguf).map_err(fail)?;
-        let bpe = Bpe::from_gguf(gguf, &vocab).map_err(fail)?;
+        let bpe = Arc::new(Bpe::from_gguf(gguf, &vocab).map_err(fail)?);
         let template = ChatTemplate::for_model(gguf, opts.family.as_deref())?;
 
         let device = Device::Cpu;
@@ -332,6 +332,10 @@ impl Backend for Candle {
 
     fn tokenize(&self, text: &str, special: bool) -> Result<Vec<TokenId>, BackendError> {
         Ok(self.bpe.encode(text, special))
+    }
+
+    fn tokenizer(&self) -> Arc<dyn Tokenize> {
+        self.bpe.clone()
     }
 
     fn forward(&mut self, keep: usize, tokens: &[TokenId]) -> Result<&mut [f32], BackendError> {

@@ -7,7 +7,7 @@
 
 use std::mem::ManuallyDrop;
 use std::num::NonZeroU32;
-use std::sync::OnceLock;
+use std::sync::{Arc, OnceLock};
 
 use llama_cpp_2::context::params::LlamaContextParams;
 use llama_cpp_2::context::LlamaContext;
@@ -19,7 +19,7 @@ use llama_cpp_2::token::LlamaToken;
 use llama_cpp_2::token_type::LlamaTokenAttr;
 
 use super::vocab::{TokenKind, Vocab};
-use super::{Backend, BackendError, ChatTemplate, Gguf, LoadOptions, TokenId};
+use super::{Backend, BackendError, ChatTemplate, Gguf, LoadOptions, TokenId, Tokenize};
 
 const NAME: &str = "llama.cpp";
 
@@ -44,8 +44,9 @@ fn runtime() -> Result<&'static LlamaBackend, BackendError> {
 pub struct LlamaCpp {
     // Field order is drop order: the context borrows the model, so it goes first.
     ctx: ManuallyDrop<LlamaContext<'static>>,
-    /// Leaked in `load` to give the context a `'static` borrow; freed in `Drop`.
-    model: *mut LlamaModel,
+    /// Shared with tokenizers handed out by `tokenizer()`; the context borrows it through
+    /// a `'static` reference that is valid because this Arc is dropped after the context.
+    model: Arc<LlamaModel>,
     batch: LlamaBatch<'static>,
     n_batch: usize,
     n_ctx: usize,
@@ -56,18 +57,26 @@ pub struct LlamaCpp {
     template: ChatTemplate,
 }
 
-// SAFETY: `model` is owned by this value alone (leaked Box, freed once in Drop) and
-// llama.cpp models are immutable after load; the context and batch are Send already.
-unsafe impl Send for LlamaCpp {}
-
 impl Drop for LlamaCpp {
     fn drop(&mut self) {
-        // SAFETY: the context is dropped before the model it borrows, and neither is
-        // used again; `model` came from Box::into_raw in `load`.
-        unsafe {
-            ManuallyDrop::drop(&mut self.ctx);
-            drop(Box::from_raw(self.model));
-        }
+        // SAFETY: the context is dropped before this value's Arc of the model it borrows
+        // (fields drop after `drop` returns), and it is not used again.
+        unsafe { ManuallyDrop::drop(&mut self.ctx) };
+    }
+}
+
+/// llama.cpp's tokenizer, usable from any thread while the backend decodes: tokenizing
+/// reads only the immutable vocabulary.
+struct LlamaTokenizer(Arc<LlamaModel>);
+
+impl Tokenize for LlamaTokenizer {
+    fn tokenize(&self, text: &str, special: bool) -> Vec<TokenId> {
+        self.0
+            .vocab()
+            .tokenize(text.as_bytes(), false, special)
+            .into_iter()
+            .map(|t| t.0 as TokenId)
+            .collect()
     }
 }
 
@@ -87,11 +96,10 @@ impl LlamaCpp {
                 gguf.architecture().unwrap_or("unknown")
             ))
         })?;
-        let model: &'static mut LlamaModel = Box::leak(Box::new(model));
-        let model_ptr: *mut LlamaModel = model;
-        // SAFETY: re-borrow of the leaked box; it lives until Drop frees it after the
-        // context (or until the error path below frees it, with no context made).
-        let model_ref: &'static LlamaModel = unsafe { &*model_ptr };
+        let model = Arc::new(model);
+        // SAFETY: the Arc's allocation does not move and outlives the context: `LlamaCpp`
+        // holds a clone and drops the context first (see Drop).
+        let model_ref: &'static LlamaModel = unsafe { &*Arc::as_ptr(&model) };
 
         let train_ctx = model_ref.n_ctx_train() as usize;
         let n_ctx = opts.max_context.min(train_ctx.max(1)).max(16);
@@ -106,20 +114,13 @@ impl LlamaCpp {
             // Sliding-window layers (Gemma 3) keep every position so a kept prefix can be
             // extended after its tail is dropped; a window-sized cache would have evicted it.
             .with_swa_full(true);
-        let ctx = match model_ref.new_context(rt, cparams) {
-            Ok(ctx) => ctx,
-            Err(e) => {
-                // SAFETY: no context borrows the model; this is its only owner.
-                unsafe { drop(Box::from_raw(model_ptr)) };
-                return Err(fail(format!(
-                    "cannot create a context of {n_ctx} tokens: {e}"
-                )));
-            }
-        };
+        let ctx = model_ref
+            .new_context(rt, cparams)
+            .map_err(|e| fail(format!("cannot create a context of {n_ctx} tokens: {e}")))?;
         let vocab = read_vocab(model_ref);
         Ok(LlamaCpp {
             ctx: ManuallyDrop::new(ctx),
-            model: model_ptr,
+            model,
             batch: LlamaBatch::new(n_batch, 1),
             n_batch,
             n_ctx,
@@ -181,14 +182,11 @@ impl Backend for LlamaCpp {
     }
 
     fn tokenize(&self, text: &str, special: bool) -> Result<Vec<TokenId>, BackendError> {
-        // SAFETY: see the `model` field; it outlives `self`.
-        let model = unsafe { &*self.model };
-        Ok(model
-            .vocab()
-            .tokenize(text.as_bytes(), false, special)
-            .into_iter()
-            .map(|t| t.0 as TokenId)
-            .collect())
+        Ok(LlamaTokenizer(self.model.clone()).tokenize(text, special))
+    }
+
+    fn tokenizer(&self) -> Arc<dyn Tokenize> {
+        Arc::new(LlamaTokenizer(self.model.clone()))
     }
 
     fn forward(&mut self, keep: usize, tokens: &[TokenId]) -> Result<&mut [f32], BackendError> {

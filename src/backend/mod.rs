@@ -11,19 +11,22 @@
 //! - `llama`: llama.cpp through `llama-cpp-2` (feature `llama`, default)
 //! - `candle`: a pure-Rust runtime on candle (feature `candle`)
 //! - `bpe`: a byte-level BPE tokenizer built from GGUF metadata, for runtimes without one
+//! - `uniform`: a weightless backend with a real vocabulary (equal logits), for property
+//!   tests and decoding benchmarks
 
 pub mod gguf;
 pub mod template;
 pub mod vocab;
 
-#[cfg(feature = "candle")]
 pub mod bpe;
 #[cfg(feature = "candle")]
 pub mod candle;
 #[cfg(feature = "llama")]
 pub mod llama;
+pub mod uniform;
 
 use std::path::PathBuf;
+use std::sync::Arc;
 
 pub use gguf::{Gguf, GgufError};
 pub use template::{ChatMessage, ChatTemplate, Role, TemplateError};
@@ -105,6 +108,13 @@ impl LoadOptions {
     }
 }
 
+/// A model's tokenizer, shareable across threads (the constrained decoder keeps one to
+/// tokenize forced text exactly as the model would).
+pub trait Tokenize: Send + Sync {
+    /// As `Backend::tokenize`.
+    fn tokenize(&self, text: &str, special: bool) -> Vec<TokenId>;
+}
+
 /// The model runtime: token ids in, next-token logits out. Owns weights and KV cache.
 pub trait Backend: Send {
     /// Short name for reports ("llama.cpp", "candle").
@@ -117,6 +127,8 @@ pub trait Backend: Send {
     /// their single ids (for rendered templates); without, they are plain text (for
     /// anything an operator or a tool wrote). Never adds BOS: see `Vocab::bos`.
     fn tokenize(&self, text: &str, special: bool) -> Result<Vec<TokenId>, BackendError>;
+    /// The same tokenizer as a shareable handle.
+    fn tokenizer(&self) -> Arc<dyn Tokenize>;
     /// Keep the first `keep` cached tokens, evaluate `tokens` after them in batches, and
     /// return the logits of the last one. `tokens` must not be empty.
     fn forward(&mut self, keep: usize, tokens: &[TokenId]) -> Result<&mut [f32], BackendError>;

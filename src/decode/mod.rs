@@ -1,20 +1,50 @@
 //! Decoding: turning logits into tokens, one step at a time, over a `Backend`.
 //!
-//! Owns the generation loop (prefill, sample, stop), the sampler, and the session that
-//! remembers what the backend's KV cache holds so a new prompt sharing a prefix evaluates
-//! only its tail. Grammar-constrained decoding will slot in here (mask before sample);
-//! this module knows nothing of tools or ROS.
+//! Owns the generation loop (prefill, sample, stop), the sampler, grammar-constrained
+//! decoding, and the session that remembers what the backend's KV cache holds so a new
+//! prompt sharing a prefix evaluates only its tail. It knows tool specs (to build
+//! grammars) but nothing of tool execution or ROS.
 //!
 //! Layout:
 //! - `sample`: greedy / temperature, top-k, top-p sampling with a seeded generator
+//! - `trie`: llguidance's token environment built from a backend's vocabulary
+//! - `constraint`: per-model grammar factory and per-turn constraint (mask, commit, forced tokens)
+//! - `envelope`: tool-call formats per model family: grammar, prompt text, parser
+//! - `turn`: one assistant turn with tools: prompt, constrained generation, parse
 
+pub mod constraint;
+pub mod envelope;
 pub mod sample;
+pub mod trie;
+pub mod turn;
 
 use std::ops::ControlFlow;
 use std::time::{Duration, Instant};
 
 use crate::backend::{Backend, BackendError, TokenId};
+pub use constraint::{Constraint, ConstraintError, Grammars};
+pub use envelope::{Envelope, ToolChoice, Turn};
 pub use sample::{Sampler, SamplerConfig};
+
+/// With or without the grammar: the switch that lets one run compare both.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
+pub enum Decoding {
+    /// Every token is checked against the turn's grammar.
+    #[default]
+    Constrained,
+    /// The model writes freely; calls are parsed afterwards and may be invalid.
+    Free,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum DecodeError {
+    #[error(transparent)]
+    Backend(#[from] BackendError),
+    #[error(transparent)]
+    Template(#[from] crate::backend::TemplateError),
+    #[error(transparent)]
+    Constraint(#[from] ConstraintError),
+}
 
 /// Why a generation stopped.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -40,8 +70,13 @@ pub struct GenerationStats {
     pub generated_tokens: usize,
     /// From the first sampled token to the last: sampling plus single-token forwards.
     pub gen_time: Duration,
-    /// Single-token forward passes during generation.
+    /// Forward passes during generation (each evaluates a sampled token and the tokens
+    /// the grammar forced after it).
     pub gen_forwards: usize,
+    /// Tokens appended because the grammar forced them, without sampling.
+    pub forced_tokens: usize,
+    /// Steps where the sampled token was refused and the full mask was computed.
+    pub masks_computed: usize,
     pub time_to_first_token: Duration,
 }
 
@@ -51,8 +86,14 @@ impl GenerationStats {
         evaluated as f64 / self.prompt_time.as_secs_f64().max(1e-9)
     }
 
+    /// Forward passes per second: the model's decode speed.
     pub fn gen_tok_per_s(&self) -> f64 {
         self.gen_forwards as f64 / self.gen_time.as_secs_f64().max(1e-9)
+    }
+
+    /// Tokens emitted per second, forced ones included: the output rate an operator sees.
+    pub fn output_tok_per_s(&self) -> f64 {
+        self.generated_tokens.saturating_sub(1) as f64 / self.gen_time.as_secs_f64().max(1e-9)
     }
 }
 
@@ -89,25 +130,27 @@ impl Session {
     }
 }
 
-/// Generate after `prompt`, calling `on_token` with each sampled token (the stop token
-/// included, so a caller can see why it ended); `on_token` may break to stop early.
+/// Generate after `prompt`, calling `on_token` with each emitted token, sampled or
+/// forced by the grammar (the stop token included, so a caller can see why it ended);
+/// `on_token` may break to stop early. With a constraint, every token obeys its grammar.
 pub fn generate(
     backend: &mut dyn Backend,
     session: &mut Session,
     prompt: &[TokenId],
     max_tokens: usize,
     sampler: &mut Sampler,
+    mut constraint: Option<&mut Constraint>,
     mut on_token: impl FnMut(TokenId) -> ControlFlow<()>,
-) -> Result<(Finish, GenerationStats), BackendError> {
+) -> Result<(Finish, GenerationStats), DecodeError> {
     let mut stats = GenerationStats {
         prompt_tokens: prompt.len(),
         ..Default::default()
     };
     if prompt.is_empty() {
-        return Err(BackendError::Eval {
+        return Err(DecodeError::Backend(BackendError::Eval {
             backend: backend.name(),
             reason: "empty prompt".into(),
-        });
+        }));
     }
     let start = Instant::now();
     let keep = session.reusable(prompt);
@@ -118,20 +161,25 @@ pub fn generate(
     session
         .tokens
         .reserve((prompt.len() - keep + max_tokens).min(n_ctx));
+    let mut pending: Vec<TokenId> = Vec::with_capacity(64);
     let mut logits = match backend.forward(keep, &prompt[keep..]) {
         Ok(l) => l,
         Err(e) => {
             // What the cache holds past `keep` is unknown now; start clean next time.
             session.clear();
-            return Err(e);
+            return Err(e.into());
         }
     };
     session.tokens.extend_from_slice(&prompt[keep..]);
     stats.prompt_time = start.elapsed();
     let gen_start = Instant::now();
 
-    let finish = loop {
-        let Some(tok) = sampler.sample(logits) else {
+    let finish = 'gen: loop {
+        let chosen = match constraint.as_deref_mut() {
+            Some(c) => c.choose(logits, sampler)?,
+            None => sampler.sample(logits),
+        };
+        let Some(tok) = chosen else {
             break Finish::NoCandidate;
         };
         if stats.generated_tokens == 0 {
@@ -145,22 +193,45 @@ pub fn generate(
         if flow.is_break() {
             break Finish::Stopped;
         }
+        pending.clear();
+        pending.push(tok);
+        if let Some(c) = constraint.as_deref_mut() {
+            let forced = c.commit(tok)?;
+            for &f in forced {
+                if stats.generated_tokens >= max_tokens {
+                    break;
+                }
+                stats.generated_tokens += 1;
+                stats.forced_tokens += 1;
+                pending.push(f);
+                if on_token(f).is_break() {
+                    break 'gen Finish::Stopped;
+                }
+            }
+            // A finished grammar allows only end-of-generation: no need to ask the model.
+            if c.is_stopped() {
+                break Finish::EndOfGeneration;
+            }
+        }
         if stats.generated_tokens >= max_tokens {
             break Finish::Length;
         }
-        if session.tokens.len() + 1 > n_ctx {
+        if session.tokens.len() + pending.len() > n_ctx {
             break Finish::ContextFull;
         }
-        logits = match backend.forward(session.tokens.len(), &[tok]) {
+        logits = match backend.forward(session.tokens.len(), &pending) {
             Ok(l) => l,
             Err(e) => {
                 session.clear();
-                return Err(e);
+                return Err(e.into());
             }
         };
-        session.tokens.push(tok);
+        session.tokens.extend_from_slice(&pending);
         stats.gen_forwards += 1;
     };
+    if let Some(c) = constraint {
+        stats.masks_computed = c.masks_computed;
+    }
     stats.gen_time = gen_start.elapsed();
     Ok((finish, stats))
 }

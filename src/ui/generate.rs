@@ -70,6 +70,7 @@ pub fn run(args: &GenerateArgs) -> anyhow::Result<()> {
         &prompt,
         args.max_tokens,
         &mut sampler,
+        None,
         |tok| {
             out.clear();
             detok.push(&vocab, tok, &mut out);

@@ -1,0 +1,375 @@
+//! Tool-call envelopes: how one model family writes tool calls, as a grammar (from
+//! `grammars/<family>.lark`, tool schemas filled in per turn), as prompt text (how the
+//! tools are described, how past calls are shown) and as a parser back to `ToolCall`s.
+//! The three always agree: the prompt shows the model exactly what the grammar allows.
+
+use serde_json::{json, Value};
+
+use crate::tool::{ToolCall, ToolSpec};
+
+const SMOLLM2: &str = include_str!("../../grammars/smollm2.lark");
+const QWEN: &str = include_str!("../../grammars/qwen.lark");
+const JSON: &str = include_str!("../../grammars/json.lark");
+
+/// A tool-call format.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Envelope {
+    /// `<tool_call>[{...}, ...]</tool_call>` in plain text (SmolLM2-Instruct family).
+    Smollm2,
+    /// `<tool_call>\n{...}\n</tool_call>` per call, markers are special tokens (Qwen 2.5/3).
+    Qwen,
+    /// `{"tool_calls": [...]}` as the whole turn (families with no format of their own).
+    Json,
+}
+
+/// Whether the turn may, must or must not call a tool.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
+pub enum ToolChoice {
+    /// Prose, or a call once the envelope's opening marker appears.
+    #[default]
+    Auto,
+    /// One or more calls, nothing else.
+    Required,
+    /// Prose only.
+    None,
+}
+
+/// A parsed assistant turn.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Turn {
+    /// Text outside any call (the answer, when there are no calls).
+    pub prose: String,
+    pub calls: Vec<ToolCall>,
+}
+
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum EnvelopeError {
+    #[error("tool call is not valid JSON: {0}")]
+    Json(String),
+    #[error("tool call has no \"name\"/\"arguments\" pair: {0}")]
+    Shape(String),
+    #[error("no tool named '{name}'; available: {available}")]
+    UnknownTool { name: String, available: String },
+    #[error("arguments of {name} do not match its schema: {errors}")]
+    Arguments { name: String, errors: String },
+}
+
+/// JSON as the envelopes write it: `", "` between items and `": "` after keys, which is
+/// also what the grammar enforces and what these models saw in training (Python's
+/// `json.dumps` default).
+pub fn to_json_spaced(v: &Value) -> String {
+    let mut out = String::new();
+    write_spaced(v, &mut out);
+    out
+}
+
+fn write_spaced(v: &Value, out: &mut String) {
+    match v {
+        Value::Array(items) => {
+            out.push('[');
+            for (i, x) in items.iter().enumerate() {
+                if i > 0 {
+                    out.push_str(", ");
+                }
+                write_spaced(x, out);
+            }
+            out.push(']');
+        }
+        Value::Object(map) => {
+            out.push('{');
+            for (i, (k, x)) in map.iter().enumerate() {
+                if i > 0 {
+                    out.push_str(", ");
+                }
+                out.push_str(&Value::String(k.clone()).to_string());
+                out.push_str(": ");
+                write_spaced(x, out);
+            }
+            out.push('}');
+        }
+        scalar => out.push_str(&scalar.to_string()),
+    }
+}
+
+impl Envelope {
+    /// The envelope a model family uses.
+    pub fn for_family(family: &str) -> Envelope {
+        let f = family.to_ascii_lowercase();
+        if f.starts_with("qwen") {
+            Envelope::Qwen
+        } else if f.starts_with("smollm") {
+            Envelope::Smollm2
+        } else {
+            Envelope::Json
+        }
+    }
+
+    fn call_any_of(specs: &[ToolSpec]) -> Value {
+        let branches: Vec<Value> = specs.iter().map(ToolSpec::call_schema).collect();
+        json!({ "anyOf": branches })
+    }
+
+    fn separators() -> Value {
+        json!({"whitespace_flexible": false, "item_separator": ", ", "key_separator": ": "})
+    }
+
+    /// The Lark grammar of one assistant turn over `specs`. With no tools, the only choice
+    /// is prose.
+    pub fn grammar(&self, specs: &[ToolSpec], choice: ToolChoice, parallel: bool) -> String {
+        let choice = if specs.is_empty() {
+            ToolChoice::None
+        } else {
+            choice
+        };
+        let start = match choice {
+            ToolChoice::Auto => "auto",
+            ToolChoice::Required => "required",
+            ToolChoice::None => "none",
+        };
+        let mut array = json!({
+            "type": "array",
+            "items": Envelope::call_any_of(specs),
+            "minItems": 1,
+            "x-guidance": Envelope::separators(),
+        });
+        if !parallel {
+            array["maxItems"] = json!(1);
+        }
+        let mut one = Envelope::call_any_of(specs);
+        one["x-guidance"] = Envelope::separators();
+        let (template, calls) = match self {
+            Envelope::Smollm2 => (SMOLLM2, array),
+            Envelope::Qwen => (QWEN, one),
+            Envelope::Json => {
+                array.as_object_mut().map(|o| o.remove("x-guidance"));
+                let wrapper = json!({
+                    "type": "object",
+                    "properties": {"tool_calls": array},
+                    "required": ["tool_calls"],
+                    "additionalProperties": false,
+                    "x-guidance": Envelope::separators(),
+                });
+                (JSON, wrapper)
+            }
+        };
+        let calls = calls.to_string();
+        template
+            .replace("@START@", start)
+            .replace("@CALLS@", &calls)
+            .replace("@CALL@", &calls)
+            .replace("@MORE@", if parallel { "more_calls" } else { "" })
+    }
+
+    /// System-prompt text that lists the tools and shows the call format.
+    pub fn describe_tools(&self, specs: &[ToolSpec]) -> String {
+        let listing: Vec<String> = specs
+            .iter()
+            .map(|s| {
+                to_json_spaced(&json!({
+                    "name": s.name,
+                    "description": s.description,
+                    "parameters": s.parameters,
+                }))
+            })
+            .collect();
+        let example = ToolCall {
+            name: "tool_name".into(),
+            arguments: json!({"argument": "value"}),
+        };
+        let format = self.render_calls(std::slice::from_ref(&example));
+        format!(
+            "You can call these tools:\n<tools>\n{}\n</tools>\nTo call a tool, reply with only:\n{}\nIf no tool is needed, answer in plain text.",
+            listing.join("\n"),
+            format
+        )
+    }
+
+    /// How calls appear in an assistant message: exactly what the grammar produces.
+    pub fn render_calls(&self, calls: &[ToolCall]) -> String {
+        let objs: Vec<Value> = calls
+            .iter()
+            .map(|c| json!({"name": c.name, "arguments": c.arguments}))
+            .collect();
+        match self {
+            Envelope::Smollm2 => format!(
+                "<tool_call>{}</tool_call>",
+                to_json_spaced(&Value::Array(objs))
+            ),
+            Envelope::Qwen => objs
+                .iter()
+                .map(|o| format!("<tool_call>\n{}\n</tool_call>", to_json_spaced(o)))
+                .collect::<Vec<_>>()
+                .join("\n"),
+            Envelope::Json => to_json_spaced(&json!({"tool_calls": objs})),
+        }
+    }
+
+    /// Split a finished turn into prose and calls, checking every call against `specs`.
+    pub fn parse(&self, text: &str, specs: &[ToolSpec]) -> Result<Turn, EnvelopeError> {
+        let (prose, raw_calls) = match self {
+            Envelope::Smollm2 => match text.find("<tool_call>") {
+                None => (text.to_string(), Vec::new()),
+                Some(at) => {
+                    let body = &text[at + "<tool_call>".len()..];
+                    let body = body.split("</tool_call>").next().unwrap_or(body).trim();
+                    let v: Value = serde_json::from_str(body)
+                        .map_err(|e| EnvelopeError::Json(format!("{e}: {body}")))?;
+                    let calls = match v {
+                        Value::Array(a) => a,
+                        one @ Value::Object(_) => vec![one],
+                        other => return Err(EnvelopeError::Shape(other.to_string())),
+                    };
+                    (text[..at].to_string(), calls)
+                }
+            },
+            Envelope::Qwen => {
+                let mut prose = String::new();
+                let mut calls = Vec::new();
+                let mut rest = text;
+                while let Some(at) = rest.find("<tool_call>") {
+                    prose.push_str(&rest[..at]);
+                    let body = &rest[at + "<tool_call>".len()..];
+                    let end = body.find("</tool_call>").unwrap_or(body.len());
+                    let v: Value = serde_json::from_str(body[..end].trim())
+                        .map_err(|e| EnvelopeError::Json(format!("{e}: {}", &body[..end])))?;
+                    calls.push(v);
+                    rest = body.get(end + "</tool_call>".len()..).unwrap_or("");
+                }
+                prose.push_str(rest);
+                (prose, calls)
+            }
+            Envelope::Json => {
+                let t = text.trim_start();
+                if t.starts_with('{') {
+                    let v: Value = serde_json::from_str(t.trim_end())
+                        .map_err(|e| EnvelopeError::Json(format!("{e}: {t}")))?;
+                    match v.get("tool_calls") {
+                        Some(Value::Array(a)) => (String::new(), a.clone()),
+                        _ => return Err(EnvelopeError::Shape(v.to_string())),
+                    }
+                } else {
+                    (text.to_string(), Vec::new())
+                }
+            }
+        };
+        let mut calls = Vec::with_capacity(raw_calls.len());
+        for c in raw_calls {
+            let (Some(name), Some(arguments)) =
+                (c.get("name").and_then(Value::as_str), c.get("arguments"))
+            else {
+                return Err(EnvelopeError::Shape(c.to_string()));
+            };
+            let spec = specs.iter().find(|s| s.name == name).ok_or_else(|| {
+                EnvelopeError::UnknownTool {
+                    name: name.to_string(),
+                    available: specs
+                        .iter()
+                        .map(|s| s.name.as_str())
+                        .collect::<Vec<_>>()
+                        .join(", "),
+                }
+            })?;
+            spec.validate(arguments)
+                .map_err(|errors| EnvelopeError::Arguments {
+                    name: name.to_string(),
+                    errors,
+                })?;
+            calls.push(ToolCall {
+                name: name.to_string(),
+                arguments: arguments.clone(),
+            });
+        }
+        Ok(Turn {
+            prose: prose.trim().to_string(),
+            calls,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn specs() -> Vec<ToolSpec> {
+        vec![
+            ToolSpec::new(
+                "calc_mean",
+                "Mean of numbers.",
+                json!({"type": "object", "properties": {"values": {"type": "array", "items": {"type": "number"}}}, "required": ["values"]}),
+            )
+            .unwrap(),
+            ToolSpec::new("system_time", "Current time.", json!({"type": "object", "properties": {}})).unwrap(),
+        ]
+    }
+
+    #[test]
+    fn spaced_json_matches_python_dumps() {
+        let v = json!({"name": "a", "arguments": {"x": [1, 2.5], "s": "q\""}});
+        assert_eq!(
+            to_json_spaced(&v),
+            r#"{"name": "a", "arguments": {"x": [1, 2.5], "s": "q\""}}"#
+        );
+    }
+
+    #[test]
+    fn rendered_calls_parse_back_for_every_envelope() {
+        let calls = vec![
+            ToolCall {
+                name: "calc_mean".into(),
+                arguments: json!({"values": [3, 5, 10]}),
+            },
+            ToolCall {
+                name: "system_time".into(),
+                arguments: json!({}),
+            },
+        ];
+        for env in [Envelope::Smollm2, Envelope::Qwen, Envelope::Json] {
+            let text = env.render_calls(&calls);
+            let turn = env.parse(&text, &specs()).unwrap();
+            assert_eq!(turn.calls, calls, "{env:?}: {text}");
+            assert_eq!(turn.prose, "");
+        }
+    }
+
+    #[test]
+    fn prose_turns_have_no_calls() {
+        for env in [Envelope::Smollm2, Envelope::Qwen, Envelope::Json] {
+            let turn = env.parse("The mean is 6.", &specs()).unwrap();
+            assert_eq!(turn.prose, "The mean is 6.");
+            assert!(turn.calls.is_empty());
+        }
+    }
+
+    #[test]
+    fn bad_calls_are_errors_not_silence() {
+        let env = Envelope::Smollm2;
+        assert!(matches!(
+            env.parse("<tool_call>[{\"name\": ", &specs()),
+            Err(EnvelopeError::Json(_))
+        ));
+        assert!(matches!(
+            env.parse(
+                r#"<tool_call>[{"name": "fly", "arguments": {}}]</tool_call>"#,
+                &specs()
+            ),
+            Err(EnvelopeError::UnknownTool { .. })
+        ));
+        assert!(matches!(
+            env.parse(
+                r#"<tool_call>[{"name": "calc_mean", "arguments": {"values": "x"}}]</tool_call>"#,
+                &specs()
+            ),
+            Err(EnvelopeError::Arguments { .. })
+        ));
+    }
+
+    #[test]
+    fn grammar_fills_every_placeholder() {
+        for env in [Envelope::Smollm2, Envelope::Qwen, Envelope::Json] {
+            for choice in [ToolChoice::Auto, ToolChoice::Required, ToolChoice::None] {
+                let g = env.grammar(&specs(), choice, true);
+                assert!(!g.contains('@'), "{env:?} {choice:?}: {g}");
+            }
+        }
+    }
+}

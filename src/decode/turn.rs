@@ -1,0 +1,112 @@
+//! One assistant turn with tools: describe the tools in the system prompt in the
+//! envelope's format, render the conversation with the chat template, generate under the
+//! envelope's grammar (or freely, to compare), and parse the text back into a `Turn`.
+//!
+//! This is the decode-level entry point the agent loop and the CLI both call.
+
+use std::ops::ControlFlow;
+
+use super::envelope::{Envelope, EnvelopeError, ToolChoice, Turn};
+use super::{generate, DecodeError, Decoding, Finish, GenerationStats, Grammars, Sampler, Session};
+use crate::backend::{Backend, ChatMessage, Detokenizer, Role};
+use crate::tool::ToolSpec;
+
+#[derive(Debug, Clone)]
+pub struct TurnRequest<'a> {
+    pub messages: &'a [ChatMessage],
+    pub specs: &'a [ToolSpec],
+    pub envelope: Envelope,
+    pub choice: ToolChoice,
+    /// Several calls in one turn.
+    pub parallel: bool,
+    pub decoding: Decoding,
+    pub max_tokens: usize,
+}
+
+#[derive(Debug)]
+pub struct TurnResult {
+    /// Everything the model wrote (control tokens left out).
+    pub text: String,
+    /// The parsed turn; with constrained decoding an error here is a bug, and is logged
+    /// as one.
+    pub turn: Result<Turn, EnvelopeError>,
+    pub finish: Finish,
+    pub stats: GenerationStats,
+}
+
+/// The messages as the model will see them: the tool description appended to the system
+/// message (one is added if there is none).
+pub fn with_tools(req: &TurnRequest) -> Vec<ChatMessage> {
+    let mut messages = req.messages.to_vec();
+    if req.specs.is_empty() || req.choice == ToolChoice::None {
+        return messages;
+    }
+    let tools = req.envelope.describe_tools(req.specs);
+    match messages.first_mut() {
+        Some(m) if m.role == Role::System => {
+            m.content = format!("{}\n\n{tools}", m.content.trim_end());
+        }
+        _ => messages.insert(0, ChatMessage::new(Role::System, tools)),
+    }
+    messages
+}
+
+/// Run one assistant turn; `on_text` receives the text as it is produced.
+pub fn assistant_turn(
+    backend: &mut dyn Backend,
+    session: &mut Session,
+    grammars: &Grammars,
+    sampler: &mut Sampler,
+    req: &TurnRequest,
+    mut on_text: impl FnMut(&str),
+) -> Result<TurnResult, DecodeError> {
+    let messages = with_tools(req);
+    let rendered = backend.chat_template().render(&messages, None, true)?;
+    let mut prompt: Vec<u32> = backend.vocab().bos().into_iter().collect();
+    let body = backend.tokenize(&rendered, true)?;
+    let skip = usize::from(!prompt.is_empty() && body.first() == prompt.first());
+    prompt.extend_from_slice(&body[skip..]);
+
+    let mut constraint = match req.decoding {
+        Decoding::Constrained => {
+            let lark = req.envelope.grammar(req.specs, req.choice, req.parallel);
+            Some(grammars.compile(&lark)?)
+        }
+        Decoding::Free => None,
+    };
+    let vocab = backend.vocab().clone();
+    let mut detok = Detokenizer::new(false);
+    let mut text = String::new();
+    let mut piece = String::with_capacity(32);
+    let (finish, stats) = generate(
+        backend,
+        session,
+        &prompt,
+        req.max_tokens,
+        sampler,
+        constraint.as_mut(),
+        |tok| {
+            piece.clear();
+            detok.push(&vocab, tok, &mut piece);
+            text.push_str(&piece);
+            on_text(&piece);
+            ControlFlow::Continue(())
+        },
+    )?;
+    piece.clear();
+    detok.finish(&mut piece);
+    text.push_str(&piece);
+    let turn = req.envelope.parse(&text, req.specs);
+    if let (Decoding::Constrained, Err(e), Finish::EndOfGeneration) = (req.decoding, &turn, finish)
+    {
+        // The grammar guarantees a parseable, schema-valid turn when generation ends
+        // normally; anything else is a defect in the grammar or the parser.
+        tracing::error!(error = %e, %text, "constrained output failed to parse: this is a bug");
+    }
+    Ok(TurnResult {
+        text,
+        turn,
+        finish,
+        stats,
+    })
+}

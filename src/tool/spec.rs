@@ -1,0 +1,224 @@
+//! `ToolSpec`: what a tool looks like to the model. The schema is normalised once here
+//! (objects closed with `additionalProperties: false`, `required` kept) so the prompt, the
+//! grammar and the validator all read the same contract.
+
+use serde::{Deserialize, Serialize};
+use serde_json::{json, Value};
+
+#[derive(Debug, thiserror::Error)]
+pub enum SpecError {
+    #[error("tool name '{0}' is invalid: use letters, digits and _ (e.g. ros_topic_list)")]
+    Name(String),
+    #[error("tool {tool}: parameters must be a JSON schema of type object: {reason}")]
+    Schema { tool: String, reason: String },
+    #[error("tool {0} is listed twice")]
+    Duplicate(String),
+}
+
+/// A tool's contract: the name the model writes, what it is for, and its arguments.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ToolSpec {
+    pub name: String,
+    pub description: String,
+    /// JSON schema of the `arguments` object.
+    pub parameters: Value,
+}
+
+impl ToolSpec {
+    /// Check the name and schema, and close every object in the schema.
+    pub fn new(
+        name: impl Into<String>,
+        description: impl Into<String>,
+        parameters: Value,
+    ) -> Result<ToolSpec, SpecError> {
+        let name = name.into();
+        if name.is_empty()
+            || !name
+                .chars()
+                .all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-' || c == '.')
+        {
+            return Err(SpecError::Name(name));
+        }
+        let mut parameters = parameters;
+        if parameters.is_null() {
+            parameters = json!({"type": "object", "properties": {}});
+        }
+        let schema_err = |reason: String| SpecError::Schema {
+            tool: name.clone(),
+            reason,
+        };
+        if parameters.get("type").and_then(Value::as_str) != Some("object") {
+            return Err(schema_err("top-level \"type\" is not \"object\"".into()));
+        }
+        close_objects(&mut parameters);
+        jsonschema::validator_for(&parameters).map_err(|e| schema_err(e.to_string()))?;
+        Ok(ToolSpec {
+            name,
+            description: description.into(),
+            parameters,
+        })
+    }
+
+    /// The schema of one call as the grammar enforces it: `{"name": <this name>,
+    /// "arguments": <parameters>}`, name first (the grammar emits properties in schema
+    /// order), and every unbounded number given finite bounds (see `bound_numbers`).
+    pub fn call_schema(&self) -> Value {
+        let mut arguments = self.parameters.clone();
+        bound_numbers(&mut arguments);
+        json!({
+            "type": "object",
+            "properties": {
+                "name": {"const": self.name},
+                "arguments": arguments,
+            },
+            "required": ["name", "arguments"],
+            "additionalProperties": false,
+        })
+    }
+
+    /// Check `arguments` against the schema; the error lists every violation.
+    pub fn validate(&self, arguments: &Value) -> Result<(), String> {
+        let v = jsonschema::validator_for(&self.parameters).map_err(|e| e.to_string())?;
+        let errors: Vec<String> = v
+            .iter_errors(arguments)
+            .map(|e| {
+                let at = e.instance_path().to_string();
+                if at.is_empty() {
+                    e.to_string()
+                } else {
+                    format!("{at}: {e}")
+                }
+            })
+            .collect();
+        if errors.is_empty() {
+            Ok(())
+        } else {
+            Err(errors.join("; "))
+        }
+    }
+}
+
+/// One call the model made: a tool name and its arguments, already parsed.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ToolCall {
+    pub name: String,
+    pub arguments: Value,
+}
+
+/// Largest integer every JSON reader holds exactly (2^53 − 1).
+const SAFE_INT: i64 = 9_007_199_254_740_991;
+/// Bound for unbounded `number`s: far beyond any robot quantity, far below f64 overflow.
+const SAFE_NUMBER: f64 = 1e15;
+
+/// JSON grammar allows `1e99999` and 400-digit integers, which parse to infinity or lose
+/// precision in every consumer. Give unbounded numbers finite bounds in the grammar only;
+/// the prompt keeps the tool author's schema.
+fn bound_numbers(schema: &mut Value) {
+    match schema {
+        Value::Object(map) => {
+            let bound = match map.get("type").and_then(Value::as_str) {
+                Some("integer") => Some((json!(-SAFE_INT), json!(SAFE_INT))),
+                Some("number") => Some((json!(-SAFE_NUMBER), json!(SAFE_NUMBER))),
+                _ => None,
+            };
+            if let Some((lo, hi)) = bound {
+                if !map.contains_key("minimum") && !map.contains_key("exclusiveMinimum") {
+                    map.insert("minimum".into(), lo);
+                }
+                if !map.contains_key("maximum") && !map.contains_key("exclusiveMaximum") {
+                    map.insert("maximum".into(), hi);
+                }
+            }
+            for (k, v) in map.iter_mut() {
+                if k != "enum" && k != "const" && k != "default" && k != "examples" {
+                    bound_numbers(v);
+                }
+            }
+        }
+        Value::Array(items) => items.iter_mut().for_each(bound_numbers),
+        _ => {}
+    }
+}
+
+/// Set `additionalProperties: false` on every object schema that does not say otherwise,
+/// so neither the grammar nor the validator accepts keys the tool does not define.
+fn close_objects(schema: &mut Value) {
+    match schema {
+        Value::Object(map) => {
+            let is_object = map.get("type").and_then(Value::as_str) == Some("object")
+                || map.contains_key("properties");
+            if is_object && !map.contains_key("additionalProperties") {
+                map.insert("additionalProperties".into(), Value::Bool(false));
+            }
+            for (k, v) in map.iter_mut() {
+                // Enum and const values are data, not schemas.
+                if k != "enum" && k != "const" && k != "default" && k != "examples" {
+                    close_objects(v);
+                }
+            }
+        }
+        Value::Array(items) => items.iter_mut().for_each(close_objects),
+        _ => {}
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn spec() -> ToolSpec {
+        ToolSpec::new(
+            "ros_topic_echo",
+            "Read messages from a topic.",
+            json!({
+                "type": "object",
+                "properties": {
+                    "topic": {"type": "string"},
+                    "count": {"type": "integer", "minimum": 1, "maximum": 100},
+                    "qos": {"type": "object", "properties": {"depth": {"type": "integer"}}}
+                },
+                "required": ["topic"]
+            }),
+        )
+        .unwrap()
+    }
+
+    #[test]
+    fn objects_are_closed_recursively() {
+        let s = spec();
+        assert_eq!(s.parameters["additionalProperties"], json!(false));
+        assert_eq!(
+            s.parameters["properties"]["qos"]["additionalProperties"],
+            json!(false)
+        );
+    }
+
+    #[test]
+    fn validation_reports_each_problem() {
+        let s = spec();
+        assert!(s.validate(&json!({"topic": "/odom", "count": 3})).is_ok());
+        let err = s.validate(&json!({"count": 0, "extra": 1})).unwrap_err();
+        assert!(err.contains("topic"), "{err}");
+        assert!(err.contains("/count"), "{err}");
+        assert!(err.contains("extra"), "{err}");
+    }
+
+    #[test]
+    fn bad_names_and_schemas_are_refused() {
+        assert!(matches!(
+            ToolSpec::new("bad name", "", json!({"type": "object"})),
+            Err(SpecError::Name(_))
+        ));
+        assert!(matches!(
+            ToolSpec::new("x", "", json!({"type": "string"})),
+            Err(SpecError::Schema { .. })
+        ));
+    }
+
+    #[test]
+    fn call_schema_puts_the_name_first() {
+        let c = spec().call_schema();
+        let keys: Vec<&String> = c["properties"].as_object().unwrap().keys().collect();
+        assert_eq!(keys, ["name", "arguments"]);
+    }
+}

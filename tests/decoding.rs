@@ -1,0 +1,324 @@
+//! Constrained decoding: every call valid by construction, on the real SmolLM2
+//! vocabulary (property test with a uniform sampler over allowed tokens) and with the real
+//! model (50 operator requests over 28 robot tools).
+
+use std::ops::ControlFlow;
+
+use ferrosa::backend::uniform::Uniform;
+use ferrosa::backend::{Backend, BackendKind, ChatMessage, Detokenizer, Gguf, Role};
+use ferrosa::decode::envelope::{Envelope, ToolChoice};
+use ferrosa::decode::sample::Rng;
+use ferrosa::decode::turn::{assistant_turn, TurnRequest};
+use ferrosa::decode::{generate, Decoding, Finish, Grammars, Sampler, SamplerConfig, Session};
+use ferrosa::tool::ToolSpec;
+use serde_json::{json, Map, Value};
+
+use crate::util::{load, model_path};
+
+const UNIFORM: SamplerConfig = SamplerConfig {
+    temperature: 1.0,
+    top_k: 0,
+    top_p: 1.0,
+    seed: 0,
+};
+
+/// A random JSON schema for a value, `depth` levels of nesting left.
+fn random_schema(rng: &mut Rng, depth: u32) -> Value {
+    let kinds = if depth == 0 { 6 } else { 8 };
+    match rng.below(kinds) {
+        0 => {
+            let mut s = json!({"type": "string", "maxLength": 1 + rng.below(12)});
+            if rng.below(3) == 0 {
+                s["minLength"] = json!(1);
+            }
+            s
+        }
+        1 => {
+            let mut s = json!({"type": "integer"});
+            if rng.below(2) == 0 {
+                let lo = rng.below(50) as i64 - 25;
+                s["minimum"] = json!(lo);
+                s["maximum"] = json!(lo + rng.below(1000) as i64);
+            }
+            s
+        }
+        2 => {
+            let mut s = json!({"type": "number"});
+            if rng.below(2) == 0 {
+                s["minimum"] = json!(-1.5);
+                s["maximum"] = json!(rng.below(100) as f64 + 0.25);
+            }
+            s
+        }
+        3 => json!({"type": "boolean"}),
+        4 => {
+            let n = 1 + rng.below(4);
+            let vals: Vec<String> = (0..n)
+                .map(|i| format!("opt{i}_{}", rng.below(99)))
+                .collect();
+            json!({"type": "string", "enum": vals})
+        }
+        5 => json!({"enum": [1, "two", null, true]}),
+        6 => json!({
+            "type": "array",
+            "items": random_schema(rng, depth - 1),
+            "maxItems": 1 + rng.below(3),
+        }),
+        _ => random_object(rng, depth - 1),
+    }
+}
+
+fn random_object(rng: &mut Rng, depth: u32) -> Value {
+    let mut props = Map::new();
+    let mut required = Vec::new();
+    for i in 0..rng.below(5) {
+        let name = format!(
+            "{}_{i}",
+            ["speed", "topic", "x", "mode", "count", "name"][rng.below(6)]
+        );
+        props.insert(name.clone(), random_schema(rng, depth));
+        if rng.below(2) == 0 {
+            required.push(name);
+        }
+    }
+    json!({"type": "object", "properties": props, "required": required})
+}
+
+fn random_tools(rng: &mut Rng) -> Vec<ToolSpec> {
+    (0..1 + rng.below(4))
+        .map(|i| {
+            ToolSpec::new(
+                format!("tool_{i}_{}", rng.below(1000)),
+                "random",
+                random_object(rng, 2),
+            )
+            .expect("generated schemas are valid")
+        })
+        .collect()
+}
+
+/// Decode one turn with uniform sampling among allowed tokens; return the text.
+fn uniform_turn(
+    backend: &mut dyn Backend,
+    grammars: &Grammars,
+    lark: &str,
+    seed: u64,
+) -> (String, Finish) {
+    let mut c = grammars
+        .compile(lark)
+        .unwrap_or_else(|e| panic!("{e}\n{lark}"));
+    let mut sampler = Sampler::new(SamplerConfig { seed, ..UNIFORM }, backend.vocab().len());
+    let vocab = backend.vocab().clone();
+    let mut detok = Detokenizer::new(false);
+    let mut text = String::new();
+    let (finish, _) = generate(
+        backend,
+        &mut Session::new(),
+        &[0],
+        2000,
+        &mut sampler,
+        Some(&mut c),
+        |t| {
+            detok.push(&vocab, t, &mut text);
+            ControlFlow::Continue(())
+        },
+    )
+    .unwrap();
+    detok.finish(&mut text);
+    (text, finish)
+}
+
+/// Check every call independently of ferrosa's parser: serde_json and jsonschema only.
+fn check_calls(calls: &[Value], specs: &[ToolSpec], text: &str) {
+    assert!(!calls.is_empty(), "no calls in {text}");
+    for call in calls {
+        let name = call["name"]
+            .as_str()
+            .unwrap_or_else(|| panic!("no name: {text}"));
+        let spec = specs
+            .iter()
+            .find(|s| s.name == name)
+            .unwrap_or_else(|| panic!("unknown {name}: {text}"));
+        let keys: Vec<&String> = call.as_object().unwrap().keys().collect();
+        assert_eq!(keys, ["name", "arguments"], "{text}");
+        let v = jsonschema::validator_for(&spec.parameters).unwrap();
+        let errs: Vec<String> = v
+            .iter_errors(&call["arguments"])
+            .map(|e| e.to_string())
+            .collect();
+        assert!(
+            errs.is_empty(),
+            "{errs:?}\nschema {}\ncall {call}",
+            spec.parameters
+        );
+    }
+}
+
+#[test]
+fn random_schemas_always_decode_to_valid_calls_on_the_smollm2_vocabulary() {
+    let g = Gguf::open(&model_path("smollm2-135m")).unwrap();
+    let mut backend = Uniform::from_gguf(&g).unwrap();
+    let grammars = Grammars::new(backend.vocab(), backend.tokenizer()).unwrap();
+    let mut rng = Rng::new(2026);
+    let cases = 300;
+    for case in 0..cases {
+        let specs = random_tools(&mut rng);
+        let parallel = rng.below(2) == 0;
+        for env in [Envelope::Smollm2, Envelope::Json] {
+            let lark = env.grammar(&specs, ToolChoice::Required, parallel);
+            let (text, finish) = uniform_turn(&mut backend, &grammars, &lark, case);
+            assert_eq!(
+                finish,
+                Finish::EndOfGeneration,
+                "case {case} {env:?}: {text}"
+            );
+            let calls: Vec<Value> = match env {
+                Envelope::Smollm2 => {
+                    let body = text
+                        .strip_prefix("<tool_call>")
+                        .and_then(|t| t.strip_suffix("</tool_call>"))
+                        .unwrap_or_else(|| panic!("envelope: {text}"));
+                    serde_json::from_str(body).unwrap_or_else(|e| panic!("{e}: {text}"))
+                }
+                _ => {
+                    let v: Value =
+                        serde_json::from_str(&text).unwrap_or_else(|e| panic!("{e}: {text}"));
+                    v["tool_calls"].as_array().cloned().unwrap_or_default()
+                }
+            };
+            if !parallel {
+                assert_eq!(calls.len(), 1, "{text}");
+            }
+            check_calls(&calls, &specs, &text);
+            // ferrosa's own parser agrees.
+            let turn = env.parse(&text, &specs).unwrap();
+            assert_eq!(turn.calls.len(), calls.len());
+        }
+    }
+}
+
+#[test]
+fn qwen_envelope_with_special_marker_tokens_decodes_valid_calls() {
+    let mut backend =
+        Uniform::bytes_with_specials(&["<|im_end|>"], &["<tool_call>", "</tool_call>"]);
+    let grammars = Grammars::new(backend.vocab(), backend.tokenizer()).unwrap();
+    let mut rng = Rng::new(7);
+    for case in 0..60 {
+        let specs = random_tools(&mut rng);
+        let lark = Envelope::Qwen.grammar(&specs, ToolChoice::Required, case % 2 == 0);
+        let (text, finish) = uniform_turn(&mut backend, &grammars, &lark, case);
+        assert_eq!(finish, Finish::EndOfGeneration, "{text}");
+        let turn = Envelope::Qwen
+            .parse(&text, &specs)
+            .unwrap_or_else(|e| panic!("{e}: {text}"));
+        let raw: Vec<Value> = turn
+            .calls
+            .iter()
+            .map(|c| json!({"name": c.name, "arguments": c.arguments}))
+            .collect();
+        check_calls(&raw, &specs, &text);
+    }
+}
+
+#[test]
+fn prose_mode_never_emits_the_marker_and_none_mode_never_calls() {
+    let g = Gguf::open(&model_path("smollm2-135m")).unwrap();
+    let backend = Uniform::from_gguf(&g).unwrap();
+    let grammars = Grammars::new(backend.vocab(), backend.tokenizer()).unwrap();
+    let specs = random_tools(&mut Rng::new(3));
+    let lark = Envelope::Smollm2.grammar(&specs, ToolChoice::Auto, true);
+    let mut c = grammars.compile(&lark).unwrap();
+    // Prose may not spell the marker; after the marker only JSON is allowed.
+    let prose = backend.tokenize("The robot is fine. ", false).unwrap();
+    assert!(c.allows(&prose));
+    let marker = backend.tokenize("<tool_call>", false).unwrap();
+    let mut after: Vec<u32> = prose.clone();
+    after.extend(&marker);
+    assert!(c.allows(&after), "the marker opens a call");
+    after.extend(backend.tokenize("hello", false).unwrap());
+    assert!(!c.allows(&after), "text after the marker must be a call");
+    let none = Envelope::Smollm2.grammar(&specs, ToolChoice::None, true);
+    let mut c = grammars.compile(&none).unwrap();
+    assert!(c.allows(&prose));
+}
+
+fn robot_tools() -> Vec<ToolSpec> {
+    let raw: Vec<Value> =
+        serde_json::from_str(include_str!("data/robot_tools.json")).expect("robot_tools.json");
+    raw.into_iter()
+        .map(|t| {
+            ToolSpec::new(
+                t["name"].as_str().unwrap(),
+                t["description"].as_str().unwrap(),
+                t["parameters"].clone(),
+            )
+            .unwrap()
+        })
+        .collect()
+}
+
+/// The real model, 50 requests, required mode: every turn is a schema-valid call. The
+/// same requests decoded freely are parsed the same way and their validity printed (run
+/// with `--nocapture` to see both rates).
+#[test]
+fn real_model_makes_only_valid_calls_when_constrained() {
+    let mut model = load("smollm2-135m", BackendKind::Llama, 8192);
+    let grammars = Grammars::new(model.vocab(), model.tokenizer()).unwrap();
+    let specs = robot_tools();
+    assert!(specs.len() >= 20);
+    let requests: Vec<&str> = include_str!("data/operator_requests.txt").lines().collect();
+    assert_eq!(requests.len(), 50);
+    let system = ChatMessage::new(
+        Role::System,
+        "You are the control assistant of a small mobile robot. Use the tools to act.",
+    );
+    let mut valid = [0usize; 2];
+    let mut forced = 0;
+    let mut emitted = 0;
+    for (i, decoding) in [Decoding::Constrained, Decoding::Free]
+        .into_iter()
+        .enumerate()
+    {
+        let mut session = Session::new();
+        for q in &requests {
+            let messages = [system.clone(), ChatMessage::new(Role::User, *q)];
+            let req = TurnRequest {
+                messages: &messages,
+                specs: &specs,
+                envelope: Envelope::Smollm2,
+                choice: ToolChoice::Required,
+                parallel: true,
+                decoding,
+                max_tokens: 160,
+            };
+            let mut sampler = Sampler::new(SamplerConfig::default(), model.vocab().len());
+            let r = assistant_turn(
+                model.as_mut(),
+                &mut session,
+                &grammars,
+                &mut sampler,
+                &req,
+                |_| {},
+            )
+            .unwrap();
+            let ok = matches!(&r.turn, Ok(t) if !t.calls.is_empty());
+            if decoding == Decoding::Constrained {
+                assert!(
+                    ok,
+                    "{q:?} gave no valid call: {:?} {:?} {}",
+                    r.turn, r.finish, r.text
+                );
+                forced += r.stats.forced_tokens;
+                emitted += r.stats.generated_tokens;
+            }
+            valid[i] += usize::from(ok);
+        }
+    }
+    eprintln!(
+        "valid calls on 50 requests: constrained {}/50, free {}/50; forced tokens {forced} of {emitted} emitted ({:.0}%)",
+        valid[0],
+        valid[1],
+        100.0 * forced as f64 / emitted.max(1) as f64
+    );
+    assert_eq!(valid[0], 50);
+}
