@@ -6,7 +6,8 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 use ferrosa::backend::BackendKind;
-use ferrosa::decode::SamplerConfig;
+use ferrosa::decode::envelope::{Envelope, ToolChoice};
+use ferrosa::decode::{Decoding, SamplerConfig};
 use ferrosa::models::fetch::FetchOptions;
 use ferrosa::ui;
 
@@ -67,6 +68,22 @@ enum Command {
         /// Print load time, prompt and generation tok/s and peak RSS to stderr.
         #[arg(long)]
         stats: bool,
+        /// JSON file of tool specs ([{"name", "description", "parameters"}]): decode one
+        /// chat turn that may call them, and report the parsed calls.
+        #[arg(long)]
+        tools: Option<PathBuf>,
+        /// With --tools: may (auto), must (required) or must not (none) call a tool.
+        #[arg(long, value_enum, default_value_t = ToolChoice::Auto)]
+        tool_choice: ToolChoice,
+        /// With --tools: enforce the tool-call grammar, or let the model write freely.
+        #[arg(long, value_enum, default_value_t = Decoding::Constrained)]
+        decoding: Decoding,
+        /// With --tools: the tool-call format (default: the model family's own).
+        #[arg(long, value_enum)]
+        envelope: Option<Envelope>,
+        /// With --tools: allow only one call per turn.
+        #[arg(long)]
+        single_call: bool,
     },
     /// List, fetch and verify model weights.
     Models {
@@ -125,6 +142,11 @@ fn main() -> ExitCode {
             top_p,
             seed,
             stats,
+            tools,
+            tool_choice,
+            decoding,
+            envelope,
+            single_call,
         } => ui::generate::run(&ui::generate::GenerateArgs {
             models_dir: dir,
             model,
@@ -142,6 +164,11 @@ fn main() -> ExitCode {
                 seed,
             },
             stats,
+            tools,
+            tool_choice,
+            decoding,
+            envelope,
+            parallel: !single_call,
         }),
         Command::Models { command } => match command {
             ModelsCommand::List => ui::models::list(&dir),

@@ -10,7 +10,7 @@
 use std::sync::Arc;
 
 use llguidance::api::TopLevelGrammar;
-use llguidance::toktrie::TokEnv;
+use llguidance::toktrie::{SimpleVob, TokEnv};
 use llguidance::{Matcher, ParserFactory};
 
 use super::sample::Sampler;
@@ -60,6 +60,7 @@ impl Grammars {
             matcher,
             forced: Vec::with_capacity(64),
             masks_computed: 0,
+            fast_forward: true,
         })
     }
 }
@@ -70,6 +71,7 @@ pub struct Constraint {
     forced: Vec<TokenId>,
     /// Steps where the sampled token was refused and the full mask was needed.
     pub masks_computed: usize,
+    fast_forward: bool,
 }
 
 impl Constraint {
@@ -93,10 +95,7 @@ impl Constraint {
                 return Ok(Some(tok));
             }
         }
-        let mask = {
-            let _span = tracing::trace_span!("mask").entered();
-            self.matcher.compute_mask().map_err(|e| self.err(e))?
-        };
+        let mask = self.compute_mask()?;
         self.masks_computed += 1;
         for (i, l) in logits.iter_mut().enumerate() {
             if !mask.is_allowed(i as TokenId) {
@@ -106,12 +105,28 @@ impl Constraint {
         Ok(sampler.sample(logits))
     }
 
+    /// With fast-forward off, forced tokens are sampled one by one like any other (to
+    /// measure what the grammar alone costs).
+    pub fn set_fast_forward(&mut self, on: bool) {
+        self.fast_forward = on;
+    }
+
+    /// Tokens the grammar forces before anything is sampled (e.g. the whole opening of a
+    /// required call), already committed: they can join the prompt's batch.
+    pub fn forced_at_start(&mut self) -> Result<&[TokenId], ConstraintError> {
+        self.take_forced()
+    }
+
     /// Commit a sampled token; returns the tokens the grammar now forces (already
     /// committed), to be appended without sampling.
     pub fn commit(&mut self, tok: TokenId) -> Result<&[TokenId], ConstraintError> {
         self.matcher.consume_token(tok).map_err(|e| self.err(e))?;
+        self.take_forced()
+    }
+
+    fn take_forced(&mut self) -> Result<&[TokenId], ConstraintError> {
         self.forced.clear();
-        if !self.matcher.is_stopped() {
+        if self.fast_forward && !self.matcher.is_stopped() {
             let ff = self.matcher.compute_ff_tokens();
             if !ff.is_empty() {
                 self.matcher.consume_tokens(&ff).map_err(|e| self.err(e))?;
@@ -138,9 +153,15 @@ impl Constraint {
             .is_ok_and(|n| n == tokens.len())
     }
 
-    /// The full allowed-token mask (for tests and benchmarks).
-    pub fn mask(&mut self) -> Result<Vec<bool>, ConstraintError> {
-        let m = self.matcher.compute_mask().map_err(|e| self.err(e))?;
-        Ok((0..m.len() as TokenId).map(|t| m.is_allowed(t)).collect())
+    /// The full allowed-token mask, as llguidance computes it on a refused token.
+    pub fn compute_mask(&mut self) -> Result<SimpleVob, ConstraintError> {
+        let _span = tracing::trace_span!("mask").entered();
+        self.matcher.compute_mask().map_err(|e| self.err(e))
+    }
+
+    /// Commit `tok` without taking the forced tokens that follow (to replay a known
+    /// token sequence, as benchmarks and tests do).
+    pub fn advance(&mut self, tok: TokenId) -> Result<(), ConstraintError> {
+        self.matcher.consume_token(tok).map_err(|e| self.err(e))
     }
 }

@@ -75,8 +75,12 @@ pub struct GenerationStats {
     pub gen_forwards: usize,
     /// Tokens appended because the grammar forced them, without sampling.
     pub forced_tokens: usize,
+    /// Of those, the ones forced before the first sample (evaluated with the prompt).
+    pub forced_at_start: usize,
     /// Steps where the sampled token was refused and the full mask was computed.
     pub masks_computed: usize,
+    /// Time spent in the grammar (checking, masking, committing, forcing).
+    pub constraint_time: Duration,
     pub time_to_first_token: Duration,
 }
 
@@ -91,9 +95,14 @@ impl GenerationStats {
         self.gen_forwards as f64 / self.gen_time.as_secs_f64().max(1e-9)
     }
 
-    /// Tokens emitted per second, forced ones included: the output rate an operator sees.
+    /// Tokens emitted per second after the prompt, forced ones included: the output
+    /// rate an operator sees. (Tokens forced before the first sample ride in the
+    /// prompt's batch and are left out.)
     pub fn output_tok_per_s(&self) -> f64 {
-        self.generated_tokens.saturating_sub(1) as f64 / self.gen_time.as_secs_f64().max(1e-9)
+        let n = self
+            .generated_tokens
+            .saturating_sub(self.forced_at_start + 1);
+        n as f64 / self.gen_time.as_secs_f64().max(1e-9)
     }
 }
 
@@ -162,7 +171,21 @@ pub fn generate(
         .tokens
         .reserve((prompt.len() - keep + max_tokens).min(n_ctx));
     let mut pending: Vec<TokenId> = Vec::with_capacity(64);
-    let mut logits = match backend.forward(keep, &prompt[keep..]) {
+    // What the grammar forces before any sampling joins the prompt's batch.
+    let mut first: Vec<TokenId> = prompt[keep..].to_vec();
+    if let Some(c) = constraint.as_deref_mut() {
+        let t = Instant::now();
+        let forced = c.forced_at_start()?;
+        stats.constraint_time += t.elapsed();
+        for &f in forced.iter().take(max_tokens) {
+            first.push(f);
+            stats.generated_tokens += 1;
+            stats.forced_tokens += 1;
+            stats.forced_at_start += 1;
+            let _ = on_token(f);
+        }
+    }
+    let mut logits = match backend.forward(keep, &first) {
         Ok(l) => l,
         Err(e) => {
             // What the cache holds past `keep` is unknown now; start clean next time.
@@ -170,19 +193,28 @@ pub fn generate(
             return Err(e.into());
         }
     };
-    session.tokens.extend_from_slice(&prompt[keep..]);
+    session.tokens.extend_from_slice(&first);
     stats.prompt_time = start.elapsed();
     let gen_start = Instant::now();
 
     let finish = 'gen: loop {
+        // A grammar finished by forced tokens alone allows only end-of-generation.
+        if constraint.as_deref().is_some_and(Constraint::is_stopped) {
+            break Finish::EndOfGeneration;
+        }
         let chosen = match constraint.as_deref_mut() {
-            Some(c) => c.choose(logits, sampler)?,
+            Some(c) => {
+                let t = Instant::now();
+                let tok = c.choose(logits, sampler)?;
+                stats.constraint_time += t.elapsed();
+                tok
+            }
             None => sampler.sample(logits),
         };
         let Some(tok) = chosen else {
             break Finish::NoCandidate;
         };
-        if stats.generated_tokens == 0 {
+        if stats.time_to_first_token.is_zero() {
             stats.time_to_first_token = start.elapsed();
         }
         stats.generated_tokens += 1;
@@ -196,7 +228,9 @@ pub fn generate(
         pending.clear();
         pending.push(tok);
         if let Some(c) = constraint.as_deref_mut() {
+            let t = Instant::now();
             let forced = c.commit(tok)?;
+            stats.constraint_time += t.elapsed();
             for &f in forced {
                 if stats.generated_tokens >= max_tokens {
                     break;

@@ -7,4 +7,4 @@
 
 pub mod spec;
 
-pub use spec::{SpecError, ToolCall, ToolSpec};
+pub use spec::{specs_from_json, SpecError, ToolCall, ToolSpec};

@@ -98,6 +98,32 @@ impl ToolSpec {
     }
 }
 
+/// Read tool specs from JSON: an array of `{"name", "description", "parameters"}`, or of
+/// OpenAI-style `{"type": "function", "function": {...}}` wrappers.
+pub fn specs_from_json(text: &str) -> Result<Vec<ToolSpec>, SpecError> {
+    let raw: Vec<Value> = serde_json::from_str(text).map_err(|e| SpecError::Schema {
+        tool: "<file>".into(),
+        reason: format!("expected a JSON array of tools: {e}"),
+    })?;
+    let mut specs: Vec<ToolSpec> = Vec::with_capacity(raw.len());
+    for t in raw {
+        let t = t.get("function").cloned().unwrap_or(t);
+        let name = t.get("name").and_then(Value::as_str).unwrap_or_default();
+        let spec = ToolSpec::new(
+            name,
+            t.get("description")
+                .and_then(Value::as_str)
+                .unwrap_or_default(),
+            t.get("parameters").cloned().unwrap_or(Value::Null),
+        )?;
+        if specs.iter().any(|s| s.name == spec.name) {
+            return Err(SpecError::Duplicate(spec.name));
+        }
+        specs.push(spec);
+    }
+    Ok(specs)
+}
+
 /// One call the model made: a tool name and its arguments, already parsed.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ToolCall {
@@ -213,6 +239,32 @@ mod tests {
             ToolSpec::new("x", "", json!({"type": "string"})),
             Err(SpecError::Schema { .. })
         ));
+    }
+
+    #[test]
+    fn specs_load_from_plain_and_openai_style_json() {
+        let specs = specs_from_json(
+            r#"[{"name": "a", "description": "A", "parameters": {"type": "object"}},
+                {"type": "function", "function": {"name": "b", "parameters": {"type": "object", "properties": {}}}}]"#,
+        )
+        .unwrap();
+        assert_eq!(specs.len(), 2);
+        assert_eq!(specs[1].name, "b");
+        let dup = specs_from_json(r#"[{"name": "a"}, {"name": "a"}]"#).unwrap_err();
+        assert!(matches!(dup, SpecError::Duplicate(_)));
+    }
+
+    #[test]
+    fn unbounded_numbers_get_finite_bounds_in_the_grammar_only() {
+        let s = spec();
+        let c = s.call_schema();
+        let count = &c["properties"]["arguments"]["properties"]["count"];
+        assert_eq!(count["minimum"], json!(1), "the author's bound stays");
+        let depth = &c["properties"]["arguments"]["properties"]["qos"]["properties"]["depth"];
+        assert_eq!(depth["maximum"], json!(SAFE_INT));
+        assert!(s.parameters["properties"]["qos"]["properties"]["depth"]
+            .get("maximum")
+            .is_none());
     }
 
     #[test]

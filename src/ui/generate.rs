@@ -1,21 +1,28 @@
-//! `ferrosa generate`: load a model, optionally wrap the prompt in its chat template,
+//! `ferrosa generate`: load a model, optionally wrap the prompt in its chat template (and
+//! with `--tools`, describe the tools and decode one turn under the tool-call grammar),
 //! stream the continuation to stdout, and with `--stats` report load time, prompt and
-//! generation tok/s and peak RSS on stderr.
+//! generation tok/s, forced tokens and peak RSS on stderr.
 
 use std::io::Write;
 use std::ops::ControlFlow;
+use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::Context;
 
-use crate::backend::{self, BackendKind, ChatMessage, Detokenizer, LoadOptions, Role};
-use crate::decode::{self, Finish, Sampler, SamplerConfig, Session};
+use crate::backend::{self, Backend, BackendKind, ChatMessage, Detokenizer, LoadOptions, Role};
+use crate::decode::envelope::{Envelope, ToolChoice};
+use crate::decode::turn::{assistant_turn, TurnRequest};
+use crate::decode::{
+    self, Decoding, Finish, GenerationStats, Grammars, Sampler, SamplerConfig, Session,
+};
 use crate::metrics;
 use crate::models;
+use crate::tool::specs_from_json;
 
 #[derive(Debug, Clone)]
 pub struct GenerateArgs {
-    pub models_dir: std::path::PathBuf,
+    pub models_dir: PathBuf,
     pub model: Option<String>,
     pub prompt: String,
     pub system: Option<String>,
@@ -26,6 +33,13 @@ pub struct GenerateArgs {
     pub max_context: usize,
     pub sampler: SamplerConfig,
     pub stats: bool,
+    /// A JSON file of tool specs: decode one assistant turn that may call them.
+    pub tools: Option<PathBuf>,
+    pub tool_choice: ToolChoice,
+    pub decoding: Decoding,
+    /// Override the family's envelope.
+    pub envelope: Option<Envelope>,
+    pub parallel: bool,
 }
 
 pub fn run(args: &GenerateArgs) -> anyhow::Result<()> {
@@ -40,6 +54,78 @@ pub fn run(args: &GenerateArgs) -> anyhow::Result<()> {
     let mut model = backend::load(args.backend, &opts)?;
     let load_time = t_load.elapsed();
 
+    let stdout = std::io::stdout();
+    let mut lock = stdout.lock();
+    let (finish, stats) = match &args.tools {
+        Some(path) => {
+            let text = std::fs::read_to_string(path)
+                .with_context(|| format!("cannot read tools file {}", path.display()))?;
+            let specs =
+                specs_from_json(&text).with_context(|| format!("tools file {}", path.display()))?;
+            let family = resolved.family().unwrap_or("chatml");
+            let envelope = args
+                .envelope
+                .unwrap_or_else(|| Envelope::for_family(family));
+            let grammars = Grammars::new(model.vocab(), model.tokenizer())?;
+            let mut messages = Vec::new();
+            if let Some(s) = &args.system {
+                messages.push(ChatMessage::new(Role::System, s.clone()));
+            }
+            messages.push(ChatMessage::new(Role::User, args.prompt.clone()));
+            let req = TurnRequest {
+                messages: &messages,
+                specs: &specs,
+                envelope,
+                choice: args.tool_choice,
+                parallel: args.parallel,
+                decoding: args.decoding,
+                max_tokens: args.max_tokens,
+            };
+            let mut sampler = Sampler::new(args.sampler, model.vocab().len());
+            let r = assistant_turn(
+                model.as_mut(),
+                &mut Session::new(),
+                &grammars,
+                &mut sampler,
+                &req,
+                |piece| {
+                    let _ = lock.write_all(piece.as_bytes()).and_then(|_| lock.flush());
+                },
+            )?;
+            let _ = writeln!(lock);
+            match &r.turn {
+                Ok(turn) if turn.calls.is_empty() => eprintln!("no tool call (a plain answer)"),
+                Ok(turn) => eprintln!(
+                    "{} valid tool call(s): {}",
+                    turn.calls.len(),
+                    serde_json::to_string(&turn.calls).unwrap_or_default()
+                ),
+                Err(e) => eprintln!("invalid tool call: {e}"),
+            }
+            (r.finish, r.stats)
+        }
+        None => plain(model.as_mut(), args, &mut lock)?,
+    };
+    drop(lock);
+
+    if args.stats {
+        print_stats(
+            model.as_ref(),
+            &resolved.path,
+            opts.threads,
+            load_time,
+            finish,
+            &stats,
+        );
+    }
+    Ok(())
+}
+
+fn plain(
+    model: &mut dyn Backend,
+    args: &GenerateArgs,
+    out: &mut impl Write,
+) -> anyhow::Result<(Finish, GenerationStats)> {
     let text = if args.chat {
         let mut messages = Vec::new();
         if let Some(s) = &args.system {
@@ -58,26 +144,23 @@ pub fn run(args: &GenerateArgs) -> anyhow::Result<()> {
     prompt.extend_from_slice(&body[skip..]);
 
     let mut sampler = Sampler::new(args.sampler, model.vocab().len());
-    let mut session = Session::new();
     let mut detok = Detokenizer::new(false);
-    let mut out = String::with_capacity(64);
-    let stdout = std::io::stdout();
-    let mut lock = stdout.lock();
+    let mut piece = String::with_capacity(64);
     let vocab = model.vocab().clone();
-    let (finish, stats) = decode::generate(
-        model.as_mut(),
-        &mut session,
+    let result = decode::generate(
+        model,
+        &mut Session::new(),
         &prompt,
         args.max_tokens,
         &mut sampler,
         None,
         |tok| {
-            out.clear();
-            detok.push(&vocab, tok, &mut out);
+            piece.clear();
+            detok.push(&vocab, tok, &mut piece);
             // A closed stdout (`| head`) ends the run instead of panicking.
-            if lock
-                .write_all(out.as_bytes())
-                .and_then(|_| lock.flush())
+            if out
+                .write_all(piece.as_bytes())
+                .and_then(|_| out.flush())
                 .is_err()
             {
                 return ControlFlow::Break(());
@@ -86,47 +169,61 @@ pub fn run(args: &GenerateArgs) -> anyhow::Result<()> {
         },
     )
     .context("generation failed")?;
-    out.clear();
-    detok.finish(&mut out);
-    let _ = writeln!(lock, "{out}");
-    drop(lock);
+    piece.clear();
+    detok.finish(&mut piece);
+    let _ = writeln!(out, "{piece}");
+    Ok(result)
+}
 
-    if args.stats {
-        let finish = match finish {
-            Finish::EndOfGeneration => "end of generation",
-            Finish::Length => "token limit",
-            Finish::ContextFull => "context full",
-            Finish::Stopped => "stopped",
-            Finish::NoCandidate => "no candidate token",
-        };
+fn print_stats(
+    model: &dyn Backend,
+    path: &std::path::Path,
+    threads: usize,
+    load_time: std::time::Duration,
+    finish: Finish,
+    stats: &GenerationStats,
+) {
+    let finish = match finish {
+        Finish::EndOfGeneration => "end of generation",
+        Finish::Length => "token limit",
+        Finish::ContextFull => "context full",
+        Finish::Stopped => "stopped",
+        Finish::NoCandidate => "no candidate token",
+    };
+    eprintln!(
+        "model {} | backend {} | threads {threads} | context {}",
+        path.display(),
+        model.name(),
+        model.context_len()
+    );
+    eprintln!("load: {:.0} ms", load_time.as_secs_f64() * 1e3);
+    eprintln!(
+        "prompt: {} tokens in {:.1} ms = {:.1} tok/s",
+        stats.prompt_tokens - stats.reused_tokens,
+        stats.prompt_time.as_secs_f64() * 1e3,
+        stats.prompt_tok_per_s()
+    );
+    eprintln!(
+        "generation: {} tokens ({} forced by the grammar), {} forwards in {:.1} ms = {:.1} forwards/s, {:.1} tokens/s out (stopped: {finish})",
+        stats.generated_tokens,
+        stats.forced_tokens,
+        stats.gen_forwards,
+        stats.gen_time.as_secs_f64() * 1e3,
+        stats.gen_tok_per_s(),
+        stats.output_tok_per_s(),
+    );
+    if stats.constraint_time > std::time::Duration::ZERO {
         eprintln!(
-            "model {} | backend {} | threads {} | context {}",
-            resolved.path.display(),
-            model.name(),
-            opts.threads,
-            model.context_len()
+            "grammar: {:.1} ms ({} full masks)",
+            stats.constraint_time.as_secs_f64() * 1e3,
+            stats.masks_computed
         );
-        eprintln!("load: {:.0} ms", load_time.as_secs_f64() * 1e3);
-        eprintln!(
-            "prompt: {} tokens in {:.1} ms = {:.1} tok/s",
-            stats.prompt_tokens - stats.reused_tokens,
-            stats.prompt_time.as_secs_f64() * 1e3,
-            stats.prompt_tok_per_s()
-        );
-        eprintln!(
-            "generation: {} tokens, {} forwards in {:.1} ms = {:.1} tok/s (stopped: {finish})",
-            stats.generated_tokens,
-            stats.gen_forwards,
-            stats.gen_time.as_secs_f64() * 1e3,
-            stats.gen_tok_per_s()
-        );
-        eprintln!(
-            "time to first token: {:.1} ms",
-            stats.time_to_first_token.as_secs_f64() * 1e3
-        );
-        if let Some(peak) = metrics::peak_rss_bytes() {
-            eprintln!("peak RSS: {:.1} MiB", metrics::mib(peak));
-        }
     }
-    Ok(())
+    eprintln!(
+        "time to first token: {:.1} ms",
+        stats.time_to_first_token.as_secs_f64() * 1e3
+    );
+    if let Some(peak) = metrics::peak_rss_bytes() {
+        eprintln!("peak RSS: {:.1} MiB", metrics::mib(peak));
+    }
 }
