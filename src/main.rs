@@ -5,6 +5,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
+use ferrosa::agent::AnswerMode;
 use ferrosa::backend::BackendKind;
 use ferrosa::decode::envelope::{Envelope, ToolChoice};
 use ferrosa::decode::{Decoding, SamplerConfig};
@@ -85,11 +86,84 @@ enum Command {
         #[arg(long)]
         single_call: bool,
     },
+    /// Ask the agent once: it reasons, calls tools and answers.
+    Ask {
+        query: String,
+        /// Print {answer, steps:[{name, arguments, output, ms, decision}], timings}.
+        #[arg(long)]
+        json: bool,
+        #[command(flatten)]
+        agent: AgentOpts,
+    },
+    /// Talk to the agent (REPL): /tools, /clear, /trace, /quit; Ctrl-C stops a run.
+    Chat {
+        #[command(flatten)]
+        agent: AgentOpts,
+    },
     /// List, fetch and verify model weights.
     Models {
         #[command(subcommand)]
         command: ModelsCommand,
     },
+}
+
+#[derive(clap::Args)]
+struct AgentOpts {
+    /// Catalog name or path to a .gguf file.
+    #[arg(short, long)]
+    model: Option<String>,
+    #[arg(long, value_enum, default_value_t = BackendKind::Llama)]
+    backend: BackendKind,
+    #[arg(short, long)]
+    threads: Option<usize>,
+    #[arg(long = "ctx", default_value_t = 8192)]
+    max_context: usize,
+    /// Approve every actuating call without asking.
+    #[arg(long)]
+    yes: bool,
+    /// Remove every actuating tool.
+    #[arg(long)]
+    read_only: bool,
+    /// Policy file (TOML): deny-list, limits, time limit, auto-approval.
+    #[arg(long)]
+    policy: Option<PathBuf>,
+    /// Robot prompt file (TOML), default prompts/default.toml.
+    #[arg(long)]
+    prompt: Option<PathBuf>,
+    /// Append a JSONL trace of the session in this directory.
+    #[arg(long)]
+    trace_dir: Option<PathBuf>,
+    /// Directories `log_read` may read.
+    #[arg(long = "log-dir")]
+    log_dirs: Vec<PathBuf>,
+    #[arg(long, default_value_t = 10)]
+    max_steps: usize,
+    #[arg(long, value_enum, default_value_t = Decoding::Constrained)]
+    decoding: Decoding,
+    /// How the model answers: by calling the `answer` tool, or in prose.
+    #[arg(long, value_enum, default_value_t = AnswerMode::Tool)]
+    answer_mode: AnswerMode,
+}
+
+impl AgentOpts {
+    fn into_args(self, models_dir: PathBuf) -> ui::agent::AgentArgs {
+        ui::agent::AgentArgs {
+            models_dir,
+            model: self.model,
+            backend: self.backend,
+            threads: self.threads,
+            max_context: self.max_context,
+            yes: self.yes,
+            read_only: self.read_only,
+            policy: self.policy,
+            prompt: self.prompt,
+            trace_dir: self.trace_dir,
+            log_dirs: self.log_dirs,
+            max_steps: self.max_steps,
+            decoding: self.decoding,
+            answer_mode: self.answer_mode,
+        }
+    }
 }
 
 #[derive(Subcommand)]
@@ -170,6 +244,8 @@ fn main() -> ExitCode {
             envelope,
             parallel: !single_call,
         }),
+        Command::Ask { query, json, agent } => ui::agent::ask(&agent.into_args(dir), &query, json),
+        Command::Chat { agent } => ui::agent::chat(&agent.into_args(dir)),
         Command::Models { command } => match command {
             ModelsCommand::List => ui::models::list(&dir),
             ModelsCommand::Fetch {

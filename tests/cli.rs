@@ -145,3 +145,42 @@ fn fetch_is_idempotent() {
     assert!(out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("already installed"));
 }
+
+#[test]
+fn ask_json_answers_the_mean_with_a_calculation_tool() {
+    let out = ferrosa(
+        &["ask", "--json", "what is the mean of 3, 5 and 10?"],
+        &models_dir(),
+    );
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v: serde_json::Value = serde_json::from_str(&stdout).expect("JSON on stdout");
+    let steps = v["steps"].as_array().unwrap();
+    assert!(
+        steps
+            .iter()
+            .any(|s| s["name"].as_str().unwrap_or("").starts_with("calc_") && s["ok"] == true),
+        "no calculation tool ran: {stdout}"
+    );
+    let answer = v["answer"].as_str().unwrap();
+    assert!(answer.contains('6'), "answer without 6: {answer}");
+    for key in ["total_ms", "prompt_tokens", "reused_tokens"] {
+        assert!(v["timings"].get(key).is_some(), "timings.{key} missing");
+    }
+}
+
+#[test]
+fn a_bad_policy_file_is_one_clear_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("policy.toml");
+    std::fs::write(&p, "deny = [\"(unclosed\"]\n").unwrap();
+    let out = ferrosa(
+        &["ask", "--policy", p.to_str().unwrap(), "hi"],
+        &models_dir(),
+    );
+    assert_one_line_error(&out, &["invalid pattern", "(unclosed"]);
+}

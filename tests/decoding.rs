@@ -285,6 +285,7 @@ fn real_model_makes_only_valid_calls_when_constrained() {
             let req = TurnRequest {
                 messages: &messages,
                 specs: &specs,
+                allowed: None,
                 envelope: Envelope::Smollm2,
                 choice: ToolChoice::Required,
                 parallel: true,
@@ -300,7 +301,7 @@ fn real_model_makes_only_valid_calls_when_constrained() {
                 &grammars,
                 &mut sampler,
                 &req,
-                |_| {},
+                |_| ControlFlow::Continue(()),
             )
             .unwrap();
             let ok = matches!(&r.turn, Ok(t) if !t.calls.is_empty());

@@ -4,6 +4,7 @@
 
 mod util;
 
+mod agent;
 mod alloc;
 
 #[global_allocator]

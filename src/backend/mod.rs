@@ -11,6 +11,7 @@
 //! - `llama`: llama.cpp through `llama-cpp-2` (feature `llama`, default)
 //! - `candle`: a pure-Rust runtime on candle (feature `candle`)
 //! - `bpe`: a byte-level BPE tokenizer built from GGUF metadata, for runtimes without one
+//! - `scripted`: replays a transcript through the real decode path (agent tests)
 //! - `uniform`: a weightless backend with a real vocabulary (equal logits), for property
 //!   tests and decoding benchmarks
 
@@ -23,6 +24,7 @@ pub mod bpe;
 pub mod candle;
 #[cfg(feature = "llama")]
 pub mod llama;
+pub mod scripted;
 pub mod uniform;
 
 use std::path::PathBuf;

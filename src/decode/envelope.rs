@@ -91,6 +91,18 @@ fn write_spaced(v: &Value, out: &mut String) {
     }
 }
 
+/// The first JSON value in `s` (after whitespace), and the bytes it took.
+fn first_json(s: &str) -> Result<(Value, usize), EnvelopeError> {
+    let mut it = serde_json::Deserializer::from_str(s).into_iter::<Value>();
+    match it.next() {
+        Some(Ok(v)) => Ok((v, it.byte_offset())),
+        Some(Err(e)) => Err(EnvelopeError::Json(format!("{e}: {s}"))),
+        None => Err(EnvelopeError::Json(format!(
+            "no JSON after the marker: {s}"
+        ))),
+    }
+}
+
 impl Envelope {
     /// The envelope a model family uses.
     pub fn for_family(family: &str) -> Envelope {
@@ -160,18 +172,18 @@ impl Envelope {
             .replace("@MORE@", if parallel { "more_calls" } else { "" })
     }
 
+    /// How one tool is listed in the system prompt (one line of JSON).
+    pub fn describe_tool(spec: &ToolSpec) -> String {
+        to_json_spaced(&json!({
+            "name": spec.name,
+            "description": spec.description,
+            "parameters": spec.parameters,
+        }))
+    }
+
     /// System-prompt text that lists the tools and shows the call format.
     pub fn describe_tools(&self, specs: &[ToolSpec]) -> String {
-        let listing: Vec<String> = specs
-            .iter()
-            .map(|s| {
-                to_json_spaced(&json!({
-                    "name": s.name,
-                    "description": s.description,
-                    "parameters": s.parameters,
-                }))
-            })
-            .collect();
+        let listing: Vec<String> = specs.iter().map(Envelope::describe_tool).collect();
         let example = ToolCall {
             name: "tool_name".into(),
             arguments: json!({"argument": "value"}),
@@ -211,9 +223,9 @@ impl Envelope {
                 None => (text.to_string(), Vec::new()),
                 Some(at) => {
                     let body = &text[at + "<tool_call>".len()..];
-                    let body = body.split("</tool_call>").next().unwrap_or(body).trim();
-                    let v: Value = serde_json::from_str(body)
-                        .map_err(|e| EnvelopeError::Json(format!("{e}: {body}")))?;
+                    // Parse one JSON value from the front: a string inside it may itself
+                    // contain "</tool_call>", so the marker cannot be searched for first.
+                    let (v, _) = first_json(body)?;
                     let calls = match v {
                         Value::Array(a) => a,
                         one @ Value::Object(_) => vec![one],
@@ -229,11 +241,10 @@ impl Envelope {
                 while let Some(at) = rest.find("<tool_call>") {
                     prose.push_str(&rest[..at]);
                     let body = &rest[at + "<tool_call>".len()..];
-                    let end = body.find("</tool_call>").unwrap_or(body.len());
-                    let v: Value = serde_json::from_str(body[..end].trim())
-                        .map_err(|e| EnvelopeError::Json(format!("{e}: {}", &body[..end])))?;
+                    let (v, used) = first_json(body)?;
                     calls.push(v);
-                    rest = body.get(end + "</tool_call>".len()..).unwrap_or("");
+                    let after = body[used..].trim_start();
+                    rest = after.strip_prefix("</tool_call>").unwrap_or(after);
                 }
                 prose.push_str(rest);
                 (prose, calls)
@@ -329,6 +340,25 @@ mod tests {
             assert_eq!(turn.calls, calls, "{env:?}: {text}");
             assert_eq!(turn.prose, "");
         }
+    }
+
+    #[test]
+    fn a_marker_inside_a_string_does_not_end_the_call() {
+        let specs = vec![ToolSpec::new(
+            "answer",
+            "",
+            json!({"type": "object", "properties": {"text": {"type": "string"}}}),
+        )
+        .unwrap()];
+        let text = r#"<tool_call>[{"name": "answer", "arguments": {"text": "a }}]</tool_call> b"}}]</tool_call>"#;
+        let turn = Envelope::Smollm2.parse(text, &specs).unwrap();
+        assert_eq!(
+            turn.calls[0].arguments["text"],
+            json!("a }}]</tool_call> b")
+        );
+        let q = "<tool_call>\n{\"name\": \"answer\", \"arguments\": {\"text\": \"x</tool_call>\"}}\n</tool_call>";
+        let turn = Envelope::Qwen.parse(q, &specs).unwrap();
+        assert_eq!(turn.calls[0].arguments["text"], json!("x</tool_call>"));
     }
 
     #[test]

@@ -177,13 +177,10 @@ pub fn generate(
         let t = Instant::now();
         let forced = c.forced_at_start()?;
         stats.constraint_time += t.elapsed();
-        for &f in forced.iter().take(max_tokens) {
-            first.push(f);
-            stats.generated_tokens += 1;
-            stats.forced_tokens += 1;
-            stats.forced_at_start += 1;
-            let _ = on_token(f);
-        }
+        first.extend(forced.iter().take(max_tokens));
+        stats.forced_at_start = first.len() - (prompt.len() - keep);
+        stats.forced_tokens += stats.forced_at_start;
+        stats.generated_tokens += stats.forced_at_start;
     }
     let mut logits = match backend.forward(keep, &first) {
         Ok(l) => l,
@@ -195,6 +192,14 @@ pub fn generate(
     };
     session.tokens.extend_from_slice(&first);
     stats.prompt_time = start.elapsed();
+    // Tokens forced at the start were evaluated with the prompt; they reach the caller
+    // now, once the model has actually seen them.
+    for &f in &first[prompt.len() - keep..] {
+        if stats.time_to_first_token.is_zero() {
+            stats.time_to_first_token = start.elapsed();
+        }
+        let _ = on_token(f);
+    }
     let gen_start = Instant::now();
 
     let finish = 'gen: loop {

@@ -14,7 +14,11 @@ use crate::tool::ToolSpec;
 #[derive(Debug, Clone)]
 pub struct TurnRequest<'a> {
     pub messages: &'a [ChatMessage],
+    /// The tools described in the prompt.
     pub specs: &'a [ToolSpec],
+    /// The tools the grammar allows this turn, when fewer than those described (keeping
+    /// the prompt, and so the KV cache, unchanged while narrowing the choice).
+    pub allowed: Option<&'a [ToolSpec]>,
     pub envelope: Envelope,
     pub choice: ToolChoice,
     /// Several calls in one turn.
@@ -51,14 +55,15 @@ pub fn with_tools(req: &TurnRequest) -> Vec<ChatMessage> {
     messages
 }
 
-/// Run one assistant turn; `on_text` receives the text as it is produced.
+/// Run one assistant turn; `on_text` receives the text as it is produced and may break
+/// to stop the turn (cancellation).
 pub fn assistant_turn(
     backend: &mut dyn Backend,
     session: &mut Session,
     grammars: &Grammars,
     sampler: &mut Sampler,
     req: &TurnRequest,
-    mut on_text: impl FnMut(&str),
+    mut on_text: impl FnMut(&str) -> ControlFlow<()>,
 ) -> Result<TurnResult, DecodeError> {
     let messages = with_tools(req);
     let rendered = backend.chat_template().render(&messages, None, true)?;
@@ -69,7 +74,9 @@ pub fn assistant_turn(
 
     let mut constraint = match req.decoding {
         Decoding::Constrained => {
-            let lark = req.envelope.grammar(req.specs, req.choice, req.parallel);
+            let lark =
+                req.envelope
+                    .grammar(req.allowed.unwrap_or(req.specs), req.choice, req.parallel);
             Some(grammars.compile(&lark)?)
         }
         Decoding::Free => None,
@@ -89,8 +96,7 @@ pub fn assistant_turn(
             piece.clear();
             detok.push(&vocab, tok, &mut piece);
             text.push_str(&piece);
-            on_text(&piece);
-            ControlFlow::Continue(())
+            on_text(&piece)
         },
     )?;
     piece.clear();

@@ -1,10 +1,70 @@
-//! Tools as the model sees them: a name, a description written for a small model, and a
-//! JSON schema for the arguments that is the single source for both the prompt and the
-//! grammar.
+//! Tools as the model sees them and as the agent runs them: a `Tool` trait with typed
+//! arguments (one JSON schema, generated from the Rust type, serves the prompt, the
+//! grammar and validation), a declared `Effect`, a registry of named packages, and the
+//! policy every call passes through.
+//!
+//! Tools know nothing of the model; the agent knows tools only through this module.
 //!
 //! Layout:
-//! - `spec`: `ToolSpec`, its schema checks, and argument validation
+//! - `spec`: `ToolSpec` (name, description, schema), `ToolCall`, schema normalisation
+//! - `schema`: JSON schemas from Rust types (schemars), cleaned for grammars
+//! - `registry`: the type-erased `DynTool`, named packages, lookup
+//! - `policy`: deny-list, read-only, confirmation, argument limits, time limits
 
+pub mod policy;
+pub mod registry;
+pub mod schema;
 pub mod spec;
 
+use std::future::Future;
+use std::time::Duration;
+
+pub use policy::{Confirm, Decision, Policy, PolicyError};
+pub use registry::{DynTool, Package, Registry};
 pub use spec::{specs_from_json, SpecError, ToolCall, ToolSpec};
+
+/// What a tool does to the world: the policy confirms every `Actuates` call.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Effect {
+    /// Reads state (downlink): listing, echoing, computing.
+    Observes,
+    /// Changes the robot or its world (uplink): publishing, calling, setting.
+    Actuates,
+}
+
+/// A failed call, as the model will read it: short, and saying what to do next.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ToolError {
+    #[error("invalid arguments: {0}")]
+    InvalidArguments(String),
+    #[error("{0}")]
+    Failed(String),
+    #[error("timed out after {0:?}")]
+    Timeout(Duration),
+    #[error("refused: {0}")]
+    Refused(String),
+}
+
+/// What a running call may consult.
+#[derive(Debug, Clone)]
+pub struct ToolContext {
+    /// The call's time limit (tools that wait, like `system_wait`, respect it).
+    pub timeout: Duration,
+}
+
+/// A tool with typed arguments. Implement this for a robot-specific tool; the registry
+/// erases the type.
+pub trait Tool: Send + Sync + 'static {
+    type Args: serde::de::DeserializeOwned + schemars::JsonSchema + Send;
+    const NAME: &'static str;
+    const EFFECT: Effect;
+    /// The contract the model reads: one or two sentences with ranges, side effects and
+    /// time bounds.
+    fn description(&self) -> String;
+    fn call(
+        &self,
+        args: Self::Args,
+        cx: &ToolContext,
+    ) -> impl Future<Output = Result<serde_json::Value, ToolError>> + Send;
+}

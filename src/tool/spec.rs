@@ -135,13 +135,21 @@ pub struct ToolCall {
 const SAFE_INT: i64 = 9_007_199_254_740_991;
 /// Bound for unbounded `number`s: far beyond any robot quantity, far below f64 overflow.
 const SAFE_NUMBER: f64 = 1e15;
+/// Items an unbounded array may hold in a call: a small model that starts counting
+/// (1, 2, 3, …) would otherwise fill its whole turn.
+const MAX_ITEMS: u64 = 32;
 
 /// JSON grammar allows `1e99999` and 400-digit integers, which parse to infinity or lose
-/// precision in every consumer. Give unbounded numbers finite bounds in the grammar only;
-/// the prompt keeps the tool author's schema.
+/// precision in every consumer, and arrays of any length. Give unbounded numbers and
+/// arrays finite bounds in the grammar only; the prompt keeps the tool author's schema.
 fn bound_numbers(schema: &mut Value) {
     match schema {
         Value::Object(map) => {
+            if map.get("type").and_then(Value::as_str) == Some("array")
+                && !map.contains_key("maxItems")
+            {
+                map.insert("maxItems".into(), json!(MAX_ITEMS));
+            }
             let bound = match map.get("type").and_then(Value::as_str) {
                 Some("integer") => Some((json!(-SAFE_INT), json!(SAFE_INT))),
                 Some("number") => Some((json!(-SAFE_NUMBER), json!(SAFE_NUMBER))),

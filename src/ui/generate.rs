@@ -75,6 +75,7 @@ pub fn run(args: &GenerateArgs) -> anyhow::Result<()> {
             let req = TurnRequest {
                 messages: &messages,
                 specs: &specs,
+                allowed: None,
                 envelope,
                 choice: args.tool_choice,
                 parallel: args.parallel,
@@ -90,6 +91,7 @@ pub fn run(args: &GenerateArgs) -> anyhow::Result<()> {
                 &req,
                 |piece| {
                     let _ = lock.write_all(piece.as_bytes()).and_then(|_| lock.flush());
+                    ControlFlow::Continue(())
                 },
             )?;
             let _ = writeln!(lock);

@@ -2,8 +2,10 @@
 //! and prints; none holds logic another front end would need.
 //!
 //! Layout:
+//! - `agent`: `ferrosa ask` and `ferrosa chat`
 //! - `generate`: `ferrosa generate`, streaming text from a model, with `--stats`
 //! - `models`: `ferrosa models list|fetch|verify`
 
+pub mod agent;
 pub mod generate;
 pub mod models;

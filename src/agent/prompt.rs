@@ -1,0 +1,111 @@
+//! Robot system prompts: ROSA's fields in a TOML file per robot (`prompts/`), rendered
+//! into one short system message. Empty fields are left out; environment variables are
+//! rendered too (ROSA defines the field but never renders it).
+
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use serde::Deserialize;
+
+pub const DEFAULT: &str = include_str!("../../prompts/default.toml");
+
+#[derive(Debug, thiserror::Error)]
+#[error("robot prompt {origin}: {message}")]
+pub struct PromptError {
+    origin: String,
+    message: String,
+}
+
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RobotPrompt {
+    #[serde(default)]
+    pub embodiment_and_persona: String,
+    #[serde(default)]
+    pub about_your_operators: String,
+    #[serde(default)]
+    pub critical_instructions: String,
+    #[serde(default)]
+    pub constraints_and_guardrails: String,
+    #[serde(default)]
+    pub about_your_environment: String,
+    #[serde(default)]
+    pub about_your_capabilities: String,
+    #[serde(default)]
+    pub nuance_and_assumptions: String,
+    #[serde(default)]
+    pub mission_and_objectives: String,
+    #[serde(default)]
+    pub environment_variables: BTreeMap<String, String>,
+}
+
+impl RobotPrompt {
+    pub fn parse(text: &str, origin: &str) -> Result<RobotPrompt, PromptError> {
+        toml::from_str(text).map_err(|e| PromptError {
+            origin: origin.to_string(),
+            message: e.message().to_string(),
+        })
+    }
+
+    pub fn load(path: &Path) -> Result<RobotPrompt, PromptError> {
+        let text = std::fs::read_to_string(path).map_err(|e| PromptError {
+            origin: path.display().to_string(),
+            message: e.to_string(),
+        })?;
+        RobotPrompt::parse(&text, &path.display().to_string())
+    }
+
+    pub fn default_robot() -> RobotPrompt {
+        RobotPrompt::parse(DEFAULT, "built-in").expect("built-in prompt parses")
+    }
+
+    /// The system message text.
+    pub fn render(&self) -> String {
+        let mut parts: Vec<String> = [
+            &self.embodiment_and_persona,
+            &self.about_your_operators,
+            &self.critical_instructions,
+            &self.constraints_and_guardrails,
+            &self.about_your_environment,
+            &self.about_your_capabilities,
+            &self.nuance_and_assumptions,
+            &self.mission_and_objectives,
+        ]
+        .iter()
+        .map(|s| s.trim())
+        .filter(|s| !s.is_empty())
+        .map(str::to_string)
+        .collect();
+        if !self.environment_variables.is_empty() {
+            let vars: Vec<String> = self
+                .environment_variables
+                .iter()
+                .map(|(k, v)| format!("{k}={v}"))
+                .collect();
+            parts.push(format!("Environment: {}", vars.join(", ")));
+        }
+        parts.join("\n")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn default_renders_without_empty_fields_and_with_env() {
+        let mut p = RobotPrompt::default_robot();
+        let text = p.render();
+        assert!(text.starts_with("You are the on-board assistant"));
+        assert!(!text.contains("\n\n"));
+        p.environment_variables
+            .insert("ROS_DOMAIN_ID".into(), "7".into());
+        assert!(p.render().ends_with("Environment: ROS_DOMAIN_ID=7"));
+    }
+
+    #[test]
+    fn unknown_fields_are_errors() {
+        let err = RobotPrompt::parse("persona = \"x\"", "t").unwrap_err();
+        assert!(err.to_string().contains("persona"), "{err}");
+    }
+}

@@ -1,0 +1,186 @@
+//! A backend that replays a transcript: each assistant turn it is asked for, it "writes"
+//! the next scripted reply, by giving the highest logit to the longest vocabulary token
+//! that continues the reply (and end-of-generation when the reply is done). Everything
+//! else runs for real: tokenizer, chat template, grammar, fast-forward, the agent loop.
+//!
+//! It tracks the reply by bytes, not tokens, so whatever tokens the grammar forces, the
+//! reply stays on script; a reply the grammar cannot produce shows up as a divergence.
+
+use std::collections::VecDeque;
+use std::sync::{Arc, Mutex};
+
+use super::bpe::Bpe;
+use super::template::ChatTemplate;
+use super::vocab::{TokenKind, Vocab};
+use super::{Backend, BackendError, ChatMessage, Gguf, Role, TokenId, Tokenize};
+
+pub struct Scripted {
+    vocab: Vocab,
+    tokenizer: Arc<Bpe>,
+    template: ChatTemplate,
+    /// Tokens that open an assistant turn ("<|im_start|>assistant\n" for ChatML).
+    opener: Vec<TokenId>,
+    replies: Arc<Mutex<VecDeque<String>>>,
+    current: Option<String>,
+    history: Vec<TokenId>,
+    logits: Vec<f32>,
+    context: usize,
+    /// Prompts (token counts) of every turn, for tests that check prefix reuse.
+    pub turns_started: usize,
+}
+
+/// A handle to push more replies while the backend is owned by an agent.
+#[derive(Clone)]
+pub struct Script(Arc<Mutex<VecDeque<String>>>);
+
+impl Script {
+    pub fn push(&self, reply: impl Into<String>) {
+        self.0.lock().expect("script lock").push_back(reply.into());
+    }
+
+    pub fn remaining(&self) -> usize {
+        self.0.lock().expect("script lock").len()
+    }
+}
+
+impl Scripted {
+    /// A scripted model with the vocabulary, tokenizer and template of a GGUF file
+    /// (byte-level BPE, e.g. SmolLM2), replying `replies` in order.
+    pub fn from_gguf(g: &Gguf, replies: &[&str]) -> Result<Scripted, BackendError> {
+        let fail = |reason: String| BackendError::Load {
+            backend: "scripted",
+            path: g.path.clone(),
+            reason,
+        };
+        let vocab = Vocab::from_gguf(g).map_err(fail)?;
+        let tokenizer = Arc::new(Bpe::from_gguf(g, &vocab).map_err(fail)?);
+        let template = ChatTemplate::for_model(g, None)?;
+        let user = [ChatMessage::new(Role::User, "x")];
+        let with = template.render(&user, None, true)?;
+        let without = template.render(&user, None, false)?;
+        let opener_text = with.strip_prefix(&without).unwrap_or("").to_string();
+        let opener = tokenizer.tokenize(&opener_text, true);
+        if opener.is_empty() {
+            return Err(fail("the chat template has no assistant opener".into()));
+        }
+        Ok(Scripted {
+            logits: vec![0.0; vocab.len()],
+            vocab,
+            tokenizer,
+            template,
+            opener,
+            replies: Arc::new(Mutex::new(replies.iter().map(|r| r.to_string()).collect())),
+            current: None,
+            history: Vec::new(),
+            context: 8192,
+            turns_started: 0,
+        })
+    }
+
+    pub fn with_context(mut self, tokens: usize) -> Scripted {
+        self.context = tokens;
+        self
+    }
+
+    pub fn script(&self) -> Script {
+        Script(self.replies.clone())
+    }
+
+    fn last_opener_end(&self) -> Option<usize> {
+        let n = self.opener.len();
+        (n..=self.history.len())
+            .rev()
+            .find(|&end| self.history[end - n..end] == self.opener[..])
+    }
+}
+
+impl Backend for Scripted {
+    fn name(&self) -> &'static str {
+        "scripted"
+    }
+
+    fn vocab(&self) -> &Vocab {
+        &self.vocab
+    }
+
+    fn chat_template(&self) -> &ChatTemplate {
+        &self.template
+    }
+
+    fn context_len(&self) -> usize {
+        self.context
+    }
+
+    fn tokenize(&self, text: &str, special: bool) -> Result<Vec<TokenId>, BackendError> {
+        Ok(self.tokenizer.encode(text, special))
+    }
+
+    fn tokenizer(&self) -> Arc<dyn Tokenize> {
+        self.tokenizer.clone()
+    }
+
+    fn forward(&mut self, keep: usize, tokens: &[TokenId]) -> Result<&mut [f32], BackendError> {
+        let keep = keep.min(self.history.len());
+        if keep + tokens.len() > self.context {
+            return Err(BackendError::ContextFull {
+                needed: keep + tokens.len(),
+                limit: self.context,
+            });
+        }
+        if let Some(&bad) = tokens.iter().find(|&&t| t as usize >= self.vocab.len()) {
+            return Err(BackendError::BadToken(bad));
+        }
+        self.history.truncate(keep);
+        self.history.extend_from_slice(tokens);
+        let Some(start) = self.last_opener_end() else {
+            // Not in an assistant turn: nothing to say.
+            self.logits.fill(0.0);
+            return Ok(&mut self.logits);
+        };
+        // A turn starts when its opener arrives in this batch.
+        if start > keep || self.current.is_none() {
+            self.current = Some(
+                self.replies
+                    .lock()
+                    .expect("script lock")
+                    .pop_front()
+                    .unwrap_or_default(),
+            );
+            self.turns_started += 1;
+        }
+        let reply = self.current.clone().unwrap_or_default();
+        let written: Vec<u8> = self.history[start..]
+            .iter()
+            .filter(|&&t| self.vocab.kind(t) != TokenKind::Control)
+            .flat_map(|&t| self.vocab.piece(t).to_vec())
+            .collect();
+        let rest =
+            reply
+                .as_bytes()
+                .strip_prefix(&written[..])
+                .ok_or_else(|| BackendError::Eval {
+                    backend: "scripted",
+                    reason: format!(
+                        "the decoder left the script: wrote {:?}, script is {reply:?}",
+                        String::from_utf8_lossy(&written)
+                    ),
+                })?;
+        // Continuations of the script score by length; everything else far below, but
+        // finite, so a grammar mask still leaves the best scripted option on top.
+        self.logits.fill(-1e6);
+        if rest.is_empty() {
+            for &e in self.vocab.eog() {
+                self.logits[e as usize] = 1e6;
+            }
+        } else {
+            for id in 0..self.vocab.len() as TokenId {
+                let p = self.vocab.piece(id);
+                if self.vocab.kind(id) != TokenKind::Control && !p.is_empty() && rest.starts_with(p)
+                {
+                    self.logits[id as usize] = p.len() as f32;
+                }
+            }
+        }
+        Ok(&mut self.logits)
+    }
+}

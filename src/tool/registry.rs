@@ -1,0 +1,148 @@
+//! The registry: tools erased to `DynTool` (JSON arguments in, JSON out), grouped in
+//! named packages that a robot enables or not.
+
+use std::future::Future;
+use std::pin::Pin;
+use std::sync::Arc;
+
+use serde_json::Value;
+
+use super::{schema, Effect, Tool, ToolContext, ToolError, ToolSpec};
+
+pub type BoxFuture<'a, T> = Pin<Box<dyn Future<Output = T> + Send + 'a>>;
+
+/// A tool with its types erased: what the agent runs.
+pub trait DynTool: Send + Sync {
+    fn spec(&self) -> &ToolSpec;
+    fn effect(&self) -> Effect;
+    /// Run with JSON arguments (already validated against the schema by the policy).
+    fn call<'a>(
+        &'a self,
+        args: Value,
+        cx: &'a ToolContext,
+    ) -> BoxFuture<'a, Result<Value, ToolError>>;
+}
+
+struct Typed<T: Tool> {
+    tool: T,
+    spec: ToolSpec,
+}
+
+impl<T: Tool> DynTool for Typed<T> {
+    fn spec(&self) -> &ToolSpec {
+        &self.spec
+    }
+
+    fn effect(&self) -> Effect {
+        T::EFFECT
+    }
+
+    fn call<'a>(
+        &'a self,
+        args: Value,
+        cx: &'a ToolContext,
+    ) -> BoxFuture<'a, Result<Value, ToolError>> {
+        Box::pin(async move {
+            let args: T::Args = serde_json::from_value(args)
+                .map_err(|e| ToolError::InvalidArguments(e.to_string()))?;
+            self.tool.call(args, cx).await
+        })
+    }
+}
+
+/// Erase a typed tool; its schema comes from `T::Args`.
+pub fn erase<T: Tool>(tool: T) -> Arc<dyn DynTool> {
+    let spec = ToolSpec::new(T::NAME, tool.description(), schema::schema_for::<T::Args>())
+        .unwrap_or_else(|e| panic!("tool {} has an invalid schema: {e}", T::NAME));
+    Arc::new(Typed { tool, spec })
+}
+
+/// A named group of tools ("calc", "system", "ros", "turtle").
+#[derive(Clone)]
+pub struct Package {
+    pub name: String,
+    pub tools: Vec<Arc<dyn DynTool>>,
+}
+
+impl Package {
+    pub fn new(name: impl Into<String>) -> Package {
+        Package {
+            name: name.into(),
+            tools: Vec::new(),
+        }
+    }
+
+    pub fn with<T: Tool>(mut self, tool: T) -> Package {
+        self.tools.push(erase(tool));
+        self
+    }
+
+    pub fn with_dyn(mut self, tool: Arc<dyn DynTool>) -> Package {
+        self.tools.push(tool);
+        self
+    }
+}
+
+#[derive(Default, Clone)]
+pub struct Registry {
+    tools: Vec<(String, Arc<dyn DynTool>)>,
+}
+
+impl Registry {
+    pub fn new() -> Registry {
+        Registry::default()
+    }
+
+    /// Add a package's tools; a later tool with a taken name replaces the earlier one
+    /// (a robot package may override a generic tool).
+    pub fn add(&mut self, package: Package) -> &mut Registry {
+        for t in package.tools {
+            let name = t.spec().name.clone();
+            self.tools.retain(|(_, x)| x.spec().name != name);
+            self.tools.push((package.name.clone(), t));
+        }
+        self
+    }
+
+    pub fn get(&self, name: &str) -> Option<&Arc<dyn DynTool>> {
+        self.tools
+            .iter()
+            .find(|(_, t)| t.spec().name == name)
+            .map(|(_, t)| t)
+    }
+
+    pub fn tools(&self) -> impl Iterator<Item = &Arc<dyn DynTool>> {
+        self.tools.iter().map(|(_, t)| t)
+    }
+
+    pub fn specs(&self) -> Vec<ToolSpec> {
+        self.tools().map(|t| t.spec().clone()).collect()
+    }
+
+    pub fn package_of(&self, name: &str) -> Option<&str> {
+        self.tools
+            .iter()
+            .find(|(_, t)| t.spec().name == name)
+            .map(|(p, _)| p.as_str())
+    }
+
+    /// Drop every tool that actuates (`--read-only`).
+    pub fn without_actuators(&self) -> Registry {
+        Registry {
+            tools: self
+                .tools
+                .iter()
+                .filter(|(_, t)| t.effect() == Effect::Observes)
+                .cloned()
+                .collect(),
+        }
+    }
+
+    pub fn len(&self) -> usize {
+        self.tools.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.tools.is_empty()
+    }
+}

@@ -1,0 +1,109 @@
+//! JSON schemas from Rust argument types (schemars), cleaned into the subset every
+//! consumer here reads the same way: subschemas inlined (no `$ref`), no `$schema`/`title`
+//! noise in the prompt, integer/float `format`s turned into bounds the grammar enforces.
+
+use schemars::generate::SchemaSettings;
+use serde_json::{json, Value};
+
+/// The cleaned schema of `T`'s JSON form.
+pub fn schema_for<T: schemars::JsonSchema>() -> Value {
+    let settings = SchemaSettings::draft2020_12().with(|s| {
+        s.inline_subschemas = true;
+    });
+    let schema = settings.into_generator().into_root_schema_for::<T>();
+    let mut v = schema.to_value();
+    clean(&mut v, true);
+    if v.get("properties").is_none() {
+        v["properties"] = json!({});
+    }
+    v
+}
+
+fn clean(v: &mut Value, root: bool) {
+    match v {
+        Value::Object(map) => {
+            map.remove("$schema");
+            if root {
+                map.remove("title");
+            }
+            if let Some(Value::String(f)) = map.get("format").cloned() {
+                let bounds = match f.as_str() {
+                    "uint8" => Some((0i64, u8::MAX as i64)),
+                    "uint16" => Some((0, u16::MAX as i64)),
+                    "uint32" => Some((0, u32::MAX as i64)),
+                    "int8" => Some((i8::MIN as i64, i8::MAX as i64)),
+                    "int16" => Some((i16::MIN as i64, i16::MAX as i64)),
+                    "int32" => Some((i32::MIN as i64, i32::MAX as i64)),
+                    _ => None,
+                };
+                if let Some((lo, hi)) = bounds {
+                    map.entry("minimum").or_insert(json!(lo));
+                    map.entry("maximum").or_insert(json!(hi));
+                }
+                if f.starts_with("uint") {
+                    map.entry("minimum").or_insert(json!(0));
+                }
+                if f.starts_with("int") || f.starts_with("uint") || f == "double" || f == "float" {
+                    map.remove("format");
+                }
+            }
+            // schemars writes `Option<T>` as `"type": ["T", "null"]`; an optional argument
+            // is better left out than sent as null.
+            if let Some(Value::Array(types)) = map.get("type").cloned() {
+                let non_null: Vec<Value> = types.into_iter().filter(|t| t != "null").collect();
+                if non_null.len() == 1 {
+                    map.insert("type".into(), non_null[0].clone());
+                }
+            }
+            for (k, x) in map.iter_mut() {
+                if k != "enum" && k != "const" && k != "default" && k != "examples" {
+                    clean(x, false);
+                }
+            }
+        }
+        Value::Array(items) => items.iter_mut().for_each(|x| clean(x, false)),
+        _ => {}
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[allow(dead_code)]
+    #[derive(schemars::JsonSchema, serde::Deserialize)]
+    struct Args {
+        /// The topic to read, e.g. /turtle1/pose.
+        topic: String,
+        /// How many messages.
+        #[schemars(range(min = 1, max = 20))]
+        count: Option<u32>,
+        mode: Mode,
+    }
+
+    #[allow(dead_code)]
+    #[derive(schemars::JsonSchema, serde::Deserialize)]
+    #[serde(rename_all = "lowercase")]
+    enum Mode {
+        Fast,
+        Slow,
+    }
+
+    #[test]
+    fn schemas_are_inlined_bounded_and_described() {
+        let s = schema_for::<Args>();
+        assert!(s.get("$schema").is_none() && s.get("title").is_none());
+        assert!(!s.to_string().contains("$ref"), "{s}");
+        let count = &s["properties"]["count"];
+        assert_eq!(count["type"], json!("integer"));
+        assert_eq!(count["minimum"], json!(1));
+        assert_eq!(count["maximum"], json!(20));
+        assert!(count.get("format").is_none());
+        assert_eq!(s["properties"]["mode"]["enum"], json!(["fast", "slow"]));
+        assert_eq!(
+            s["properties"]["topic"]["description"],
+            json!("The topic to read, e.g. /turtle1/pose.")
+        );
+        assert_eq!(s["required"], json!(["topic", "mode"]));
+    }
+}

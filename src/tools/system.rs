@@ -1,0 +1,86 @@
+//! System tools: the robot's clock and a bounded wait.
+
+use std::time::Duration;
+
+use schemars::JsonSchema;
+use serde::Deserialize;
+use serde_json::{json, Value};
+
+use crate::tool::{Effect, Package, Tool, ToolContext, ToolError};
+
+pub fn package() -> Package {
+    Package::new("system").with(SystemTime).with(SystemWait)
+}
+
+pub struct SystemTime;
+
+#[derive(Deserialize, JsonSchema)]
+pub struct NoArgs {}
+
+impl Tool for SystemTime {
+    type Args = NoArgs;
+    const NAME: &'static str = "system_time";
+    const EFFECT: Effect = Effect::Observes;
+
+    fn description(&self) -> String {
+        "The robot's current date and time (UTC) and Unix time in seconds.".into()
+    }
+
+    async fn call(&self, _: NoArgs, _: &ToolContext) -> Result<Value, ToolError> {
+        let now = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_err(|e| ToolError::Failed(e.to_string()))?;
+        let secs = now.as_secs() as i64;
+        let days = secs.div_euclid(86_400);
+        let tod = secs.rem_euclid(86_400);
+        let (y, m, d) = civil(days);
+        Ok(json!({
+            "utc": format!("{y:04}-{m:02}-{d:02}T{:02}:{:02}:{:02}Z", tod / 3600, tod % 3600 / 60, tod % 60),
+            "unix_s": now.as_secs_f64(),
+        }))
+    }
+}
+
+fn civil(z: i64) -> (i64, u32, u32) {
+    let z = z + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z.rem_euclid(146_097);
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let d = (doy - (153 * mp + 2) / 5 + 1) as u32;
+    let m = if mp < 10 { mp + 3 } else { mp - 9 } as u32;
+    (yoe + era * 400 + i64::from(m <= 2), m, d)
+}
+
+pub struct SystemWait;
+
+#[derive(Deserialize, JsonSchema)]
+pub struct WaitArgs {
+    /// Seconds to wait, 0.1 to 60.
+    #[schemars(range(min = 0.1, max = 60.0))]
+    pub seconds: f64,
+}
+
+impl Tool for SystemWait {
+    type Args = WaitArgs;
+    const NAME: &'static str = "system_wait";
+    const EFFECT: Effect = Effect::Observes;
+
+    fn description(&self) -> String {
+        "Wait a number of seconds (0.1 to 60) before the next step, e.g. to let the robot finish moving.".into()
+    }
+
+    async fn call(&self, a: WaitArgs, cx: &ToolContext) -> Result<Value, ToolError> {
+        let want = Duration::from_secs_f64(a.seconds.clamp(0.0, 60.0));
+        if want > cx.timeout {
+            return Err(ToolError::InvalidArguments(format!(
+                "{:.1} s is longer than this call's time limit of {:.1} s; wait less",
+                a.seconds,
+                cx.timeout.as_secs_f64()
+            )));
+        }
+        tokio::time::sleep(want).await;
+        Ok(json!({"waited_s": a.seconds}))
+    }
+}

@@ -1,0 +1,238 @@
+//! `ferrosa ask` (one shot) and `ferrosa chat` (REPL): build an agent from the command
+//! line (model, tools, policy, robot prompt, trace directory), run it, and show the event
+//! stream as it happens. Ctrl-C cancels the current run; in the REPL it does not exit.
+
+use std::io::{BufRead, IsTerminal, Write};
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+
+use anyhow::Context;
+use serde_json::json;
+
+use crate::agent::prompt::RobotPrompt;
+use crate::agent::trace::Trace;
+use crate::agent::{Agent, AgentConfig, AnswerMode, Event};
+use crate::backend::{self, BackendKind, LoadOptions};
+use crate::decode::Decoding;
+use crate::models;
+use crate::tool::policy::{NoOperator, PolicyFile};
+use crate::tool::{Confirm, Policy, Registry, ToolCall};
+
+#[derive(Debug, Clone)]
+pub struct AgentArgs {
+    pub models_dir: PathBuf,
+    pub model: Option<String>,
+    pub backend: BackendKind,
+    pub threads: Option<usize>,
+    pub max_context: usize,
+    pub yes: bool,
+    pub read_only: bool,
+    pub policy: Option<PathBuf>,
+    pub prompt: Option<PathBuf>,
+    pub trace_dir: Option<PathBuf>,
+    pub log_dirs: Vec<PathBuf>,
+    pub max_steps: usize,
+    pub decoding: Decoding,
+    pub answer_mode: AnswerMode,
+}
+
+/// Asks on the terminal: "run turtle_move {...}? [y/N]".
+struct TerminalConfirm;
+
+impl Confirm for TerminalConfirm {
+    fn confirm(&self, call: &ToolCall) -> bool {
+        eprint!(
+            "\nallow {} {}? [y/N] ",
+            call.name,
+            serde_json::to_string(&call.arguments).unwrap_or_default()
+        );
+        let _ = std::io::stderr().flush();
+        let mut line = String::new();
+        std::io::stdin().lock().read_line(&mut line).is_ok()
+            && matches!(line.trim(), "y" | "Y" | "yes")
+    }
+}
+
+pub fn build(args: &AgentArgs) -> anyhow::Result<Agent> {
+    let confirm: Arc<dyn Confirm> = if std::io::stdin().is_terminal() {
+        Arc::new(TerminalConfirm)
+    } else {
+        Arc::new(NoOperator)
+    };
+    let mut policy = match &args.policy {
+        Some(p) => Policy::load(p, confirm)?,
+        None => Policy::from_file(PolicyFile::default(), confirm)?,
+    };
+    policy.auto_approve |= args.yes;
+    policy.read_only |= args.read_only;
+
+    let mut registry = Registry::new();
+    for p in crate::tools::standard() {
+        registry.add(p);
+    }
+    if !args.log_dirs.is_empty() {
+        registry.add(crate::tools::logs(args.log_dirs.clone()));
+    }
+    let prompt = match &args.prompt {
+        Some(p) => RobotPrompt::load(p)?,
+        None => RobotPrompt::default_robot(),
+    };
+    // Configuration errors first: loading the model is the slow part.
+    let resolved = models::resolve(args.model.as_deref(), &args.models_dir)?;
+    let mut opts = LoadOptions::new(resolved.path.clone());
+    opts.family = resolved.family().map(str::to_string);
+    opts.max_context = args.max_context;
+    if let Some(t) = args.threads {
+        opts.threads = t;
+    }
+    let model = backend::load(args.backend, &opts)?;
+    let family = resolved.family().unwrap_or("chatml").to_string();
+    let mut config = AgentConfig::for_family(&family);
+    config.max_steps = args.max_steps;
+    config.decoding = args.decoding;
+    config.answer_mode = args.answer_mode;
+    let mut agent = Agent::new(model, registry, Arc::new(policy), prompt.render(), config)?;
+    if let Some(dir) = &args.trace_dir {
+        let trace = Trace::create(dir)
+            .with_context(|| format!("cannot create a trace in {}", dir.display()))?;
+        agent = agent.with_trace(trace);
+    }
+    Ok(agent)
+}
+
+/// Ctrl-C sets the agent's cancel flag instead of killing the process.
+fn install_ctrl_c(flag: Arc<AtomicBool>) {
+    std::thread::spawn(move || {
+        let Ok(rt) = tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()
+        else {
+            return;
+        };
+        rt.block_on(async {
+            while tokio::signal::ctrl_c().await.is_ok() {
+                flag.store(true, Ordering::SeqCst);
+            }
+        });
+    });
+}
+
+fn show(e: &Event, stream: bool) {
+    let mut err = std::io::stderr();
+    match e {
+        Event::Token { text } if stream => {
+            let _ = write!(err, "{text}");
+            let _ = err.flush();
+        }
+        Event::ToolCall {
+            name,
+            arguments,
+            decision,
+            ..
+        } => {
+            let _ = writeln!(
+                err,
+                "\n→ {name} {arguments} [{}]",
+                serde_json::to_value(decision)
+                    .map(|d| d["decision"].clone())
+                    .unwrap_or_default()
+            );
+        }
+        Event::ToolResult {
+            name,
+            output,
+            ms,
+            ok,
+            ..
+        } => {
+            let text = output.to_string();
+            let short: String = text.chars().take(300).collect();
+            let mark = if *ok { "←" } else { "✗" };
+            let _ = writeln!(err, "{mark} {name} ({ms:.0} ms): {short}");
+        }
+        Event::Error { message } => {
+            let _ = writeln!(err, "\n! {message}");
+        }
+        _ => {}
+    }
+}
+
+pub fn ask(args: &AgentArgs, query: &str, as_json: bool) -> anyhow::Result<()> {
+    let mut agent = build(args)?;
+    install_ctrl_c(agent.cancel_flag());
+    let result = agent.ask(query, &mut |e| {
+        if !as_json {
+            show(e, false);
+        }
+    })?;
+    if as_json {
+        let steps: Vec<_> = result
+            .steps
+            .iter()
+            .map(|s| {
+                json!({"name": s.name, "arguments": s.arguments, "output": s.output, "ms": s.ms,
+                       "decision": s.decision, "ok": s.ok, "step": s.step})
+            })
+            .collect();
+        let out = json!({
+            "answer": result.answer,
+            "finish": result.finish,
+            "steps": steps,
+            "timings": result.timings,
+            "tools_offered": result.tools_offered,
+        });
+        println!("{}", serde_json::to_string_pretty(&out)?);
+    } else {
+        println!("{}", result.answer);
+    }
+    Ok(())
+}
+
+pub fn chat(args: &AgentArgs) -> anyhow::Result<()> {
+    let mut agent = build(args)?;
+    let cancel = agent.cancel_flag();
+    install_ctrl_c(cancel.clone());
+    eprintln!(
+        "ferrosa chat: {} tools. /tools lists them, /clear forgets the conversation, /trace shows the trace file, /quit leaves. Ctrl-C stops a run.",
+        agent.registry().len()
+    );
+    let stdin = std::io::stdin();
+    loop {
+        eprint!("\n> ");
+        let _ = std::io::stderr().flush();
+        let mut line = String::new();
+        if stdin.lock().read_line(&mut line)? == 0 {
+            break;
+        }
+        cancel.store(false, Ordering::SeqCst);
+        let q = line.trim();
+        match q {
+            "" => continue,
+            "/quit" | "/exit" => break,
+            "/tools" => {
+                for t in agent.registry().tools() {
+                    let s = t.spec();
+                    eprintln!("{:<16} {:?}  {}", s.name, t.effect(), s.description);
+                }
+                continue;
+            }
+            "/clear" => {
+                agent.clear();
+                eprintln!("conversation cleared");
+                continue;
+            }
+            "/trace" => {
+                match agent.trace_path() {
+                    Some(p) => eprintln!("{}", p.display()),
+                    None => eprintln!("no trace (start with --trace-dir DIR)"),
+                }
+                continue;
+            }
+            _ => {}
+        }
+        let result = agent.ask(q, &mut |e| show(e, false))?;
+        println!("{}", result.answer);
+    }
+    Ok(())
+}

@@ -1,0 +1,547 @@
+//! The agent loop end to end with the scripted backend: real tokenizer, template,
+//! grammar and fast-forward; the model's replies come from a script.
+
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+use ferrosa::agent::{Agent, AgentConfig, Event, Finish};
+use ferrosa::backend::scripted::Scripted;
+use ferrosa::backend::Gguf;
+use ferrosa::tool::policy::{NoOperator, PolicyFile};
+use ferrosa::tool::{
+    Confirm, Decision, Effect, Package, Policy, Registry, Tool, ToolCall, ToolContext, ToolError,
+};
+use schemars::JsonSchema;
+use serde::Deserialize;
+use serde_json::{json, Value};
+
+use crate::util::model_path;
+
+fn call(name: &str, args: Value) -> String {
+    format!(
+        "<tool_call>[{}]</tool_call>",
+        ferrosa::decode::envelope::to_json_spaced(&json!({"name": name, "arguments": args}))
+    )
+}
+
+fn calls(list: &[(&str, Value)]) -> String {
+    let items: Vec<Value> = list
+        .iter()
+        .map(|(n, a)| json!({"name": n, "arguments": a}))
+        .collect();
+    format!(
+        "<tool_call>{}</tool_call>",
+        ferrosa::decode::envelope::to_json_spaced(&Value::Array(items))
+    )
+}
+
+fn answer(text: &str) -> String {
+    call("answer", json!({"text": text}))
+}
+
+fn agent(script: &[String], packages: Vec<Package>, policy: Policy, context: usize) -> Agent {
+    let g = Gguf::open(&model_path("smollm2-135m")).unwrap();
+    let replies: Vec<&str> = script.iter().map(String::as_str).collect();
+    let backend = Scripted::from_gguf(&g, &replies)
+        .unwrap()
+        .with_context(context);
+    let mut registry = Registry::new();
+    for p in ferrosa::tools::standard().into_iter().chain(packages) {
+        registry.add(p);
+    }
+    let mut config = AgentConfig::for_family("smollm2");
+    config.max_steps = 6;
+    Agent::new(
+        Box::new(backend),
+        registry,
+        Arc::new(policy),
+        "You are a test robot.".into(),
+        config,
+    )
+    .unwrap()
+}
+
+fn ask(a: &mut Agent, q: &str) -> (ferrosa::agent::RunResult, Vec<Event>) {
+    let mut events = Vec::new();
+    let r = a.ask(q, &mut |e| events.push(e.clone())).unwrap();
+    (r, events)
+}
+
+#[test]
+fn multi_step_run_observes_and_answers() {
+    let script = [
+        call("calc_eval", json!({"expression": "3 + 5 + 10"})),
+        call("calc_stats", json!({"values": [3, 5, 10], "stat": "mean"})),
+        answer("The mean is 6."),
+    ];
+    let mut a = agent(&script, vec![], Policy::default(), 8192);
+    let (r, events) = ask(&mut a, "sum and mean of 3, 5, 10");
+    assert_eq!(r.finish, Finish::Answer);
+    assert_eq!(r.answer, "The mean is 6.");
+    assert_eq!(r.steps.len(), 2);
+    assert_eq!(r.steps[0].output["result"], json!(18.0));
+    assert_eq!(r.steps[1].output["result"], json!(6.0));
+    assert!(events
+        .iter()
+        .any(|e| matches!(e, Event::ToolResult { name, ok: true, .. } if name == "calc_stats")));
+    // Later steps reuse the cached prefix: only the scratchpad is evaluated again.
+    assert!(
+        r.timings.reused_tokens[1] > r.timings.prompt_tokens[0],
+        "{:?}",
+        r.timings
+    );
+}
+
+/// Two tools that each wait until both have started: run one after the other, the first
+/// would wait in vain and time out.
+struct Rendezvous {
+    name: &'static str,
+    started: Arc<AtomicUsize>,
+}
+
+#[derive(Deserialize, JsonSchema)]
+struct NoArgs {}
+
+struct RendezvousA(Rendezvous);
+struct RendezvousB(Rendezvous);
+
+async fn meet(r: &Rendezvous) -> Result<Value, ToolError> {
+    r.started.fetch_add(1, Ordering::SeqCst);
+    for _ in 0..200 {
+        if r.started.load(Ordering::SeqCst) >= 2 {
+            return Ok(json!({"tool": r.name, "saw_both_started": true}));
+        }
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    }
+    Err(ToolError::Failed(format!(
+        "{} never saw the other call start",
+        r.name
+    )))
+}
+
+impl Tool for RendezvousA {
+    type Args = NoArgs;
+    const NAME: &'static str = "meet_a";
+    const EFFECT: Effect = Effect::Observes;
+    fn description(&self) -> String {
+        "Test tool A.".into()
+    }
+    async fn call(&self, _: NoArgs, _: &ToolContext) -> Result<Value, ToolError> {
+        meet(&self.0).await
+    }
+}
+
+impl Tool for RendezvousB {
+    type Args = NoArgs;
+    const NAME: &'static str = "meet_b";
+    const EFFECT: Effect = Effect::Observes;
+    fn description(&self) -> String {
+        "Test tool B.".into()
+    }
+    async fn call(&self, _: NoArgs, _: &ToolContext) -> Result<Value, ToolError> {
+        meet(&self.0).await
+    }
+}
+
+#[test]
+fn parallel_calls_run_concurrently_and_return_in_call_order() {
+    let started = Arc::new(AtomicUsize::new(0));
+    let pkg = Package::new("test")
+        .with(RendezvousA(Rendezvous {
+            name: "a",
+            started: started.clone(),
+        }))
+        .with(RendezvousB(Rendezvous {
+            name: "b",
+            started: started.clone(),
+        }));
+    let script = [
+        calls(&[("meet_b", json!({})), ("meet_a", json!({}))]),
+        answer("Both met."),
+    ];
+    let mut a = agent(&script, vec![pkg], Policy::default(), 8192);
+    let (r, _) = ask(&mut a, "meet");
+    assert_eq!(r.steps.len(), 2);
+    assert_eq!(r.steps[0].name, "meet_b", "results come back in call order");
+    assert_eq!(r.steps[1].name, "meet_a");
+    for s in &r.steps {
+        assert!(s.ok, "{}: {}", s.name, s.output);
+        assert_eq!(s.output["saw_both_started"], json!(true));
+    }
+}
+
+#[test]
+fn a_tool_error_is_an_observation_the_model_recovers_from() {
+    let script = [
+        call("calc_eval", json!({"expression": "2 +"})),
+        call("calc_eval", json!({"expression": "2 + 2"})),
+        answer("It is 4."),
+    ];
+    let mut a = agent(&script, vec![], Policy::default(), 8192);
+    let (r, _) = ask(&mut a, "2 plus 2?");
+    assert!(!r.steps[0].ok);
+    assert!(r.steps[0].output["error"]
+        .as_str()
+        .unwrap()
+        .contains("invalid arguments"));
+    assert!(r.steps[1].ok);
+    assert_eq!(r.answer, "It is 4.");
+}
+
+struct Sleepy;
+
+#[derive(Deserialize, JsonSchema)]
+struct SleepArgs {
+    seconds: f64,
+}
+
+impl Tool for Sleepy {
+    type Args = SleepArgs;
+    const NAME: &'static str = "slow_sensor";
+    const EFFECT: Effect = Effect::Observes;
+    fn description(&self) -> String {
+        "Takes a while.".into()
+    }
+    async fn call(&self, a: SleepArgs, _: &ToolContext) -> Result<Value, ToolError> {
+        tokio::time::sleep(Duration::from_secs_f64(a.seconds)).await;
+        Ok(json!({"done": true}))
+    }
+}
+
+#[test]
+fn a_timeout_is_an_observation_not_a_hang() {
+    let file = PolicyFile {
+        timeout_s: Some(0.2),
+        ..Default::default()
+    };
+    let policy = Policy::from_file(file, Arc::new(NoOperator)).unwrap();
+    let script = [
+        call("slow_sensor", json!({"seconds": 30})),
+        answer("The sensor did not answer."),
+    ];
+    let mut a = agent(&script, vec![Package::new("t").with(Sleepy)], policy, 8192);
+    let started = std::time::Instant::now();
+    let (r, _) = ask(&mut a, "read the slow sensor");
+    assert!(
+        started.elapsed() < Duration::from_secs(20),
+        "the timeout did not cut the call"
+    );
+    assert!(!r.steps[0].ok);
+    assert!(r.steps[0].output["error"]
+        .as_str()
+        .unwrap()
+        .contains("timed out"));
+    assert_eq!(r.finish, Finish::Answer);
+}
+
+#[test]
+fn the_step_limit_ends_the_run_with_what_is_known() {
+    let script: Vec<String> = (0..10)
+        .map(|i| call("calc_eval", json!({"expression": format!("{i} + 1")})))
+        .collect();
+    let mut a = agent(&script, vec![], Policy::default(), 8192);
+    a.config.max_steps = 3;
+    let (r, _) = ask(&mut a, "count");
+    assert_eq!(r.finish, Finish::MaxSteps);
+    assert_eq!(r.steps.len(), 3);
+    assert!(
+        r.answer.contains("3 steps") && r.answer.contains("\"result\": 3.0"),
+        "{}",
+        r.answer
+    );
+}
+
+#[test]
+fn a_repeated_call_leads_to_the_answer_instead_of_a_loop() {
+    let script = [
+        call("calc_eval", json!({"expression": "6 * 7"})),
+        call("calc_eval", json!({"expression": "6 * 7"})),
+        answer("It is 42."),
+    ];
+    let mut a = agent(&script, vec![], Policy::default(), 8192);
+    let (r, _) = ask(&mut a, "6 times 7");
+    assert_eq!(r.steps.len(), 1, "the repeat was not run again");
+    assert_eq!(r.answer, "It is 42.");
+}
+
+#[test]
+fn history_is_trimmed_oldest_first_to_fit_the_context() {
+    let dir = tempfile::tempdir().unwrap();
+    let long = "word ".repeat(30);
+    let mut script = Vec::new();
+    for i in 0..8 {
+        script.push(answer(&format!("Answer {i}: {}", long.trim())));
+    }
+    // 1300 tokens: the system prompt and tools take most of it, so old pairs must go.
+    let mut a = agent(&script, vec![], Policy::default(), 1300)
+        .with_trace(ferrosa::agent::trace::Trace::create(dir.path()).unwrap());
+    for i in 0..8 {
+        let (r, _) = ask(&mut a, &format!("question {i}"));
+        assert_eq!(r.finish, Finish::Answer, "{}", r.answer);
+        assert!(r.timings.prompt_tokens[0] < 1300);
+    }
+    let trace = std::fs::read_to_string(a.trace_path().unwrap()).unwrap();
+    assert!(trace.contains("history_trimmed"), "no trimming recorded");
+    assert!(trace.contains("\"kind\":\"query\""));
+}
+
+/// Stand-ins with the ROS tools' argument shapes, to show the deny-list holds on every
+/// kind of call; `runs` counts calls that actually executed.
+#[derive(Clone)]
+struct Named {
+    name: &'static str,
+    effect: Effect,
+    runs: Arc<AtomicUsize>,
+}
+
+#[derive(Deserialize, JsonSchema)]
+struct NameArgs {
+    name: String,
+    value: Option<f64>,
+}
+
+macro_rules! named_tool {
+    ($ty:ident, $tool:literal, $effect:expr) => {
+        struct $ty(Named);
+        impl Tool for $ty {
+            type Args = NameArgs;
+            const NAME: &'static str = $tool;
+            const EFFECT: Effect = $effect;
+            fn description(&self) -> String {
+                format!("{} on a ROS name.", $tool)
+            }
+            async fn call(&self, a: NameArgs, _: &ToolContext) -> Result<Value, ToolError> {
+                self.0.runs.fetch_add(1, Ordering::SeqCst);
+                let _ = (self.0.name, self.0.effect);
+                Ok(json!({"name": a.name, "value": a.value}))
+            }
+        }
+    };
+}
+
+named_tool!(Echo, "ros_topic_echo", Effect::Observes);
+named_tool!(Info, "ros_topic_info", Effect::Observes);
+named_tool!(Publish, "ros_topic_publish", Effect::Actuates);
+named_tool!(CallSrv, "ros_service_call", Effect::Actuates);
+named_tool!(ParamGet, "ros_param_get", Effect::Observes);
+named_tool!(ParamSet, "ros_param_set", Effect::Actuates);
+
+struct ListTopics;
+
+impl Tool for ListTopics {
+    type Args = NoArgs;
+    const NAME: &'static str = "ros_topic_list";
+    const EFFECT: Effect = Effect::Observes;
+    fn description(&self) -> String {
+        "List topics.".into()
+    }
+    async fn call(&self, _: NoArgs, _: &ToolContext) -> Result<Value, ToolError> {
+        Ok(
+            json!({"topics": [{"name": "/turtle1/pose"}, {"name": "/secret/keys"}], "names": ["/turtle1/pose", "/secret/keys"]}),
+        )
+    }
+}
+
+fn ros_like(runs: &Arc<AtomicUsize>) -> Package {
+    let n = |name| Named {
+        name,
+        effect: Effect::Observes,
+        runs: runs.clone(),
+    };
+    Package::new("ros")
+        .with(Echo(n("echo")))
+        .with(Info(n("info")))
+        .with(Publish(n("publish")))
+        .with(CallSrv(n("call")))
+        .with(ParamGet(n("get")))
+        .with(ParamSet(n("set")))
+        .with(ListTopics)
+}
+
+#[test]
+fn deny_listed_names_are_refused_on_every_kind_of_call_and_hidden_from_listings() {
+    let runs = Arc::new(AtomicUsize::new(0));
+    let file = PolicyFile {
+        deny: vec!["^/secret".into()],
+        auto_approve: true,
+        ..Default::default()
+    };
+    let policy = Policy::from_file(file, Arc::new(NoOperator)).unwrap();
+    let tools = [
+        "ros_topic_echo",
+        "ros_topic_info",
+        "ros_topic_publish",
+        "ros_service_call",
+        "ros_param_get",
+        "ros_param_set",
+    ];
+    let list: Vec<(&str, Value)> = tools
+        .iter()
+        .map(|t| (*t, json!({"name": "/secret/keys"})))
+        .collect();
+    let script = [
+        calls(&list),
+        call("ros_topic_list", json!({})),
+        answer("Denied."),
+    ];
+    let mut a = agent(&script, vec![ros_like(&runs)], policy, 8192);
+    let (r, events) = ask(&mut a, "read /secret/keys every way you can");
+    assert_eq!(runs.load(Ordering::SeqCst), 0, "a denied call ran");
+    for s in &r.steps[..6] {
+        assert!(
+            matches!(&s.decision, Decision::Refused(why) if why.contains("off limits")),
+            "{}: {:?}",
+            s.name,
+            s.decision
+        );
+        assert!(!s.ok);
+    }
+    let listing = &r.steps[6].output;
+    assert_eq!(listing["topics"], json!([{"name": "/turtle1/pose"}]));
+    assert_eq!(listing["names"], json!(["/turtle1/pose"]));
+    assert_eq!(listing["hidden_by_policy"], json!(2));
+    let refused = events
+        .iter()
+        .filter(|e| {
+            matches!(
+                e,
+                Event::ToolCall {
+                    decision: Decision::Refused(_),
+                    ..
+                }
+            )
+        })
+        .count();
+    assert_eq!(refused, 6);
+    // The model may add a pattern; it cannot take the operator's away.
+    let p = Policy::from_file(
+        PolicyFile {
+            deny: vec!["^/secret".into()],
+            ..Default::default()
+        },
+        Arc::new(NoOperator),
+    )
+    .unwrap();
+    p.add_model_pattern("^/camera").unwrap();
+    assert!(p.denied("/camera/raw").is_some() && p.denied("/secret/x").is_some());
+}
+
+struct Recorder {
+    answer: bool,
+    asked: Mutex<Vec<String>>,
+}
+
+impl Confirm for Recorder {
+    fn confirm(&self, call: &ToolCall) -> bool {
+        self.asked.lock().unwrap().push(call.name.clone());
+        self.answer
+    }
+}
+
+#[test]
+fn actuating_calls_need_confirmation() {
+    for approve in [false, true] {
+        let runs = Arc::new(AtomicUsize::new(0));
+        let rec = Arc::new(Recorder {
+            answer: approve,
+            asked: Mutex::new(Vec::new()),
+        });
+        let policy = Policy::from_file(PolicyFile::default(), rec.clone()).unwrap();
+        let script = [
+            calls(&[
+                ("ros_param_get", json!({"name": "/turtlesim/background_r"})),
+                (
+                    "ros_param_set",
+                    json!({"name": "/turtlesim/background_r", "value": 255}),
+                ),
+            ]),
+            answer("Done."),
+        ];
+        let mut a = agent(&script, vec![ros_like(&runs)], policy, 8192);
+        let (r, _) = ask(&mut a, "set background_r to 255");
+        assert_eq!(
+            *rec.asked.lock().unwrap(),
+            vec!["ros_param_set".to_string()],
+            "only the actuating call is asked about"
+        );
+        assert_eq!(r.steps[0].decision, Decision::Allowed);
+        if approve {
+            assert_eq!(r.steps[1].decision, Decision::Confirmed);
+            assert_eq!(runs.load(Ordering::SeqCst), 2);
+        } else {
+            assert!(
+                matches!(&r.steps[1].decision, Decision::Refused(w) if w.contains("did not approve"))
+            );
+            assert_eq!(
+                runs.load(Ordering::SeqCst),
+                1,
+                "the refused call must not run"
+            );
+        }
+    }
+}
+
+#[test]
+fn limits_refuse_before_anything_is_sent_and_read_only_removes_actuators() {
+    let runs = Arc::new(AtomicUsize::new(0));
+    let file: PolicyFile = toml::from_str(
+        r#"
+auto_approve = true
+[[limit]]
+tool = "^ros_param_set$"
+paths = ["/value"]
+max = 1.0
+"#,
+    )
+    .unwrap();
+    let policy = Policy::from_file(file, Arc::new(NoOperator)).unwrap();
+    let script = [
+        call("ros_param_set", json!({"name": "/speed", "value": 3.5})),
+        answer("Refused."),
+    ];
+    let mut a = agent(&script, vec![ros_like(&runs)], policy, 8192);
+    let (r, _) = ask(&mut a, "set speed to 3.5");
+    assert!(
+        matches!(&r.steps[0].decision, Decision::Refused(w) if w.contains("above the limit 1")),
+        "{:?}",
+        r.steps[0].decision
+    );
+    assert_eq!(runs.load(Ordering::SeqCst), 0);
+
+    let ro = PolicyFile {
+        read_only: true,
+        ..Default::default()
+    };
+    let a = agent(
+        &[],
+        vec![ros_like(&runs)],
+        Policy::from_file(ro, Arc::new(NoOperator)).unwrap(),
+        8192,
+    );
+    let names: Vec<String> = a
+        .registry()
+        .tools()
+        .map(|t| t.spec().name.clone())
+        .collect();
+    assert!(names.contains(&"ros_param_get".to_string()));
+    assert!(!names
+        .iter()
+        .any(|n| n == "ros_param_set" || n == "ros_topic_publish" || n == "ros_service_call"));
+}
+
+#[test]
+fn the_agent_never_imports_ros_or_concrete_tools() {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("src/agent");
+    for entry in std::fs::read_dir(dir).unwrap() {
+        let path = entry.unwrap().path();
+        let text = std::fs::read_to_string(&path).unwrap();
+        for forbidden in ["crate::ros", "crate::tools"] {
+            assert!(
+                !text.contains(forbidden),
+                "{} uses {forbidden}",
+                path.display()
+            );
+        }
+    }
+}
