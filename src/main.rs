@@ -148,11 +148,13 @@ struct AgentOpts {
 impl AgentOpts {
     fn into_args(self, models_dir: PathBuf) -> ui::agent::AgentArgs {
         ui::agent::AgentArgs {
-            models_dir,
-            model: self.model,
-            backend: self.backend,
-            threads: self.threads,
-            max_context: self.max_context,
+            model: ui::ModelArgs {
+                models_dir,
+                model: self.model,
+                backend: self.backend,
+                threads: self.threads,
+                max_context: self.max_context,
+            },
             yes: self.yes,
             read_only: self.read_only,
             policy: self.policy,
@@ -222,15 +224,17 @@ fn main() -> ExitCode {
             envelope,
             single_call,
         } => ui::generate::run(&ui::generate::GenerateArgs {
-            models_dir: dir,
-            model,
+            model: ui::ModelArgs {
+                models_dir: dir,
+                model,
+                backend,
+                threads,
+                max_context,
+            },
             prompt,
             system,
             max_tokens,
             chat,
-            backend,
-            threads,
-            max_context,
             sampler: SamplerConfig {
                 temperature: temp,
                 top_k,

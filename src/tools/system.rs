@@ -33,24 +33,12 @@ impl Tool for SystemTime {
         let secs = now.as_secs() as i64;
         let days = secs.div_euclid(86_400);
         let tod = secs.rem_euclid(86_400);
-        let (y, m, d) = civil(days);
+        let (y, m, d) = crate::backend::template::civil_from_days(days);
         Ok(json!({
             "utc": format!("{y:04}-{m:02}-{d:02}T{:02}:{:02}:{:02}Z", tod / 3600, tod % 3600 / 60, tod % 60),
             "unix_s": now.as_secs_f64(),
         }))
     }
-}
-
-fn civil(z: i64) -> (i64, u32, u32) {
-    let z = z + 719_468;
-    let era = z.div_euclid(146_097);
-    let doe = z.rem_euclid(146_097);
-    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
-    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
-    let mp = (5 * doy + 2) / 153;
-    let d = (doy - (153 * mp + 2) / 5 + 1) as u32;
-    let m = if mp < 10 { mp + 3 } else { mp - 9 } as u32;
-    (yoe + era * 400 + i64::from(m <= 2), m, d)
 }
 
 pub struct SystemWait;

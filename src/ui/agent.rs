@@ -13,19 +13,13 @@ use serde_json::json;
 use crate::agent::prompt::RobotPrompt;
 use crate::agent::trace::Trace;
 use crate::agent::{Agent, AgentConfig, AnswerMode, Event};
-use crate::backend::{self, BackendKind, LoadOptions};
 use crate::decode::Decoding;
-use crate::models;
 use crate::tool::policy::{NoOperator, PolicyFile};
 use crate::tool::{Confirm, Policy, Registry, ToolCall};
 
 #[derive(Debug, Clone)]
 pub struct AgentArgs {
-    pub models_dir: PathBuf,
-    pub model: Option<String>,
-    pub backend: BackendKind,
-    pub threads: Option<usize>,
-    pub max_context: usize,
+    pub model: super::ModelArgs,
     pub yes: bool,
     pub read_only: bool,
     pub policy: Option<PathBuf>,
@@ -79,14 +73,7 @@ pub fn build(args: &AgentArgs) -> anyhow::Result<Agent> {
         None => RobotPrompt::default_robot(),
     };
     // Configuration errors first: loading the model is the slow part.
-    let resolved = models::resolve(args.model.as_deref(), &args.models_dir)?;
-    let mut opts = LoadOptions::new(resolved.path.clone());
-    opts.family = resolved.family().map(str::to_string);
-    opts.max_context = args.max_context;
-    if let Some(t) = args.threads {
-        opts.threads = t;
-    }
-    let model = backend::load(args.backend, &opts)?;
+    let (resolved, _, model) = args.model.load()?;
     let family = resolved.family().unwrap_or("chatml").to_string();
     let mut config = AgentConfig::for_family(&family);
     config.max_steps = args.max_steps;

@@ -10,27 +10,22 @@ use std::time::Instant;
 
 use anyhow::Context;
 
-use crate::backend::{self, Backend, BackendKind, ChatMessage, Detokenizer, LoadOptions, Role};
+use crate::backend::{Backend, ChatMessage, Detokenizer, Role};
 use crate::decode::envelope::{Envelope, ToolChoice};
 use crate::decode::turn::{assistant_turn, TurnRequest};
 use crate::decode::{
     self, Decoding, Finish, GenerationStats, Grammars, Sampler, SamplerConfig, Session,
 };
 use crate::metrics;
-use crate::models;
 use crate::tool::specs_from_json;
 
 #[derive(Debug, Clone)]
 pub struct GenerateArgs {
-    pub models_dir: PathBuf,
-    pub model: Option<String>,
+    pub model: super::ModelArgs,
     pub prompt: String,
     pub system: Option<String>,
     pub max_tokens: usize,
     pub chat: bool,
-    pub backend: BackendKind,
-    pub threads: Option<usize>,
-    pub max_context: usize,
     pub sampler: SamplerConfig,
     pub stats: bool,
     /// A JSON file of tool specs: decode one assistant turn that may call them.
@@ -43,15 +38,8 @@ pub struct GenerateArgs {
 }
 
 pub fn run(args: &GenerateArgs) -> anyhow::Result<()> {
-    let resolved = models::resolve(args.model.as_deref(), &args.models_dir)?;
-    let mut opts = LoadOptions::new(resolved.path.clone());
-    opts.family = resolved.family().map(str::to_string);
-    opts.max_context = args.max_context;
-    if let Some(t) = args.threads {
-        opts.threads = t;
-    }
     let t_load = Instant::now();
-    let mut model = backend::load(args.backend, &opts)?;
+    let (resolved, opts, mut model) = args.model.load()?;
     let load_time = t_load.elapsed();
 
     let stdout = std::io::stdout();

@@ -9,3 +9,33 @@
 pub mod agent;
 pub mod generate;
 pub mod models;
+
+use std::path::PathBuf;
+
+use crate::backend::{self, Backend, BackendKind, LoadOptions};
+use crate::models::ResolvedModel;
+
+/// What every command that runs a model takes from the command line.
+#[derive(Debug, Clone)]
+pub struct ModelArgs {
+    pub models_dir: PathBuf,
+    pub model: Option<String>,
+    pub backend: BackendKind,
+    pub threads: Option<usize>,
+    pub max_context: usize,
+}
+
+impl ModelArgs {
+    /// Resolve `-m`, check the file, and load it with the chosen runtime.
+    pub fn load(&self) -> anyhow::Result<(ResolvedModel, LoadOptions, Box<dyn Backend>)> {
+        let resolved = crate::models::resolve(self.model.as_deref(), &self.models_dir)?;
+        let mut opts = LoadOptions::new(resolved.path.clone());
+        opts.family = resolved.family().map(str::to_string);
+        opts.max_context = self.max_context;
+        if let Some(t) = self.threads {
+            opts.threads = t;
+        }
+        let model = backend::load(self.backend, &opts)?;
+        Ok((resolved, opts, model))
+    }
+}
