@@ -466,6 +466,8 @@ impl Agent {
                         ChatMessage::new(Role::Tool, to_json_spaced(&json!({"error": msg})));
                     m.name = Some("system".into());
                     scratch.push(m);
+                    // A model that ran out of room once will again: let it only answer.
+                    answer_only = true;
                     continue;
                 }
                 Err(e) => {

@@ -11,6 +11,10 @@ const SMOLLM2: &str = include_str!("../../grammars/smollm2.lark");
 const QWEN: &str = include_str!("../../grammars/qwen.lark");
 const JSON: &str = include_str!("../../grammars/json.lark");
 
+/// Calls one turn may make at most: a small model that starts repeating a call would
+/// otherwise fill its whole turn with copies.
+pub const MAX_PARALLEL: usize = 4;
+
 /// A tool-call format.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum Envelope {
@@ -144,9 +148,7 @@ impl Envelope {
             "minItems": 1,
             "x-guidance": Envelope::separators(),
         });
-        if !parallel {
-            array["maxItems"] = json!(1);
-        }
+        array["maxItems"] = json!(if parallel { MAX_PARALLEL } else { 1 });
         let mut one = Envelope::call_any_of(specs);
         one["x-guidance"] = Envelope::separators();
         let (template, calls) = match self {
@@ -170,6 +172,7 @@ impl Envelope {
             .replace("@CALLS@", &calls)
             .replace("@CALL@", &calls)
             .replace("@MORE@", if parallel { "more_calls" } else { "" })
+            .replace("@MAX_MORE@", &(MAX_PARALLEL - 1).to_string())
     }
 
     /// How one tool is listed in the system prompt (one line of JSON).

@@ -61,10 +61,10 @@ impl ToolSpec {
 
     /// The schema of one call as the grammar enforces it: `{"name": <this name>,
     /// "arguments": <parameters>}`, name first (the grammar emits properties in schema
-    /// order), and every unbounded number given finite bounds (see `bound_numbers`).
+    /// order), and every unbounded number given finite bounds (see `bound_values`).
     pub fn call_schema(&self) -> Value {
         let mut arguments = self.parameters.clone();
-        bound_numbers(&mut arguments);
+        bound_values(&mut arguments);
         json!({
             "type": "object",
             "properties": {
@@ -138,17 +138,28 @@ const SAFE_NUMBER: f64 = 1e15;
 /// Items an unbounded array may hold in a call: a small model that starts counting
 /// (1, 2, 3, …) would otherwise fill its whole turn.
 const MAX_ITEMS: u64 = 32;
+/// Characters an unbounded string may hold in a call, for the same reason (a model that
+/// keeps talking inside an argument).
+const MAX_CHARS: u64 = 160;
 
 /// JSON grammar allows `1e99999` and 400-digit integers, which parse to infinity or lose
-/// precision in every consumer, and arrays of any length. Give unbounded numbers and
-/// arrays finite bounds in the grammar only; the prompt keeps the tool author's schema.
-fn bound_numbers(schema: &mut Value) {
+/// precision in every consumer, and strings and arrays of any length. Give unbounded
+/// numbers, strings and arrays finite bounds in the grammar only; the prompt keeps the
+/// tool author's schema.
+fn bound_values(schema: &mut Value) {
     match schema {
         Value::Object(map) => {
             if map.get("type").and_then(Value::as_str) == Some("array")
                 && !map.contains_key("maxItems")
             {
                 map.insert("maxItems".into(), json!(MAX_ITEMS));
+            }
+            if map.get("type").and_then(Value::as_str) == Some("string")
+                && !["maxLength", "enum", "const", "pattern", "format"]
+                    .iter()
+                    .any(|k| map.contains_key(*k))
+            {
+                map.insert("maxLength".into(), json!(MAX_CHARS));
             }
             let bound = match map.get("type").and_then(Value::as_str) {
                 Some("integer") => Some((json!(-SAFE_INT), json!(SAFE_INT))),
@@ -165,11 +176,11 @@ fn bound_numbers(schema: &mut Value) {
             }
             for (k, v) in map.iter_mut() {
                 if k != "enum" && k != "const" && k != "default" && k != "examples" {
-                    bound_numbers(v);
+                    bound_values(v);
                 }
             }
         }
-        Value::Array(items) => items.iter_mut().for_each(bound_numbers),
+        Value::Array(items) => items.iter_mut().for_each(bound_values),
         _ => {}
     }
 }
@@ -263,7 +274,7 @@ mod tests {
     }
 
     #[test]
-    fn unbounded_numbers_get_finite_bounds_in_the_grammar_only() {
+    fn unbounded_values_get_finite_bounds_in_the_grammar_only() {
         let s = spec();
         let c = s.call_schema();
         let count = &c["properties"]["arguments"]["properties"]["count"];
