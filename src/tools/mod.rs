@@ -6,12 +6,14 @@
 //! - `calc`: calc_eval, calc_stats, calc_convert, calc_geometry
 //! - `declared`: tools defined in a TOML file, acting through a ROS graph
 //! - `expr`: the expression evaluator behind calc_eval
+//! - `guard`: policy_deny_add (the model may add deny patterns, never remove them)
 //! - `system`: system_time, system_wait
 //! - `log`: log_read
 
 pub mod calc;
 pub mod declared;
 pub mod expr;
+pub mod guard;
 pub mod log;
 pub mod system;
 

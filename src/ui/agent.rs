@@ -61,10 +61,12 @@ pub fn build(args: &AgentArgs) -> anyhow::Result<Agent> {
     policy.auto_approve |= args.yes;
     policy.read_only |= args.read_only;
 
+    let policy = Arc::new(policy);
     let mut registry = Registry::new();
     for p in crate::tools::standard() {
         registry.add(p);
     }
+    registry.add(crate::tools::guard::package(policy.clone()));
     if !args.log_dirs.is_empty() {
         registry.add(crate::tools::logs(args.log_dirs.clone()));
     }
@@ -79,7 +81,7 @@ pub fn build(args: &AgentArgs) -> anyhow::Result<Agent> {
     config.max_steps = args.max_steps;
     config.decoding = args.decoding;
     config.answer_mode = args.answer_mode;
-    let mut agent = Agent::new(model, registry, Arc::new(policy), prompt.render(), config)?;
+    let mut agent = Agent::new(model, registry, policy, prompt.render(), config)?;
     if let Some(dir) = &args.trace_dir {
         let trace = Trace::create(dir)
             .with_context(|| format!("cannot create a trace in {}", dir.display()))?;
