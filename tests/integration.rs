@@ -14,4 +14,5 @@ static COUNTING: alloc::Counting = alloc::Counting;
 mod candle_parity;
 mod cli;
 mod decoding;
+mod eval;
 mod runtime;

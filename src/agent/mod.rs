@@ -161,7 +161,8 @@ pub struct Agent {
     cancel: Arc<AtomicBool>,
 }
 
-fn answer_spec() -> ToolSpec {
+/// The `answer` pseudo-tool: how the model gives its final answer in `AnswerMode::Tool`.
+pub fn answer_spec() -> ToolSpec {
     ToolSpec::new(
         ANSWER_TOOL,
         "Give the final answer to the operator, in a sentence that uses the numbers and names the tools returned.",

@@ -3,10 +3,12 @@
 //!
 //! Layout:
 //! - `agent`: `ferrosa ask` and `ferrosa chat`
+//! - `eval`: `ferrosa eval bfcl`
 //! - `generate`: `ferrosa generate`, streaming text from a model, with `--stats`
 //! - `models`: `ferrosa models list|fetch|verify`
 
 pub mod agent;
+pub mod eval;
 pub mod generate;
 pub mod models;
 

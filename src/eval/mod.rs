@@ -1,0 +1,209 @@
+//! Tool-calling evaluation: Berkeley Function Calling Leaderboard files run through the
+//! model one assistant turn per question (the real grammar and decode path), scored as
+//! BFCL's AST checker does, reported per category with validity, latency and speed.
+//!
+//! Layout:
+//! - `bfcl`: reading BFCL files and answers, Python-typed docs to JSON schema
+//! - `score`: the checker (names, required parameters, allowed values, parallel order)
+
+pub mod bfcl;
+pub mod score;
+
+use std::ops::ControlFlow;
+use std::time::Instant;
+
+use serde::Serialize;
+
+use crate::agent::{answer_spec, AnswerMode, ANSWER_TOOL};
+use crate::backend::{Backend, ChatMessage, Role};
+use crate::decode::envelope::{Envelope, ToolChoice};
+use crate::decode::turn::{assistant_turn, TurnRequest};
+use crate::decode::{DecodeError, Decoding, Grammars, Sampler, SamplerConfig, Session};
+use crate::tool::ToolCall;
+use bfcl::Case;
+
+/// The system message of every BFCL question (the tool list is appended to it).
+pub const SYSTEM: &str = "You are a function-calling assistant. If the request matches a function, call it with the values from the request. If no function fits, answer in plain text.";
+
+#[derive(Debug, Clone, Serialize)]
+pub struct CaseResult {
+    pub id: String,
+    pub category: String,
+    pub decoding: String,
+    pub pass: bool,
+    pub reason: Option<String>,
+    /// Did the model try to call (the envelope's marker appeared)?
+    pub attempted_call: bool,
+    /// Did what it wrote parse into calls valid for their schemas?
+    pub valid_call: bool,
+    pub calls: Vec<ToolCall>,
+    pub text: String,
+    pub ms: f64,
+    pub generated_tokens: usize,
+    pub tok_per_s: f64,
+}
+
+/// Run one case: one assistant turn with the case's functions, where the model may call
+/// or answer. With `AnswerMode::Tool` (the agent's default) answering is the `answer`
+/// pseudo-function, so the turn is always structured; its call is not counted as a call.
+pub fn run_case(
+    backend: &mut dyn Backend,
+    session: &mut Session,
+    grammars: &Grammars,
+    envelope: Envelope,
+    decoding: Decoding,
+    answer_mode: AnswerMode,
+    case: &Case,
+) -> Result<CaseResult, DecodeError> {
+    let mut messages = vec![ChatMessage::new(Role::System, SYSTEM)];
+    for (role, content) in &case.messages {
+        let role = match role.as_str() {
+            "system" => Role::System,
+            "assistant" => Role::Assistant,
+            _ => Role::User,
+        };
+        if role == Role::System {
+            messages[0].content = format!("{}\n{content}", messages[0].content);
+        } else {
+            messages.push(ChatMessage::new(role, content.clone()));
+        }
+    }
+    let mut specs = case.functions.clone();
+    let choice = match answer_mode {
+        AnswerMode::Tool => {
+            specs.push(answer_spec());
+            ToolChoice::Required
+        }
+        AnswerMode::Prose => ToolChoice::Auto,
+    };
+    let req = TurnRequest {
+        messages: &messages,
+        specs: &specs,
+        allowed: None,
+        envelope,
+        choice,
+        parallel: true,
+        decoding,
+        // Room for the longest answer text (240 characters can be 240 digit tokens).
+        max_tokens: 320,
+    };
+    let mut sampler = Sampler::new(SamplerConfig::default(), backend.vocab().len());
+    let start = Instant::now();
+    let r = assistant_turn(backend, session, grammars, &mut sampler, &req, |_| {
+        ControlFlow::Continue(())
+    })?;
+    let ms = start.elapsed().as_secs_f64() * 1e3;
+    let attempted_call = match envelope {
+        Envelope::Json => r.text.trim_start().starts_with('{'),
+        _ => r.text.contains("<tool_call>"),
+    } && !matches!(&r.turn, Ok(t) if t.calls.iter().all(|c| c.name == ANSWER_TOOL));
+    let (calls, valid_call, verdict) = match &r.turn {
+        Ok(turn) => {
+            let calls: Vec<ToolCall> = turn
+                .calls
+                .iter()
+                .filter(|c| c.name != ANSWER_TOOL)
+                .cloned()
+                .collect();
+            let v = score::check(case, &calls);
+            let valid = !calls.is_empty();
+            (calls, valid, v)
+        }
+        Err(e) => (
+            Vec::new(),
+            false,
+            score::Verdict::Fail(format!("unparseable turn: {e}")),
+        ),
+    };
+    Ok(CaseResult {
+        id: case.id.clone(),
+        category: case.category.clone(),
+        decoding: format!("{decoding:?}").to_lowercase(),
+        pass: verdict.passed(),
+        reason: match verdict {
+            score::Verdict::Pass => None,
+            score::Verdict::Fail(w) => Some(w),
+        },
+        attempted_call,
+        valid_call,
+        calls,
+        text: r.text,
+        ms,
+        generated_tokens: r.stats.generated_tokens,
+        tok_per_s: r.stats.output_tok_per_s(),
+    })
+}
+
+/// Per category and decoding mode.
+#[derive(Debug, Clone, Serialize)]
+pub struct Summary {
+    pub category: String,
+    pub decoding: String,
+    pub cases: usize,
+    pub accuracy: f64,
+    /// Of the turns that attempted a call, the share that parsed into schema-valid calls.
+    pub valid_call_rate: Option<f64>,
+    pub mean_ms: f64,
+    pub p95_ms: f64,
+    pub tok_per_s: f64,
+}
+
+pub fn summarize(results: &[CaseResult]) -> Vec<Summary> {
+    let mut keys: Vec<(String, String)> = results
+        .iter()
+        .map(|r| (r.category.clone(), r.decoding.clone()))
+        .collect();
+    keys.dedup();
+    keys.sort();
+    keys.dedup();
+    keys.into_iter()
+        .map(|(category, decoding)| {
+            let rs: Vec<&CaseResult> = results
+                .iter()
+                .filter(|r| r.category == category && r.decoding == decoding)
+                .collect();
+            let n = rs.len().max(1) as f64;
+            let attempted: Vec<&&CaseResult> = rs.iter().filter(|r| r.attempted_call).collect();
+            let mut ms: Vec<f64> = rs.iter().map(|r| r.ms).collect();
+            ms.sort_by(f64::total_cmp);
+            Summary {
+                category,
+                decoding,
+                cases: rs.len(),
+                accuracy: rs.iter().filter(|r| r.pass).count() as f64 / n,
+                valid_call_rate: (!attempted.is_empty()).then(|| {
+                    attempted.iter().filter(|r| r.valid_call).count() as f64
+                        / attempted.len() as f64
+                }),
+                mean_ms: ms.iter().sum::<f64>() / n,
+                p95_ms: ms
+                    .get(((ms.len() as f64 - 1.0) * 0.95).round() as usize)
+                    .copied()
+                    .unwrap_or(0.0),
+                tok_per_s: rs.iter().map(|r| r.tok_per_s).sum::<f64>() / n,
+            }
+        })
+        .collect()
+}
+
+/// A markdown table, decoding modes side by side per category.
+pub fn markdown(summaries: &[Summary]) -> String {
+    let mut out = String::from(
+        "| category | decoding | cases | accuracy | valid calls | mean ms | p95 ms | tok/s |\n|---|---|---|---|---|---|---|---|\n",
+    );
+    for s in summaries {
+        out.push_str(&format!(
+            "| {} | {} | {} | {:.1}% | {} | {:.0} | {:.0} | {:.1} |\n",
+            s.category,
+            s.decoding,
+            s.cases,
+            100.0 * s.accuracy,
+            s.valid_call_rate
+                .map_or("-".into(), |v| format!("{:.1}%", 100.0 * v)),
+            s.mean_ms,
+            s.p95_ms,
+            s.tok_per_s
+        ));
+    }
+    out
+}

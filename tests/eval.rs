@@ -1,0 +1,71 @@
+//! The evaluation harness on a fixed slice of the shared BFCL copies (`../shared/bfcl`,
+//! beside the repository as in CI): it runs, scores, and writes per-case results. The
+//! accuracy it prints is a measurement, not asserted.
+
+use std::path::PathBuf;
+use std::process::Command;
+
+use crate::util::models_dir;
+
+fn bfcl_dir() -> PathBuf {
+    let d = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/bfcl");
+    assert!(
+        d.join("BFCL_v4_simple_python.json").exists(),
+        "BFCL data not found at {} (CI puts shared/ beside the repository)",
+        d.display()
+    );
+    d
+}
+
+#[test]
+fn bfcl_slice_runs_scores_and_reports() {
+    let d = bfcl_dir();
+    let out = tempfile::tempdir().unwrap();
+    let files = [
+        "simple_python",
+        "multiple",
+        "parallel",
+        "parallel_multiple",
+        "irrelevance",
+    ]
+    .map(|c| d.join(format!("BFCL_v4_{c}.json")));
+    let o = Command::new(env!("CARGO_BIN_EXE_ferrosa"))
+        .arg("eval")
+        .arg("bfcl")
+        .args(&files)
+        .args(["--limit", "4", "--out"])
+        .arg(out.path())
+        .env("FERROSA_MODELS_DIR", models_dir())
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    eprintln!("{stdout}");
+    for c in [
+        "simple_python",
+        "multiple",
+        "parallel",
+        "parallel_multiple",
+        "irrelevance",
+    ] {
+        assert!(
+            stdout.contains(&format!("| {c} | constrained | 4 |")),
+            "{c} row missing: {stdout}"
+        );
+    }
+    let cases = std::fs::read_to_string(out.path().join("bfcl_cases.jsonl")).unwrap();
+    assert_eq!(cases.lines().count(), 20);
+    for line in cases.lines() {
+        let v: serde_json::Value = serde_json::from_str(line).unwrap();
+        // Constrained decoding: a call the model makes is a valid call.
+        if v["attempted_call"] == true && !v["text"].as_str().unwrap().is_empty() {
+            let parsed = v["reason"]
+                .as_str()
+                .map_or(true, |r| !r.starts_with("unparseable"));
+            assert!(
+                parsed || v["generated_tokens"].as_u64() >= Some(320),
+                "{line}"
+            );
+        }
+    }
+}
