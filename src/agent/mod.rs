@@ -236,10 +236,6 @@ impl Agent {
         self.memory.clear();
     }
 
-    pub fn history_len(&self) -> usize {
-        self.memory.len()
-    }
-
     fn tokens(&self, text: &str) -> usize {
         self.backend
             .tokenize(text, true)

@@ -7,7 +7,7 @@
 //! reply stays on script; a reply the grammar cannot produce shows up as a divergence.
 
 use std::collections::VecDeque;
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
 
 use super::bpe::Bpe;
 use super::template::ChatTemplate;
@@ -20,27 +20,11 @@ pub struct Scripted {
     template: ChatTemplate,
     /// Tokens that open an assistant turn ("<|im_start|>assistant\n" for ChatML).
     opener: Vec<TokenId>,
-    replies: Arc<Mutex<VecDeque<String>>>,
+    replies: VecDeque<String>,
     current: Option<String>,
     history: Vec<TokenId>,
     logits: Vec<f32>,
     context: usize,
-    /// Prompts (token counts) of every turn, for tests that check prefix reuse.
-    pub turns_started: usize,
-}
-
-/// A handle to push more replies while the backend is owned by an agent.
-#[derive(Clone)]
-pub struct Script(Arc<Mutex<VecDeque<String>>>);
-
-impl Script {
-    pub fn push(&self, reply: impl Into<String>) {
-        self.0.lock().expect("script lock").push_back(reply.into());
-    }
-
-    pub fn remaining(&self) -> usize {
-        self.0.lock().expect("script lock").len()
-    }
 }
 
 impl Scripted {
@@ -69,21 +53,16 @@ impl Scripted {
             tokenizer,
             template,
             opener,
-            replies: Arc::new(Mutex::new(replies.iter().map(|r| r.to_string()).collect())),
+            replies: replies.iter().map(|r| r.to_string()).collect(),
             current: None,
             history: Vec::new(),
             context: 8192,
-            turns_started: 0,
         })
     }
 
     pub fn with_context(mut self, tokens: usize) -> Scripted {
         self.context = tokens;
         self
-    }
-
-    pub fn script(&self) -> Script {
-        Script(self.replies.clone())
     }
 
     fn last_opener_end(&self) -> Option<usize> {
@@ -139,14 +118,7 @@ impl Backend for Scripted {
         };
         // A turn starts when its opener arrives in this batch.
         if start > keep || self.current.is_none() {
-            self.current = Some(
-                self.replies
-                    .lock()
-                    .expect("script lock")
-                    .pop_front()
-                    .unwrap_or_default(),
-            );
-            self.turns_started += 1;
+            self.current = Some(self.replies.pop_front().unwrap_or_default());
         }
         let reply = self.current.clone().unwrap_or_default();
         let written: Vec<u8> = self.history[start..]

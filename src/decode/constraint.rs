@@ -10,7 +10,7 @@
 use std::sync::Arc;
 
 use llguidance::api::TopLevelGrammar;
-use llguidance::toktrie::{SimpleVob, TokEnv};
+use llguidance::toktrie::SimpleVob;
 use llguidance::{Matcher, ParserFactory};
 
 use super::sample::Sampler;
@@ -28,7 +28,6 @@ pub enum ConstraintError {
 /// The per-model half of constrained decoding.
 pub struct Grammars {
     factory: ParserFactory,
-    env: TokEnv,
 }
 
 impl Grammars {
@@ -38,11 +37,7 @@ impl Grammars {
             ParserFactory::new_simple(&env).map_err(|e| ConstraintError::Compile(e.to_string()))?;
         // llguidance writes grammar warnings to stderr by default; ours go to tracing.
         factory.quiet();
-        Ok(Grammars { factory, env })
-    }
-
-    pub fn tok_env(&self) -> &TokEnv {
-        &self.env
+        Ok(Grammars { factory })
     }
 
     /// Compile a Lark grammar (≈ 1 ms) into a fresh constraint.

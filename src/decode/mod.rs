@@ -106,6 +106,21 @@ impl GenerationStats {
     }
 }
 
+/// The tokens of a prompt as a fresh context needs them: BOS when the model wants one
+/// (once, even if a template writes it too), then `text`. With `special`, special-token
+/// texts (from a rendered chat template) become their ids; without, the text is literal.
+pub fn prompt_tokens(
+    backend: &dyn Backend,
+    text: &str,
+    special: bool,
+) -> Result<Vec<TokenId>, BackendError> {
+    let mut prompt: Vec<TokenId> = backend.vocab().bos().into_iter().collect();
+    let body = backend.tokenize(text, special)?;
+    let skip = usize::from(!prompt.is_empty() && body.first() == prompt.first());
+    prompt.extend_from_slice(&body[skip..]);
+    Ok(prompt)
+}
+
 /// The token sequence the backend's KV cache holds.
 #[derive(Debug, Default, Clone)]
 pub struct Session {

@@ -67,10 +67,7 @@ pub fn assistant_turn(
 ) -> Result<TurnResult, DecodeError> {
     let messages = with_tools(req);
     let rendered = backend.chat_template().render(&messages, None, true)?;
-    let mut prompt: Vec<u32> = backend.vocab().bos().into_iter().collect();
-    let body = backend.tokenize(&rendered, true)?;
-    let skip = usize::from(!prompt.is_empty() && body.first() == prompt.first());
-    prompt.extend_from_slice(&body[skip..]);
+    let prompt = super::prompt_tokens(backend, &rendered, true)?;
 
     let mut constraint = match req.decoding {
         Decoding::Constrained => {

@@ -179,10 +179,6 @@ impl Policy {
         Policy::from_file(file, confirm)
     }
 
-    pub fn set_confirm(&mut self, confirm: Arc<dyn Confirm>) {
-        self.confirm = confirm;
-    }
-
     /// Add a deny pattern on the model's behalf (it can never remove one).
     pub fn add_model_pattern(&self, pattern: &str) -> Result<(), PolicyError> {
         let re = compile(pattern)?;
@@ -294,14 +290,6 @@ impl Policy {
                 .any(|s| self.denied(s).is_some()),
             _ => false,
         }
-    }
-
-    pub fn confirm_hook(&self) -> &Arc<dyn Confirm> {
-        &self.confirm
-    }
-
-    pub fn tool_denied_by_effect(&self, tool: &dyn DynTool) -> bool {
-        self.read_only && tool.effect() == Effect::Actuates
     }
 }
 

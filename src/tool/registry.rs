@@ -119,13 +119,6 @@ impl Registry {
         self.tools().map(|t| t.spec().clone()).collect()
     }
 
-    pub fn package_of(&self, name: &str) -> Option<&str> {
-        self.tools
-            .iter()
-            .find(|(_, t)| t.spec().name == name)
-            .map(|(p, _)| p.as_str())
-    }
-
     /// Drop every tool that actuates (`--read-only`).
     pub fn without_actuators(&self) -> Registry {
         Registry {

@@ -127,11 +127,7 @@ fn plain(
         args.prompt.clone()
     };
     // The rendered template holds special-token texts; a raw prompt is taken literally.
-    let mut prompt = model.vocab().bos().into_iter().collect::<Vec<_>>();
-    let body = model.tokenize(&text, args.chat)?;
-    // Templates that write BOS themselves would otherwise get it twice.
-    let skip = usize::from(!prompt.is_empty() && body.first() == prompt.first());
-    prompt.extend_from_slice(&body[skip..]);
+    let prompt = decode::prompt_tokens(model, &text, args.chat)?;
 
     let mut sampler = Sampler::new(args.sampler, model.vocab().len());
     let mut detok = Detokenizer::new(false);
