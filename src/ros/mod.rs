@@ -6,9 +6,13 @@
 //! parameters and the ROS 2 implementation join with the ROS tools.
 //!
 //! Layout:
+//! - `msg`: interface definitions (.msg/.srv/.action), the shipped bundle, lookup
+//! - `cdr`: CDR <-> JSON driven by those definitions
 //! - `fake`: an in-memory graph that records what was sent (tests)
 
+pub mod cdr;
 pub mod fake;
+pub mod msg;
 
 use std::future::Future;
 use std::pin::Pin;

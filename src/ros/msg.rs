@@ -1,0 +1,552 @@
+//! ROS interface definitions (`.msg`, `.srv`, `.action`) as data: parsing the text, the
+//! bundle shipped with ferrosa for the common packages, and lookup by any spelling of a
+//! type name (`geometry_msgs/Twist`, `geometry_msgs/msg/Twist`,
+//! `geometry_msgs::msg::dds_::Twist_`).
+//!
+//! A service `pkg/srv/X` is stored as two messages, `pkg/srv/X_Request` and
+//! `pkg/srv/X_Response`; an action `pkg/action/X` as `X_Goal`, `X_Result`, `X_Feedback`.
+//! Definitions not in the bundle are read from an installed ROS (`AMENT_PREFIX_PATH`,
+//! `share/<pkg>/<kind>/<Name>.<kind>`) on first use.
+
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+use std::sync::{Arc, RwLock};
+
+/// The bundled definitions: one file per package, sections headed `=== pkg/kind/Name`
+/// (made by `scripts/bundle-interfaces.py`).
+const BUNDLE: &[&str] = &[
+    include_str!("interfaces/action_msgs.idl"),
+    include_str!("interfaces/builtin_interfaces.idl"),
+    include_str!("interfaces/diagnostic_msgs.idl"),
+    include_str!("interfaces/geometry_msgs.idl"),
+    include_str!("interfaces/nav_msgs.idl"),
+    include_str!("interfaces/rcl_interfaces.idl"),
+    include_str!("interfaces/rosgraph_msgs.idl"),
+    include_str!("interfaces/sensor_msgs.idl"),
+    include_str!("interfaces/std_msgs.idl"),
+    include_str!("interfaces/std_srvs.idl"),
+    include_str!("interfaces/turtlesim.idl"),
+    include_str!("interfaces/unique_identifier_msgs.idl"),
+];
+
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum MsgError {
+    #[error("unknown interface type {0}; `ros_interface_show` lists what is known, or install its package and set AMENT_PREFIX_PATH")]
+    Unknown(String),
+    #[error("{type_name} line {line}: {reason}")]
+    Parse {
+        type_name: String,
+        line: usize,
+        reason: String,
+    },
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Primitive {
+    Bool,
+    Byte,
+    Char,
+    I8,
+    U8,
+    I16,
+    U16,
+    I32,
+    U32,
+    I64,
+    U64,
+    F32,
+    F64,
+    String,
+}
+
+impl Primitive {
+    fn parse(name: &str) -> Option<Primitive> {
+        Some(match name {
+            "bool" => Primitive::Bool,
+            "byte" => Primitive::Byte,
+            "char" => Primitive::Char,
+            "int8" => Primitive::I8,
+            "uint8" => Primitive::U8,
+            "int16" => Primitive::I16,
+            "uint16" => Primitive::U16,
+            "int32" => Primitive::I32,
+            "uint32" => Primitive::U32,
+            "int64" => Primitive::I64,
+            "uint64" => Primitive::U64,
+            "float32" => Primitive::F32,
+            "float64" => Primitive::F64,
+            "string" => Primitive::String,
+            _ => return None,
+        })
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Primitive::Bool => "bool",
+            Primitive::Byte => "byte",
+            Primitive::Char => "char",
+            Primitive::I8 => "int8",
+            Primitive::U8 => "uint8",
+            Primitive::I16 => "int16",
+            Primitive::U16 => "uint16",
+            Primitive::I32 => "int32",
+            Primitive::U32 => "uint32",
+            Primitive::I64 => "int64",
+            Primitive::U64 => "uint64",
+            Primitive::F32 => "float32",
+            Primitive::F64 => "float64",
+            Primitive::String => "string",
+        }
+    }
+}
+
+/// The element type of a field.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum BaseType {
+    Primitive(Primitive),
+    /// A nested message, by full name (`geometry_msgs/msg/Vector3`).
+    Message(String),
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Shape {
+    Single,
+    /// `T[N]`: exactly N elements, no length on the wire.
+    Array(usize),
+    /// `T[]` or `T[<=N]`: a length, then the elements.
+    Sequence {
+        max: Option<usize>,
+    },
+}
+
+#[derive(Debug, Clone, PartialEq)]
+pub struct Field {
+    pub name: String,
+    pub base: BaseType,
+    pub shape: Shape,
+    /// `string<=N`
+    pub string_max: Option<usize>,
+    /// The declared default, as written.
+    pub default: Option<String>,
+}
+
+#[derive(Debug, Clone, PartialEq)]
+pub struct Constant {
+    pub name: String,
+    pub type_name: String,
+    pub value: String,
+}
+
+/// One message type.
+#[derive(Debug, Clone, PartialEq)]
+pub struct MessageDef {
+    pub name: String,
+    pub fields: Vec<Field>,
+    pub constants: Vec<Constant>,
+    /// The definition's text (comments removed), for `ros_interface_show`.
+    pub text: String,
+}
+
+/// Every spelling of a type name resolved to `pkg/kind/Name`; `kind` defaults to `msg`.
+pub fn normalize_type(name: &str) -> String {
+    let name = name.trim();
+    if let Some(rest) = name.strip_suffix('_') {
+        // DDS form: pkg::msg::dds_::Name_
+        let parts: Vec<&str> = rest.split("::").collect();
+        if parts.len() == 4 && parts[2] == "dds_" {
+            return format!("{}/{}/{}", parts[0], parts[1], parts[3]);
+        }
+    }
+    let parts: Vec<&str> = name.split('/').filter(|p| !p.is_empty()).collect();
+    match parts.as_slice() {
+        [pkg, ty] => format!("{pkg}/msg/{ty}"),
+        _ => parts.join("/"),
+    }
+}
+
+fn parse_base(token: &str, package: &str) -> Result<(BaseType, Option<usize>), String> {
+    if let Some((head, max)) = token.split_once("<=") {
+        if head == "string" || head == "wstring" {
+            let max = max
+                .parse()
+                .map_err(|_| format!("bad string bound in {token}"))?;
+            return parse_base(head, package).map(|(b, _)| (b, Some(max)));
+        }
+    }
+    if token == "wstring" {
+        return Err("wstring fields are not supported".into());
+    }
+    if let Some(p) = Primitive::parse(token) {
+        return Ok((BaseType::Primitive(p), None));
+    }
+    let full = match token.split('/').collect::<Vec<_>>().as_slice() {
+        [ty] if *ty == "Header" => "std_msgs/msg/Header".to_string(),
+        [ty] => format!("{package}/msg/{ty}"),
+        [pkg, ty] => format!("{pkg}/msg/{ty}"),
+        [pkg, kind, ty] => format!("{pkg}/{kind}/{ty}"),
+        _ => return Err(format!("bad type {token}")),
+    };
+    Ok((BaseType::Message(full), None))
+}
+
+fn parse_shape(token: &str) -> Result<(&str, Shape), String> {
+    let Some(open) = token.find('[') else {
+        return Ok((token, Shape::Single));
+    };
+    let inner = token[open + 1..]
+        .strip_suffix(']')
+        .ok_or_else(|| format!("unclosed [ in {token}"))?;
+    let shape = if inner.is_empty() {
+        Shape::Sequence { max: None }
+    } else if let Some(max) = inner.strip_prefix("<=") {
+        Shape::Sequence {
+            max: Some(max.parse().map_err(|_| format!("bad bound in {token}"))?),
+        }
+    } else {
+        Shape::Array(
+            inner
+                .parse()
+                .map_err(|_| format!("bad array size in {token}"))?,
+        )
+    };
+    Ok((&token[..open], shape))
+}
+
+/// Parse one message body (no `---`). `name` is the full type name.
+pub fn parse_message(name: &str, body: &str) -> Result<MessageDef, MsgError> {
+    let package = name.split('/').next().unwrap_or_default();
+    let mut def = MessageDef {
+        name: name.to_string(),
+        fields: Vec::new(),
+        constants: Vec::new(),
+        text: String::new(),
+    };
+    for (i, raw) in body.lines().enumerate() {
+        let line = strip_comment(raw).trim();
+        if line.is_empty() {
+            continue;
+        }
+        def.text.push_str(line);
+        def.text.push('\n');
+        let err = |reason: String| MsgError::Parse {
+            type_name: name.to_string(),
+            line: i + 1,
+            reason,
+        };
+        let (type_token, rest) = line
+            .split_once(char::is_whitespace)
+            .ok_or_else(|| err(format!("expected `TYPE NAME`, found {line:?}")))?;
+        let rest = rest.trim();
+        // A constant: NAME=VALUE (spaces allowed around '=') and an upper-case name.
+        if let Some((cname, value)) = rest.split_once('=') {
+            let cname = cname.trim();
+            if !cname.contains(char::is_whitespace) {
+                def.constants.push(Constant {
+                    name: cname.to_string(),
+                    type_name: type_token.to_string(),
+                    value: value.trim().to_string(),
+                });
+                continue;
+            }
+        }
+        let (fname, default) = match rest.split_once(char::is_whitespace) {
+            Some((n, d)) => (n, Some(d.trim().to_string())),
+            None => (rest, None),
+        };
+        let (elem, shape) = parse_shape(type_token).map_err(err)?;
+        let (base, string_max) = parse_base(elem, package).map_err(err)?;
+        def.fields.push(Field {
+            name: fname.to_string(),
+            base,
+            shape,
+            string_max,
+            default,
+        });
+    }
+    Ok(def)
+}
+
+fn strip_comment(line: &str) -> &str {
+    // A '#' inside quotes belongs to a string constant or default.
+    let mut quote = None;
+    for (i, c) in line.char_indices() {
+        match (c, quote) {
+            ('"' | '\'', None) => quote = Some(c),
+            (c, Some(q)) if c == q => quote = None,
+            ('#', None) => return &line[..i],
+            _ => {}
+        }
+    }
+    line
+}
+
+/// Split a `.srv` or `.action` file into its parts and name them.
+fn split_parts(name: &str, text: &str) -> Vec<(String, String)> {
+    let mut parts = vec![String::new()];
+    for line in text.lines() {
+        if strip_comment(line).trim() == "---" {
+            parts.push(String::new());
+        } else {
+            let last = parts.last_mut().expect("one part at least");
+            last.push_str(line);
+            last.push('\n');
+        }
+    }
+    let kind = name.split('/').nth(1).unwrap_or("msg");
+    let suffixes: &[&str] = match kind {
+        "srv" => &["_Request", "_Response"],
+        "action" => &["_Goal", "_Result", "_Feedback"],
+        _ => &[""],
+    };
+    suffixes
+        .iter()
+        .zip(parts.into_iter().chain(std::iter::repeat(String::new())))
+        .map(|(s, p)| (format!("{name}{s}"), p))
+        .collect()
+}
+
+/// All known definitions: the bundle, then an installed ROS on demand.
+#[derive(Clone)]
+pub struct Interfaces {
+    inner: Arc<RwLock<Known>>,
+}
+
+#[derive(Default)]
+struct Known {
+    messages: BTreeMap<String, Arc<MessageDef>>,
+    /// Source text per interface (`pkg/srv/X` keeps its `---` parts).
+    sources: BTreeMap<String, String>,
+    search: Vec<PathBuf>,
+}
+
+impl Default for Interfaces {
+    fn default() -> Self {
+        Interfaces::bundled()
+    }
+}
+
+impl Interfaces {
+    /// The bundle, plus `share/` folders from `AMENT_PREFIX_PATH`.
+    pub fn bundled() -> Interfaces {
+        let mut known = Known::default();
+        for file in BUNDLE {
+            for section in file.split("=== ").filter(|s| !s.trim().is_empty()) {
+                let (name, body) = section.split_once('\n').unwrap_or((section, ""));
+                known
+                    .add(name.trim(), body)
+                    .expect("bundled interface definitions parse");
+            }
+        }
+        if let Ok(paths) = std::env::var("AMENT_PREFIX_PATH") {
+            known.search = std::env::split_paths(&paths)
+                .map(|p| p.join("share"))
+                .collect();
+        }
+        Interfaces {
+            inner: Arc::new(RwLock::new(known)),
+        }
+    }
+
+    /// Add definitions from text (a `.msg`, `.srv` or `.action` file) under `name`
+    /// (`pkg/kind/Name`).
+    pub fn add(&self, name: &str, text: &str) -> Result<(), MsgError> {
+        self.inner.write().expect("interfaces lock").add(name, text)
+    }
+
+    /// The message definition of `type_name` (any spelling).
+    pub fn message(&self, type_name: &str) -> Result<Arc<MessageDef>, MsgError> {
+        let name = normalize_type(type_name);
+        if let Some(def) = self
+            .inner
+            .read()
+            .expect("interfaces lock")
+            .messages
+            .get(&name)
+        {
+            return Ok(def.clone());
+        }
+        self.load_installed(&name)?;
+        self.inner
+            .read()
+            .expect("interfaces lock")
+            .messages
+            .get(&name)
+            .cloned()
+            .ok_or(MsgError::Unknown(name))
+    }
+
+    /// The source text of an interface (`pkg/msg/X`, `pkg/srv/X`, `pkg/action/X`).
+    pub fn source(&self, type_name: &str) -> Result<String, MsgError> {
+        let name = normalize_type(type_name);
+        if let Some(text) = self
+            .inner
+            .read()
+            .expect("interfaces lock")
+            .sources
+            .get(&name)
+        {
+            return Ok(text.clone());
+        }
+        self.load_installed(&name)?;
+        self.inner
+            .read()
+            .expect("interfaces lock")
+            .sources
+            .get(&name)
+            .cloned()
+            .ok_or(MsgError::Unknown(name))
+    }
+
+    /// Every known interface name, sorted.
+    pub fn names(&self) -> Vec<String> {
+        self.inner
+            .read()
+            .expect("interfaces lock")
+            .sources
+            .keys()
+            .cloned()
+            .collect()
+    }
+
+    fn load_installed(&self, name: &str) -> Result<(), MsgError> {
+        // X_Request lives in X.srv, X_Goal in X.action.
+        let parts: Vec<&str> = name.split('/').collect();
+        let [pkg, kind, ty] = parts.as_slice() else {
+            return Err(MsgError::Unknown(name.to_string()));
+        };
+        let base = ["_Request", "_Response", "_Goal", "_Result", "_Feedback"]
+            .iter()
+            .find_map(|s| ty.strip_suffix(s))
+            .filter(|_| *kind != "msg")
+            .unwrap_or(ty);
+        let search = self.inner.read().expect("interfaces lock").search.clone();
+        for dir in search {
+            let path = dir.join(pkg).join(kind).join(format!("{base}.{kind}"));
+            if let Ok(text) = std::fs::read_to_string(&path) {
+                return self.add(&format!("{pkg}/{kind}/{base}"), &text);
+            }
+        }
+        Err(MsgError::Unknown(name.to_string()))
+    }
+}
+
+impl Known {
+    fn add(&mut self, name: &str, text: &str) -> Result<(), MsgError> {
+        let name = normalize_type(name);
+        for (part, body) in split_parts(&name, text) {
+            let def = parse_message(&part, &body)?;
+            self.messages.insert(part, Arc::new(def));
+        }
+        let clean: String = text
+            .lines()
+            .map(|l| strip_comment(l).trim_end())
+            .filter(|l| !l.trim().is_empty())
+            .map(|l| format!("{l}\n"))
+            .collect();
+        self.sources.insert(name, clean);
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn names_in_every_spelling() {
+        assert_eq!(
+            normalize_type("geometry_msgs/Twist"),
+            "geometry_msgs/msg/Twist"
+        );
+        assert_eq!(
+            normalize_type("geometry_msgs/msg/Twist"),
+            "geometry_msgs/msg/Twist"
+        );
+        assert_eq!(
+            normalize_type("geometry_msgs::msg::dds_::Twist_"),
+            "geometry_msgs/msg/Twist"
+        );
+        assert_eq!(
+            normalize_type("std_srvs::srv::dds_::Trigger_Request_"),
+            "std_srvs/srv/Trigger_Request"
+        );
+    }
+
+    #[test]
+    fn fields_shapes_constants_defaults() {
+        let def = parse_message(
+            "p/msg/T",
+            "uint8 OK=0 # fine\nstring NAME = \"a#b\"\nHeader header\nfloat64[9] cov\n\
+             int32[] xs\nPoint[<=3] pts\nstring<=8 tag\nfloat32 speed 1.5\n",
+        )
+        .unwrap();
+        assert_eq!(def.constants.len(), 2);
+        assert_eq!(def.constants[1].value, "\"a#b\"");
+        let shapes: Vec<_> = def
+            .fields
+            .iter()
+            .map(|f| (f.name.as_str(), f.shape))
+            .collect();
+        assert_eq!(
+            shapes,
+            [
+                ("header", Shape::Single),
+                ("cov", Shape::Array(9)),
+                ("xs", Shape::Sequence { max: None }),
+                ("pts", Shape::Sequence { max: Some(3) }),
+                ("tag", Shape::Single),
+                ("speed", Shape::Single),
+            ]
+        );
+        assert_eq!(
+            def.fields[0].base,
+            BaseType::Message("std_msgs/msg/Header".into())
+        );
+        assert_eq!(def.fields[3].base, BaseType::Message("p/msg/Point".into()));
+        assert_eq!(def.fields[4].string_max, Some(8));
+        assert_eq!(def.fields[5].default.as_deref(), Some("1.5"));
+    }
+
+    #[test]
+    fn bundle_has_services_and_actions() {
+        let known = Interfaces::bundled();
+        let req = known.message("turtlesim/srv/Spawn_Request").unwrap();
+        assert_eq!(req.fields.len(), 4);
+        let resp = known.message("turtlesim/srv/Spawn_Response").unwrap();
+        assert_eq!(resp.fields[0].name, "name");
+        assert!(known
+            .message("std_srvs/srv/Empty_Request")
+            .unwrap()
+            .fields
+            .is_empty());
+        assert_eq!(
+            known
+                .message("turtlesim/action/RotateAbsolute_Feedback")
+                .unwrap()
+                .fields[0]
+                .name,
+            "remaining"
+        );
+        assert!(known
+            .source("std_srvs/srv/SetBool")
+            .unwrap()
+            .contains("---"));
+        // Every nested type in the bundle resolves.
+        for name in known.names() {
+            if name.contains("/msg/") {
+                let def = known.message(&name).unwrap();
+                for f in &def.fields {
+                    if let BaseType::Message(m) = &f.base {
+                        known
+                            .message(m)
+                            .unwrap_or_else(|e| panic!("{name}.{}: {e}", f.name));
+                    }
+                }
+            }
+        }
+        assert!(matches!(
+            known.message("nope_msgs/Nope"),
+            Err(MsgError::Unknown(_))
+        ));
+    }
+}
