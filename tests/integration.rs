@@ -15,4 +15,5 @@ mod candle_parity;
 mod cli;
 mod decoding;
 mod eval;
+mod ros;
 mod runtime;

@@ -49,3 +49,44 @@ pub fn greedy(model: &mut dyn Backend, prompt: &str, n: usize) -> Vec<u32> {
     .unwrap();
     out
 }
+
+/// Tests that open a DDS participant run inside a network namespace with only loopback,
+/// so no DDS traffic can leave the machine, under a hard time limit.
+///
+/// Call first in such a test: outside the namespace it re-runs this one test inside
+/// one (`unshare -n`, `ip link set lo up`, `timeout`) and returns true (the caller
+/// returns); inside, it returns false and the test body runs.
+pub fn rerun_in_loopback_netns(test: &str, limit_s: u32) -> bool {
+    if std::env::var_os("FERROSA_IN_NETNS").is_some() {
+        return false;
+    }
+    let exe = std::env::current_exe().expect("the test binary");
+    let status = std::process::Command::new("unshare")
+        .args([
+            "-n",
+            "sh",
+            "-c",
+            "ip link set lo up && exec timeout -k 5 \"$@\"",
+            "sh",
+        ])
+        .arg(limit_s.to_string())
+        .arg(exe)
+        .args(["--exact", test, "--nocapture", "--test-threads=1"])
+        .env("FERROSA_IN_NETNS", "1")
+        .status()
+        .expect("unshare (util-linux) and ip (iproute2) are needed for the ROS tests; run as root");
+    assert!(
+        status.success(),
+        "{test} inside the loopback-only namespace: {status}"
+    );
+    true
+}
+
+/// A multi-threaded tokio runtime for async tests.
+pub fn runtime() -> tokio::runtime::Runtime {
+    tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .expect("tokio runtime")
+}

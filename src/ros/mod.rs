@@ -2,23 +2,32 @@
 //! in-memory fake. Messages cross this boundary as JSON with their type name
 //! (`geometry_msgs/msg/Twist`); encoding them is the implementation's job.
 //!
-//! This holds what tools need so far (publish, call a service); the graph queries, echo,
-//! parameters and the ROS 2 implementation join with the ROS tools.
+//! Parameters are services (`rcl_interfaces`), so tools reach them through
+//! `call_service`; logs are the `/rosout` topic. Actions are not here yet.
 //!
 //! Layout:
+//! - `graph`: the joined graph (nodes, topics, services, actions) and its cache
+//! - `ros2`: the ROS 2 implementation over ros2-client (RustDDS), localhost-only by default
+//! - `sim`: the built-in turtlesim-compatible robot
 //! - `msg`: interface definitions (.msg/.srv/.action), the shipped bundle, lookup
 //! - `cdr`: CDR <-> JSON driven by those definitions
 //! - `fake`: an in-memory graph that records what was sent (tests)
 
 pub mod cdr;
 pub mod fake;
+pub mod graph;
 pub mod msg;
+pub mod ros2;
+pub mod sim;
 
 use std::future::Future;
 use std::pin::Pin;
 use std::time::Duration;
 
 use serde_json::Value;
+
+pub use graph::Graph;
+pub use msg::Interfaces;
 
 pub type BoxFuture<'a, T> = Pin<Box<dyn Future<Output = T> + Send + 'a>>;
 
@@ -30,11 +39,39 @@ pub enum RosError {
     Timeout { service: String, timeout: Duration },
     #[error("cannot encode the message as {type_name}: {reason}")]
     Encode { type_name: String, reason: String },
+    #[error("cannot decode a {type_name} message: {reason}")]
+    Decode { type_name: String, reason: String },
+    #[error("no topic {0}; list topics to see what exists")]
+    NoTopic(String),
+    #[error("no subscriber matched {topic} within {timeout:?}; is the node running?")]
+    NoSubscriber { topic: String, timeout: Duration },
+    #[error("{0}: invalid ROS name")]
+    BadName(String),
     #[error("{0}")]
     Other(String),
 }
 
+/// One received message; `t` is seconds since the subscription started.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct Sample {
+    pub t: f64,
+    pub message: Value,
+}
+
 pub trait RosGraph: Send + Sync {
+    /// The graph as discovered so far.
+    fn graph(&self) -> BoxFuture<'_, Result<Graph, RosError>>;
+    /// The interface definitions this graph encodes with.
+    fn interfaces(&self) -> &Interfaces;
+    /// Subscribe to `topic` (type from the graph when `None`), with the QoS its
+    /// publishers offer, and collect up to `max` messages within `window`.
+    fn subscribe<'a>(
+        &'a self,
+        topic: &'a str,
+        type_name: Option<&'a str>,
+        max: usize,
+        window: Duration,
+    ) -> BoxFuture<'a, Result<Vec<Sample>, RosError>>;
     /// Publish one message on `topic`.
     fn publish<'a>(
         &'a self,

@@ -1,0 +1,103 @@
+//! The ROS 2 graph against the built-in sim, over real DDS on loopback: discovery,
+//! the node join, echo with the offered QoS, publish, services, parameters, logs.
+//! Every test runs in its own loopback-only network namespace (see util).
+
+use std::time::{Duration, Instant};
+
+use ferrosa::ros::ros2::{Ros2Graph, Ros2Options};
+use ferrosa::ros::sim::{Sim, CENTER};
+use ferrosa::ros::RosGraph;
+use serde_json::json;
+
+use crate::util::{rerun_in_loopback_netns, runtime};
+
+/// Wait until the graph shows `/turtlesim` with its services; returns the time taken.
+pub async fn wait_for_sim(graph: &Ros2Graph, limit: Duration) -> Duration {
+    let start = Instant::now();
+    loop {
+        let g = graph.graph().await.unwrap();
+        if g.nodes.iter().any(|n| n == "/turtlesim")
+            && g.services().contains_key("/spawn")
+            && g.topics().contains_key("/turtle1/pose")
+        {
+            return start.elapsed();
+        }
+        assert!(
+            start.elapsed() < limit,
+            "sim not discovered within {limit:?}: nodes {:?} topics {:?} services {:?}",
+            g.nodes,
+            g.topics(),
+            g.services().keys().collect::<Vec<_>>()
+        );
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+}
+
+#[test]
+fn sim_graph_echo_publish_services_parameters() {
+    if rerun_in_loopback_netns("ros::sim_graph_echo_publish_services_parameters", 120) {
+        return;
+    }
+    let rt = runtime();
+    rt.block_on(async {
+        let opts = Ros2Options::default();
+        let start = Instant::now();
+        let graph = Ros2Graph::start(&opts, "_ferrosa_test").unwrap();
+        let _sim = Sim::start(&opts).unwrap();
+        let took = wait_for_sim(&graph, Duration::from_secs(20)).await;
+        eprintln!("sim discovered {:?} after start", took.max(start.elapsed()));
+
+        let g = graph.graph().await.unwrap();
+        assert_eq!(g.nodes, ["/turtlesim"], "our own node is hidden");
+        let topics = g.topics();
+        assert!(topics["/turtle1/pose"].contains("turtlesim/msg/Pose"));
+        assert!(topics["/turtle1/cmd_vel"].contains("geometry_msgs/msg/Twist"));
+        assert!(topics.contains_key("/battery_state") && topics.contains_key("/rosout"));
+        let pose_pub = g.publishers.iter().find(|p| p.topic == "/turtle1/pose").unwrap();
+        assert_eq!(pose_pub.node.as_deref(), Some("/turtlesim"));
+        let cmd_sub = g.subscribers.iter().find(|p| p.topic == "/turtle1/cmd_vel").unwrap();
+        assert_eq!(cmd_sub.node.as_deref(), Some("/turtlesim"));
+        let services = g.services();
+        for s in ["/spawn", "/kill", "/reset", "/clear", "/turtle1/set_pen", "/turtle1/teleport_absolute",
+                  "/turtle1/teleport_relative", "/turtlesim/get_parameters", "/turtlesim/set_parameters"] {
+            assert!(services.contains_key(s), "{s} missing from {services:?}");
+        }
+
+        // Echo, type and QoS from discovery.
+        let poses = graph.subscribe("/turtle1/pose", None, 3, Duration::from_secs(5)).await.unwrap();
+        assert_eq!(poses.len(), 3);
+        assert!((poses[0].message["x"].as_f64().unwrap() - CENTER).abs() < 1e-4);
+
+        // Drive: 1.5 m/s for the 1 s turtlesim holds a command.
+        graph.publish("/turtle1/cmd_vel", "geometry_msgs/msg/Twist", json!({"linear": {"x": 1.5}})).await.unwrap();
+        tokio::time::sleep(Duration::from_millis(1500)).await;
+        eprintln!("DIRECT {:?}", _sim.pose("turtle1"));
+        let after = graph.subscribe("/turtle1/pose", None, 1, Duration::from_secs(5)).await.unwrap();
+        let x = after[0].message["x"].as_f64().unwrap();
+        assert!((x - (CENTER + 1.5)).abs() < 0.1, "x = {x}");
+
+        // Services.
+        graph.call_service("/turtle1/teleport_absolute", "turtlesim/srv/TeleportAbsolute",
+            json!({"x": 2.0, "y": 3.0, "theta": 0.5}), Duration::from_secs(5)).await.unwrap();
+        let spawned = graph.call_service("/spawn", "turtlesim/srv/Spawn",
+            json!({"x": 1.0, "y": 1.0, "theta": 0.0, "name": "rafael"}), Duration::from_secs(5)).await.unwrap();
+        assert_eq!(spawned, json!({"name": "rafael"}));
+        let p = graph.subscribe("/turtle1/pose", None, 1, Duration::from_secs(5)).await.unwrap();
+        assert!((p[0].message["x"].as_f64().unwrap() - 2.0).abs() < 1e-4);
+        let err = graph.call_service("/nope", "std_srvs/srv/Empty", json!({}), Duration::from_millis(500)).await.unwrap_err();
+        assert!(err.to_string().contains("no service /nope"), "{err}");
+
+        // Parameters are services.
+        let got = graph.call_service("/turtlesim/get_parameters", "rcl_interfaces/srv/GetParameters",
+            json!({"names": ["background_r"]}), Duration::from_secs(5)).await.unwrap();
+        assert_eq!(got["values"][0]["integer_value"], json!(69));
+        let set = graph.call_service("/turtlesim/set_parameters", "rcl_interfaces/srv/SetParameters",
+            json!({"parameters": [{"name": "background_r", "value": {"type": 2, "integer_value": 10}}]}),
+            Duration::from_secs(5)).await.unwrap();
+        assert_eq!(set["results"][0]["successful"], json!(true), "{set}");
+
+        // Logs: /rosout keeps history for late joiners.
+        let logs = graph.subscribe("/rosout", None, 50, Duration::from_secs(2)).await.unwrap();
+        assert!(logs.iter().any(|l| l.message["msg"].as_str().unwrap().contains("Spawning turtle [rafael]")), "{logs:?}");
+    });
+}
