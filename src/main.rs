@@ -100,6 +100,14 @@ enum Command {
         #[command(flatten)]
         agent: AgentOpts,
     },
+    /// The built-in robot and the default model: `chat --robot sim`.
+    Demo {
+        #[command(flatten)]
+        agent: AgentOpts,
+    },
+    /// Run the built-in turtlesim-compatible robot over ROS 2 (DDS on this machine only,
+    /// unless ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET) until Ctrl-C.
+    Sim,
     /// Measure tool calling: BFCL files (one JSON object per line, answers in
     /// possible_answer/ beside them).
     Eval {
@@ -149,6 +157,10 @@ struct AgentOpts {
     /// How the model answers: by calling the `answer` tool, or in prose.
     #[arg(long, value_enum, default_value_t = AnswerMode::Tool)]
     answer_mode: AnswerMode,
+    /// The robot to act on: none (no ROS tools), sim (start the built-in robot in this
+    /// process), ros2 (the ROS 2 graph already running on this machine).
+    #[arg(long, value_enum, default_value_t = ui::agent::Robot::None)]
+    robot: ui::agent::Robot,
 }
 
 impl AgentOpts {
@@ -170,6 +182,7 @@ impl AgentOpts {
             max_steps: self.max_steps,
             decoding: self.decoding,
             answer_mode: self.answer_mode,
+            robot: self.robot,
         }
     }
 }
@@ -284,6 +297,14 @@ fn main() -> ExitCode {
         }),
         Command::Ask { query, json, agent } => ui::agent::ask(&agent.into_args(dir), &query, json),
         Command::Chat { agent } => ui::agent::chat(&agent.into_args(dir)),
+        Command::Demo { agent } => {
+            let mut args = agent.into_args(dir);
+            if args.robot == ui::agent::Robot::None {
+                args.robot = ui::agent::Robot::Sim;
+            }
+            ui::agent::chat(&args)
+        }
+        Command::Sim => ui::agent::sim(),
         Command::Eval {
             command:
                 EvalCommand::Bfcl {

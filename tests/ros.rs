@@ -101,3 +101,54 @@ fn sim_graph_echo_publish_services_parameters() {
         assert!(logs.iter().any(|l| l.message["msg"].as_str().unwrap().contains("Spawning turtle [rafael]")), "{logs:?}");
     });
 }
+
+/// `ferrosa ask --robot sim --json QUERY` with the real default model; the JSON result.
+fn ask_sim(query: &str, extra: &[&str]) -> serde_json::Value {
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_ferrosa"))
+        .args(["ask", "--robot", "sim", "--json", "--threads", "2"])
+        .args(extra)
+        .arg(query)
+        .env("FERROSA_MODELS_DIR", crate::util::models_dir())
+        .output()
+        .expect("running ferrosa");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "ferrosa ask failed: {}\n{stdout}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_str(&stdout).unwrap_or_else(|e| panic!("{e}: {stdout}"))
+}
+
+#[test]
+fn ask_sim_lists_nodes_with_the_real_model() {
+    if rerun_in_loopback_netns("ros::ask_sim_lists_nodes_with_the_real_model", 240) {
+        return;
+    }
+    let result = ask_sim("list the ROS nodes", &[]);
+    let steps = result["steps"].as_array().unwrap();
+    let call = steps
+        .iter()
+        .find(|s| s["name"] == "ros_node_list")
+        .unwrap_or_else(|| panic!("{result:#}"));
+    // The model may add a filter; the listing then also shows the unfiltered nodes.
+    let output = call["output"].to_string();
+    assert!(output.contains("/turtlesim"), "{result:#}");
+    eprintln!("answer: {}", result["answer"]);
+}
+
+#[test]
+fn ask_sim_moves_the_turtle_with_the_real_model() {
+    if rerun_in_loopback_netns("ros::ask_sim_moves_the_turtle_with_the_real_model", 240) {
+        return;
+    }
+    let result = ask_sim("move the turtle forward 2 meters", &["--yes"]);
+    let steps = result["steps"].as_array().unwrap();
+    let moved = steps
+        .iter()
+        .find(|s| s["name"] == "turtle_move" && s["ok"] == true)
+        .unwrap_or_else(|| panic!("no turtle_move: {result:#}"));
+    // The pose the tool read back over ROS after the move.
+    let x = moved["output"]["pose"]["x"].as_f64().unwrap();
+    assert!((x - (CENTER + 2.0)).abs() < 0.1, "x = {x}: {result:#}");
+}

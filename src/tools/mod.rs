@@ -1,6 +1,6 @@
 //! The concrete tools, in packages a robot enables: `calc` (arithmetic, statistics,
-//! trigonometry, units, geometry), `system` (time, wait) and `log` (reading log files in
-//! configured directories). ROS tools join when the ROS layer lands.
+//! trigonometry, units, geometry), `system` (time, wait), `log` (reading log files in
+//! configured directories), `ros` (the ROS graph) and `turtle` (the sim robot's own).
 //!
 //! Layout:
 //! - `calc`: calc_eval, calc_stats, calc_convert, calc_geometry
@@ -9,13 +9,17 @@
 //! - `guard`: policy_deny_add (the model may add deny patterns, never remove them)
 //! - `system`: system_time, system_wait
 //! - `log`: log_read
+//! - `ros`: ros_node_*, ros_topic_*, ros_service_*, ros_param_*, ros_interface_show, ros_log_read
+//! - `turtle`: turtle_move, turtle_rotate, turtle_pose, turtle_teleport, turtle_pen, turtle_reset
 
 pub mod calc;
 pub mod declared;
 pub mod expr;
 pub mod guard;
 pub mod log;
+pub mod ros;
 pub mod system;
+pub mod turtle;
 
 use std::path::PathBuf;
 

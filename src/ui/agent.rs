@@ -1,11 +1,14 @@
 //! `ferrosa ask` (one shot) and `ferrosa chat` (REPL): build an agent from the command
 //! line (model, tools, policy, robot prompt, trace directory), run it, and show the event
 //! stream as it happens. Ctrl-C cancels the current run; in the REPL it does not exit.
+//! `--robot sim` starts the built-in robot in this process and gives the agent the ROS
+//! and turtle tools; `--robot ros2` joins the ROS 2 graph already running here.
 
 use std::io::{BufRead, IsTerminal, Write};
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
+use std::time::{Duration, Instant};
 
 use anyhow::Context;
 use serde_json::json;
@@ -14,6 +17,9 @@ use crate::agent::prompt::RobotPrompt;
 use crate::agent::trace::Trace;
 use crate::agent::{Agent, AgentConfig, AnswerMode, Event};
 use crate::decode::Decoding;
+use crate::ros::ros2::{Ros2Graph, Ros2Options};
+use crate::ros::sim::Sim;
+use crate::ros::RosGraph;
 use crate::tool::policy::{NoOperator, PolicyFile};
 use crate::tool::{Confirm, Policy, Registry, ToolCall};
 
@@ -29,6 +35,89 @@ pub struct AgentArgs {
     pub max_steps: usize,
     pub decoding: Decoding,
     pub answer_mode: AnswerMode,
+    pub robot: Robot,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Robot {
+    None,
+    Sim,
+    Ros2,
+}
+
+/// What keeps the robot connection alive for the agent's lifetime.
+pub struct RobotLink {
+    pub graph: Option<Arc<Ros2Graph>>,
+    pub sim: Option<Sim>,
+}
+
+const TURTLESIM_PROMPT: &str = include_str!("../../prompts/turtlesim.toml");
+
+/// Join ROS 2 (and start the sim first when asked), then wait until the graph shows it.
+pub fn connect(robot: Robot) -> anyhow::Result<RobotLink> {
+    if robot == Robot::None {
+        return Ok(RobotLink {
+            graph: None,
+            sim: None,
+        });
+    }
+    let opts = Ros2Options::from_env()?;
+    let start = Instant::now();
+    // The agent's participant first: RustDDS peers discover a publishing sim late.
+    let graph = Arc::new(Ros2Graph::start(
+        &opts,
+        &format!("_ferrosa_{}", std::process::id()),
+    )?);
+    let sim = if robot == Robot::Sim {
+        Some(Sim::start(&opts)?)
+    } else {
+        None
+    };
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_time()
+        .build()?;
+    let limit = Duration::from_secs(if robot == Robot::Sim { 15 } else { 4 });
+    let found = rt.block_on(async {
+        loop {
+            let g = graph.graph().await.unwrap_or_default();
+            let ready = match robot {
+                Robot::Sim => {
+                    g.nodes.iter().any(|n| n == "/turtlesim")
+                        && g.topics().contains_key("/turtle1/pose")
+                        && g.services().contains_key("/spawn")
+                }
+                _ => !g.nodes.is_empty() && start.elapsed() > Duration::from_secs(2),
+            };
+            if ready || start.elapsed() > limit {
+                return (ready, g.nodes.len());
+            }
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        }
+    });
+    match found {
+        (true, n) => eprintln!("robot: {n} ROS node(s) discovered in {} ms (domain {}, {:?})", start.elapsed().as_millis(), opts.domain_id, opts.range),
+        (false, _) if robot == Robot::Sim => anyhow::bail!("the built-in sim did not appear on ROS 2 within {limit:?}; run with FERROSA_LOG=rustdds=warn to see why"),
+        (false, _) => eprintln!("robot: no ROS 2 node found within {limit:?} (domain {}, {:?}); check ROS_DOMAIN_ID and ROS_AUTOMATIC_DISCOVERY_RANGE", opts.domain_id, opts.range),
+    }
+    Ok(RobotLink {
+        graph: Some(graph),
+        sim,
+    })
+}
+
+/// `ferrosa sim`: the robot alone, until Ctrl-C.
+pub fn sim() -> anyhow::Result<()> {
+    let opts = Ros2Options::from_env()?;
+    let _sim = Sim::start(&opts)?;
+    eprintln!(
+        "ferrosa sim: /turtlesim on ROS 2 domain {} ({:?}); Ctrl-C stops it",
+        opts.domain_id, opts.range
+    );
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()?;
+    rt.block_on(tokio::signal::ctrl_c())?;
+    Ok(())
 }
 
 /// Asks on the terminal: "run turtle_move {...}? [y/N]".
@@ -48,7 +137,7 @@ impl Confirm for TerminalConfirm {
     }
 }
 
-pub fn build(args: &AgentArgs) -> anyhow::Result<Agent> {
+pub fn build(args: &AgentArgs) -> anyhow::Result<(Agent, RobotLink)> {
     let confirm: Arc<dyn Confirm> = if std::io::stdin().is_terminal() {
         Arc::new(TerminalConfirm)
     } else {
@@ -72,8 +161,19 @@ pub fn build(args: &AgentArgs) -> anyhow::Result<Agent> {
     }
     let prompt = match &args.prompt {
         Some(p) => RobotPrompt::load(p)?,
+        None if args.robot == Robot::Sim => {
+            RobotPrompt::parse(TURTLESIM_PROMPT, "prompts/turtlesim.toml")?
+        }
         None => RobotPrompt::default_robot(),
     };
+    let link = connect(args.robot)?;
+    if let Some(graph) = &link.graph {
+        let graph: Arc<dyn RosGraph> = graph.clone();
+        registry.add(crate::tools::ros::package(graph.clone()));
+        if args.robot == Robot::Sim {
+            registry.add(crate::tools::turtle::package(graph, "turtle1"));
+        }
+    }
     // Configuration errors first: loading the model is the slow part.
     let (resolved, _, model) = args.model.load()?;
     let family = resolved.family().unwrap_or("chatml").to_string();
@@ -87,7 +187,7 @@ pub fn build(args: &AgentArgs) -> anyhow::Result<Agent> {
             .with_context(|| format!("cannot create a trace in {}", dir.display()))?;
         agent = agent.with_trace(trace);
     }
-    Ok(agent)
+    Ok((agent, link))
 }
 
 /// Ctrl-C sets the agent's cancel flag instead of killing the process.
@@ -148,7 +248,7 @@ fn show(e: &Event, stream: bool) {
 }
 
 pub fn ask(args: &AgentArgs, query: &str, as_json: bool) -> anyhow::Result<()> {
-    let mut agent = build(args)?;
+    let (mut agent, _robot) = build(args)?;
     install_ctrl_c(agent.cancel_flag());
     let result = agent.ask(query, &mut |e| {
         if !as_json {
@@ -179,7 +279,7 @@ pub fn ask(args: &AgentArgs, query: &str, as_json: bool) -> anyhow::Result<()> {
 }
 
 pub fn chat(args: &AgentArgs) -> anyhow::Result<()> {
-    let mut agent = build(args)?;
+    let (mut agent, _robot) = build(args)?;
     let cancel = agent.cancel_flag();
     install_ctrl_c(cancel.clone());
     eprintln!(

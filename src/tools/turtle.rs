@@ -1,0 +1,255 @@
+//! The sim turtle's own tools, written with the public `Tool` API over a `RosGraph`:
+//! the worked example of robot-specific tools for integrators (see prompts/turtlesim.toml
+//! for its prompt). Motion tools wait for the move to finish and return the new pose.
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use schemars::JsonSchema;
+use serde::Deserialize;
+use serde_json::{json, Value};
+
+use crate::ros::RosGraph;
+use crate::tool::{Effect, Package, Tool, ToolContext, ToolError};
+
+/// The turtle tools for `turtle` (e.g. "turtle1").
+pub fn package(graph: Arc<dyn RosGraph>, turtle: &str) -> Package {
+    let t = || Turtle {
+        graph: graph.clone(),
+        name: turtle.trim_matches('/').to_string(),
+    };
+    Package::new("turtle")
+        .with(Move(t()))
+        .with(Rotate(t()))
+        .with(Pose(t()))
+        .with(Teleport(t()))
+        .with(Pen(t()))
+        .with(Reset(t()))
+}
+
+#[derive(Clone)]
+pub struct Turtle {
+    graph: Arc<dyn RosGraph>,
+    name: String,
+}
+
+/// turtlesim holds a velocity command for one second.
+const HOLD: Duration = Duration::from_millis(1100);
+
+impl Turtle {
+    fn failed(e: crate::ros::RosError) -> ToolError {
+        ToolError::Failed(e.to_string())
+    }
+
+    async fn pose(&self) -> Result<Value, ToolError> {
+        let topic = format!("/{}/pose", self.name);
+        let samples = self
+            .graph
+            .subscribe(
+                &topic,
+                Some("turtlesim/msg/Pose"),
+                1,
+                Duration::from_secs(3),
+            )
+            .await
+            .map_err(Self::failed)?;
+        let p = samples
+            .into_iter()
+            .next()
+            .ok_or_else(|| ToolError::Failed(format!("no pose on {topic}; is the sim running?")))?
+            .message;
+        let round = |v: &Value| (v.as_f64().unwrap_or(0.0) * 1000.0).round() / 1000.0;
+        Ok(json!({"x": round(&p["x"]), "y": round(&p["y"]),
+                  "theta_deg": (p["theta"].as_f64().unwrap_or(0.0).to_degrees() * 10.0).round() / 10.0}))
+    }
+
+    /// Drive for one command period, then report where the turtle ended up.
+    async fn drive(&self, linear: f64, angular: f64) -> Result<Value, ToolError> {
+        self.graph
+            .publish(
+                &format!("/{}/cmd_vel", self.name),
+                "geometry_msgs/msg/Twist",
+                json!({"linear": {"x": linear}, "angular": {"z": angular}}),
+            )
+            .await
+            .map_err(Self::failed)?;
+        tokio::time::sleep(HOLD).await;
+        self.pose().await
+    }
+
+    async fn call(
+        &self,
+        service: &str,
+        ty: &str,
+        request: Value,
+        cx: &ToolContext,
+    ) -> Result<Value, ToolError> {
+        self.graph
+            .call_service(service, ty, request, cx.timeout)
+            .await
+            .map_err(Self::failed)
+    }
+}
+
+#[derive(Deserialize, JsonSchema)]
+pub struct MoveArgs {
+    /// Meters to drive, -5 to 5 (negative drives backward).
+    #[schemars(range(min = -5.0, max = 5.0))]
+    pub distance: f64,
+}
+
+pub struct Move(Turtle);
+
+impl Tool for Move {
+    type Args = MoveArgs;
+    const NAME: &'static str = "turtle_move";
+    const EFFECT: Effect = Effect::Actuates;
+    fn description(&self) -> String {
+        "Drive the turtle straight forward (or backward) a distance in meters; returns the new pose. Moves the robot.".into()
+    }
+    async fn call(&self, a: MoveArgs, _: &ToolContext) -> Result<Value, ToolError> {
+        let d = a.distance.clamp(-5.0, 5.0);
+        let pose = self.0.drive(d, 0.0).await?;
+        Ok(json!({"moved_m": d, "pose": pose}))
+    }
+}
+
+#[derive(Deserialize, JsonSchema)]
+pub struct RotateArgs {
+    /// Degrees to turn, -180 to 180 (positive is counter-clockwise, to the left).
+    #[schemars(range(min = -180.0, max = 180.0))]
+    pub degrees: f64,
+}
+
+pub struct Rotate(Turtle);
+
+impl Tool for Rotate {
+    type Args = RotateArgs;
+    const NAME: &'static str = "turtle_rotate";
+    const EFFECT: Effect = Effect::Actuates;
+    fn description(&self) -> String {
+        "Turn the turtle in place by an angle in degrees (positive turns left); returns the new pose. Moves the robot.".into()
+    }
+    async fn call(&self, a: RotateArgs, _: &ToolContext) -> Result<Value, ToolError> {
+        let deg = a.degrees.clamp(-180.0, 180.0);
+        let pose = self.0.drive(0.0, deg.to_radians()).await?;
+        Ok(json!({"turned_deg": deg, "pose": pose}))
+    }
+}
+
+#[derive(Deserialize, JsonSchema)]
+pub struct NoArgs {}
+
+pub struct Pose(Turtle);
+
+impl Tool for Pose {
+    type Args = NoArgs;
+    const NAME: &'static str = "turtle_pose";
+    const EFFECT: Effect = Effect::Observes;
+    fn description(&self) -> String {
+        "Where the turtle is: x and y in meters and heading in degrees.".into()
+    }
+    async fn call(&self, _: NoArgs, _: &ToolContext) -> Result<Value, ToolError> {
+        self.0.pose().await
+    }
+}
+
+#[derive(Deserialize, JsonSchema)]
+pub struct TeleportArgs {
+    /// x in meters, 0 to 11.
+    #[schemars(range(min = 0.0, max = 11.0))]
+    pub x: f64,
+    /// y in meters, 0 to 11.
+    #[schemars(range(min = 0.0, max = 11.0))]
+    pub y: f64,
+    /// Heading in degrees (default 0, facing +x).
+    #[serde(default)]
+    #[schemars(range(min = -180.0, max = 180.0))]
+    pub theta_deg: Option<f64>,
+}
+
+pub struct Teleport(Turtle);
+
+impl Tool for Teleport {
+    type Args = TeleportArgs;
+    const NAME: &'static str = "turtle_teleport";
+    const EFFECT: Effect = Effect::Actuates;
+    fn description(&self) -> String {
+        "Put the turtle at a position (x, y in meters) instantly. Moves the robot.".into()
+    }
+    async fn call(&self, a: TeleportArgs, cx: &ToolContext) -> Result<Value, ToolError> {
+        let service = format!("/{}/teleport_absolute", self.0.name);
+        let theta = a.theta_deg.unwrap_or(0.0).to_radians();
+        self.0
+            .call(
+                &service,
+                "turtlesim/srv/TeleportAbsolute",
+                json!({"x": a.x, "y": a.y, "theta": theta}),
+                cx,
+            )
+            .await?;
+        tokio::time::sleep(Duration::from_millis(100)).await;
+        Ok(json!({"teleported": true, "pose": self.0.pose().await?}))
+    }
+}
+
+#[derive(Deserialize, JsonSchema)]
+pub struct PenArgs {
+    /// Pen colour, red 0-255.
+    #[schemars(range(min = 0, max = 255))]
+    pub r: u8,
+    /// Green 0-255.
+    #[schemars(range(min = 0, max = 255))]
+    pub g: u8,
+    /// Blue 0-255.
+    #[schemars(range(min = 0, max = 255))]
+    pub b: u8,
+    /// Line width 1-10 (default 3).
+    #[serde(default)]
+    #[schemars(range(min = 1, max = 10))]
+    pub width: Option<u8>,
+    /// True lifts the pen (no drawing).
+    #[serde(default)]
+    pub off: Option<bool>,
+}
+
+pub struct Pen(Turtle);
+
+impl Tool for Pen {
+    type Args = PenArgs;
+    const NAME: &'static str = "turtle_pen";
+    const EFFECT: Effect = Effect::Actuates;
+    fn description(&self) -> String {
+        "Set the turtle's pen colour (r, g, b), width, or lift it.".into()
+    }
+    async fn call(&self, a: PenArgs, cx: &ToolContext) -> Result<Value, ToolError> {
+        let req = json!({"r": a.r, "g": a.g, "b": a.b, "width": a.width.unwrap_or(3), "off": a.off.unwrap_or(false) as u8});
+        self.0
+            .call(
+                &format!("/{}/set_pen", self.0.name),
+                "turtlesim/srv/SetPen",
+                req.clone(),
+                cx,
+            )
+            .await?;
+        Ok(json!({"pen": req}))
+    }
+}
+
+pub struct Reset(Turtle);
+
+impl Tool for Reset {
+    type Args = NoArgs;
+    const NAME: &'static str = "turtle_reset";
+    const EFFECT: Effect = Effect::Actuates;
+    fn description(&self) -> String {
+        "Reset the sim: remove other turtles and put the turtle back at the center. Moves the robot.".into()
+    }
+    async fn call(&self, _: NoArgs, cx: &ToolContext) -> Result<Value, ToolError> {
+        self.0
+            .call("/reset", "std_srvs/srv/Empty", json!({}), cx)
+            .await?;
+        tokio::time::sleep(Duration::from_millis(100)).await;
+        Ok(json!({"reset": true, "pose": self.0.pose().await?}))
+    }
+}
