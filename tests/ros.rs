@@ -152,3 +152,196 @@ fn ask_sim_moves_the_turtle_with_the_real_model() {
     let x = moved["output"]["pose"]["x"].as_f64().unwrap();
     assert!((x - (CENTER + 2.0)).abs() < 0.1, "x = {x}: {result:#}");
 }
+
+/// The Python of the rclpy virtualenv `.ci/setup` makes (or `FERROSA_RCLPY_PYTHON`).
+fn rclpy_python() -> std::path::PathBuf {
+    let p = std::env::var_os("FERROSA_RCLPY_PYTHON")
+        .map(std::path::PathBuf::from)
+        .unwrap_or_else(|| {
+            std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("target/rosvenv/bin/python")
+        });
+    assert!(
+        p.exists(),
+        "{} missing: run .ci/setup (it makes the rclpy virtualenv)",
+        p.display()
+    );
+    p
+}
+
+fn peer_script() -> std::path::PathBuf {
+    std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/peers/rclpy_peer.py")
+}
+
+/// Stops the peer when the test ends: SIGTERM to its `timeout`, which passes it on (a
+/// SIGKILL would leave the peer running); `timeout` alone ends it if this process dies.
+struct Peer(std::process::Child);
+
+impl Drop for Peer {
+    fn drop(&mut self) {
+        let _ = std::process::Command::new("kill").arg(self.0.id().to_string()).status();
+        let _ = self.0.wait();
+    }
+}
+
+#[test]
+fn ferrosa_tools_on_an_rclpy_peer() {
+    use ferrosa::tool::{Registry, ToolContext};
+    if rerun_in_loopback_netns("ros::ferrosa_tools_on_an_rclpy_peer", 120) {
+        return;
+    }
+    let _peer = Peer(
+        std::process::Command::new("timeout")
+            .args(["100"])
+            .arg(rclpy_python())
+            .arg(peer_script())
+            .arg("serve")
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::null())
+            .spawn()
+            .expect("starting the rclpy peer"),
+    );
+    let rt = runtime();
+    rt.block_on(async {
+        let graph = std::sync::Arc::new(
+            Ros2Graph::start(&Ros2Options::default(), "_ferrosa_test").unwrap(),
+        );
+        let start = Instant::now();
+        loop {
+            let g = graph.graph().await.unwrap();
+            if g.nodes.iter().any(|n| n == "/peer")
+                && g.services().contains_key("/peer/trigger")
+                && g.topics().contains_key("/chatter")
+            {
+                break;
+            }
+            assert!(
+                start.elapsed() < Duration::from_secs(30),
+                "rclpy peer not discovered: {:?}",
+                g.nodes
+            );
+            tokio::time::sleep(Duration::from_millis(100)).await;
+        }
+        eprintln!("rclpy peer discovered after {:?}", start.elapsed());
+        let mut tools = Registry::new();
+        tools.add(ferrosa::tools::ros::package(graph.clone()));
+        let cx = ToolContext {
+            timeout: Duration::from_secs(10),
+        };
+        let call = |name: &str, args: serde_json::Value| {
+            let tool = tools.get(name).expect("a ROS tool").clone();
+            let cx = cx.clone();
+            async move { tool.call(args, &cx).await }
+        };
+
+        let nodes = call("ros_node_list", json!({})).await.unwrap();
+        assert!(
+            nodes["nodes"].as_array().unwrap().contains(&json!("/peer")),
+            "{nodes}"
+        );
+        let info = call("ros_node_info", json!({"node": "/peer"}))
+            .await
+            .unwrap();
+        assert!(
+            info["publishers"].to_string().contains("/chatter"),
+            "{info}"
+        );
+        let echo = call("ros_topic_echo", json!({"topic": "/chatter", "count": 2}))
+            .await
+            .unwrap();
+        assert_eq!(echo["count"], 2, "{echo}");
+        assert!(
+            echo["messages"][0]["data"]
+                .as_str()
+                .unwrap()
+                .starts_with("hello "),
+            "{echo}"
+        );
+        let trig = call("ros_service_call", json!({"service": "/peer/trigger"}))
+            .await
+            .unwrap();
+        assert_eq!(trig["response"]["success"], true, "{trig}");
+        assert!(
+            trig["response"]["message"]
+                .as_str()
+                .unwrap()
+                .starts_with("triggered after"),
+            "{trig}"
+        );
+        let flag = call(
+            "ros_service_call",
+            json!({"service": "/peer/set_flag", "request": {"data": true}}),
+        )
+        .await
+        .unwrap();
+        assert_eq!(flag["response"]["message"], "flag is True", "{flag}");
+        let params = call("ros_param_list", json!({"node": "/peer"}))
+            .await
+            .unwrap();
+        assert!(
+            params["parameters"]
+                .as_array()
+                .unwrap()
+                .contains(&json!("speed")),
+            "{params}"
+        );
+        let speed = call("ros_param_get", json!({"node": "/peer", "name": "speed"}))
+            .await
+            .unwrap();
+        assert_eq!(speed["value"], 0.5);
+        call(
+            "ros_param_set",
+            json!({"node": "/peer", "name": "speed", "value": 0.75}),
+        )
+        .await
+        .unwrap();
+        let speed = call("ros_param_get", json!({"node": "/peer", "name": "speed"}))
+            .await
+            .unwrap();
+        assert_eq!(speed["value"], 0.75);
+    });
+}
+
+#[test]
+fn rclpy_sees_and_drives_the_sim() {
+    if rerun_in_loopback_netns("ros::rclpy_sees_and_drives_the_sim", 120) {
+        return;
+    }
+    let sim = Sim::start(&Ros2Options::default()).unwrap();
+    let out = std::process::Command::new("timeout")
+        .args(["60"])
+        .arg(rclpy_python())
+        .arg(peer_script())
+        .arg("drive")
+        .output()
+        .expect("running the rclpy driver");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "rclpy driver: {}\n{stdout}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let seen: serde_json::Value =
+        serde_json::from_str(stdout.lines().last().unwrap_or("")).unwrap();
+    assert!(
+        seen["nodes"]
+            .as_array()
+            .unwrap()
+            .contains(&json!("/turtlesim")),
+        "{seen}"
+    );
+    assert_eq!(
+        seen["topics"]["/turtle1/pose"],
+        json!(["turtlesim/msg/Pose"]),
+        "{seen}"
+    );
+    assert_eq!(
+        seen["services"]["/spawn"],
+        json!(["turtlesim/srv/Spawn"]),
+        "{seen}"
+    );
+    assert_eq!(seen["subscribers"], 1, "{seen}");
+    assert_eq!(seen["cleared"], true, "{seen}");
+    std::thread::sleep(Duration::from_millis(1200));
+    let x = sim.pose("turtle1").unwrap()["x"].as_f64().unwrap();
+    assert!((x - (CENTER + 1.0)).abs() < 0.1, "x = {x}");
+}

@@ -1,0 +1,83 @@
+#!/usr/bin/env python3
+"""An independent ROS 2 peer (rclpy, rmw_fastrtps, from PyPI) for ferrosa's interop tests.
+
+    rclpy_peer.py serve   # node /peer: /chatter (std_msgs/String, 10 Hz), /peer/trigger
+                          # (std_srvs/Trigger), /peer/set_flag (std_srvs/SetBool), parameter
+                          # speed=0.5; runs until killed
+    rclpy_peer.py drive   # finds ferrosa's /turtlesim, sends turtle1 forward at 1 m/s, calls
+                          # /clear; prints one JSON line: nodes, topics, services it saw
+"""
+import json
+import sys
+import time
+
+import rclpy
+from rclpy.node import Node
+from std_msgs.msg import String
+from std_srvs.srv import SetBool, Trigger
+
+
+def serve():
+    node = Node("peer")
+    node.declare_parameter("speed", 0.5)
+    pub = node.create_publisher(String, "/chatter", 10)
+    count = [0]
+    flag = [False]
+
+    def tick():
+        count[0] += 1
+        pub.publish(String(data=f"hello {count[0]}"))
+
+    def trigger(_req, resp):
+        resp.success = True
+        resp.message = f"triggered after {count[0]} messages"
+        return resp
+
+    def set_flag(req, resp):
+        flag[0] = req.data
+        resp.success = True
+        resp.message = f"flag is {flag[0]}"
+        return resp
+
+    node.create_timer(0.1, tick)
+    node.create_service(Trigger, "/peer/trigger", trigger)
+    node.create_service(SetBool, "/peer/set_flag", set_flag)
+    print("peer ready", flush=True)
+    rclpy.spin(node)
+
+
+def drive():
+    # turtlesim's Python types are not on PyPI: drive with geometry_msgs and std_srvs only;
+    # the test reads the pose from the sim itself.
+    from geometry_msgs.msg import Twist
+    from std_srvs.srv import Empty
+
+    node = Node("driver")
+    deadline = time.time() + 20
+    while time.time() < deadline and "/turtlesim" not in _nodes(node):
+        rclpy.spin_once(node, timeout_sec=0.1)
+    pub = node.create_publisher(Twist, "/turtle1/cmd_vel", 10)
+    while time.time() < deadline and pub.get_subscription_count() == 0:
+        rclpy.spin_once(node, timeout_sec=0.1)
+    topics = {n: t for n, t in node.get_topic_names_and_types()}
+    services = {n: t for n, t in node.get_service_names_and_types()}
+    msg = Twist()
+    msg.linear.x = 1.0
+    pub.publish(msg)
+    clear = node.create_client(Empty, "/clear")
+    cleared = clear.wait_for_service(timeout_sec=5.0)
+    if cleared:
+        future = clear.call_async(Empty.Request())
+        rclpy.spin_until_future_complete(node, future, timeout_sec=5.0)
+        cleared = future.done()
+    print(json.dumps({"nodes": _nodes(node), "topics": topics, "services": services,
+                      "subscribers": pub.get_subscription_count(), "cleared": cleared}), flush=True)
+
+
+def _nodes(node):
+    return sorted(("/" + ns.strip("/") + "/" + n).replace("//", "/") for n, ns in node.get_node_names_and_namespaces())
+
+
+if __name__ == "__main__":
+    rclpy.init()
+    {"serve": serve, "drive": drive}[sys.argv[1]]()
