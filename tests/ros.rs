@@ -178,7 +178,9 @@ struct Peer(std::process::Child);
 
 impl Drop for Peer {
     fn drop(&mut self) {
-        let _ = std::process::Command::new("kill").arg(self.0.id().to_string()).status();
+        let _ = std::process::Command::new("kill")
+            .arg(self.0.id().to_string())
+            .status();
         let _ = self.0.wait();
     }
 }

@@ -284,30 +284,37 @@ impl GraphCache {
     }
 }
 
+/// Synthetic GIDs and endpoints for tests of the graph and of the tools on it.
 #[cfg(test)]
-mod tests {
+pub(crate) mod testing {
     use super::*;
 
-    const QOS: Qos = Qos {
-        reliability: Reliability::Reliable,
-        durability: Durability::Volatile,
-    };
-
-    fn gid(n: u8) -> Gid {
+    /// The GID whose last byte is `n`.
+    pub fn gid(n: u8) -> Gid {
         let mut g = [0u8; 16];
         g[15] = n;
         g
     }
 
-    fn ep(n: u8, writer: bool, topic: &str, ty: &str) -> DdsEndpoint {
+    /// A reliable, volatile endpoint with GID `gid(n)`.
+    pub fn ep(n: u8, writer: bool, topic: &str, ty: &str) -> DdsEndpoint {
         DdsEndpoint {
             gid: gid(n),
             writer,
             dds_topic: topic.into(),
             dds_type: ty.into(),
-            qos: QOS,
+            qos: Qos {
+                reliability: Reliability::Reliable,
+                durability: Durability::Volatile,
+            },
         }
     }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::testing::{ep, gid};
+    use super::*;
 
     #[test]
     fn endpoints_join_their_nodes_by_gid() {

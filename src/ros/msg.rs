@@ -326,8 +326,15 @@ impl Default for Interfaces {
 }
 
 impl Interfaces {
-    /// The bundle, plus `share/` folders from `AMENT_PREFIX_PATH`.
+    /// The bundle, plus `share/` folders from `AMENT_PREFIX_PATH`. Parsed once per
+    /// process and shared (the graph and the sim in one process read the same table;
+    /// definitions found later are valid for both).
     pub fn bundled() -> Interfaces {
+        static SHARED: std::sync::OnceLock<Interfaces> = std::sync::OnceLock::new();
+        SHARED.get_or_init(Interfaces::parse_bundle).clone()
+    }
+
+    fn parse_bundle() -> Interfaces {
         let mut known = Known::default();
         for file in BUNDLE {
             for section in file.split("=== ").filter(|s| !s.trim().is_empty()) {

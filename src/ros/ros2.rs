@@ -251,7 +251,6 @@ pub struct Ros2Graph {
     interfaces: Interfaces,
     publishers: Mutex<Publishers>,
     clients: Mutex<Clients>,
-    started: Instant,
 }
 
 impl Ros2Graph {
@@ -316,13 +315,7 @@ impl Ros2Graph {
             interfaces: Interfaces::bundled(),
             publishers: Mutex::new(HashMap::new()),
             clients: Mutex::new(HashMap::new()),
-            started: Instant::now(),
         })
-    }
-
-    /// Seconds since this graph joined DDS.
-    pub fn age(&self) -> Duration {
-        self.started.elapsed()
     }
 
     fn endpoints(&self) -> Vec<DdsEndpoint> {

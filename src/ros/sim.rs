@@ -568,7 +568,8 @@ async fn handle(
                     .insert("turtle1".into(), Turtle::at(CENTER, CENTER, 0.0));
                 others
             };
-            if !world_has_turtle1_tasks(s) {
+            let turtle1_running = s.world.lock().expect("world").tasks.contains_key("turtle1");
+            if !turtle1_running {
                 let mut node = s.node.lock().await;
                 let _ = add_turtle(rt, s, &mut node, "turtle1", Turtle::at(CENTER, CENTER, 0.0));
             }
@@ -584,10 +585,6 @@ async fn handle(
         }
         _ => json!({}),
     }
-}
-
-fn world_has_turtle1_tasks(s: &Shared) -> bool {
-    s.world.lock().expect("world").tasks.contains_key("turtle1")
 }
 
 #[cfg(test)]

@@ -7,7 +7,7 @@
 //! Parameters are reached through the node's `rcl_interfaces` services, logs through
 //! `/rosout`. Actions are not here yet.
 
-use std::collections::BTreeSet;
+use std::collections::{BTreeMap, BTreeSet};
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -47,7 +47,8 @@ pub struct Ros {
     graph: Arc<dyn RosGraph>,
 }
 
-fn failed(e: RosError) -> ToolError {
+/// A ROS failure as the model reads it (also used by the turtle tools).
+pub(crate) fn failed(e: RosError) -> ToolError {
     ToolError::Failed(e.to_string())
 }
 
@@ -55,6 +56,48 @@ impl Ros {
     async fn snapshot(&self) -> Result<Graph, ToolError> {
         self.graph.graph().await.map_err(failed)
     }
+
+    /// The type of `topic`, or a "no topic" error with near names.
+    async fn topic_type(&self, topic: &str) -> Result<String, ToolError> {
+        let g = self.snapshot().await?;
+        g.topic_type(topic).ok_or_else(|| no_topic(topic, &g))
+    }
+}
+
+/// "no topic /x; did you mean /y?" or, with nothing near, which tool lists them.
+fn not_found<'a>(
+    kind: &str,
+    wanted: &str,
+    names: impl Iterator<Item = &'a String>,
+    list_tool: &str,
+) -> ToolError {
+    let near = suggest(wanted, names);
+    ToolError::Failed(if near.is_empty() {
+        format!("no {kind} {wanted}; call {list_tool} to see the {kind}s")
+    } else {
+        format!("no {kind} {wanted}; did you mean {}?", near.join(" or "))
+    })
+}
+
+fn require_node(g: &Graph, node: &str) -> Result<(), ToolError> {
+    if g.nodes.iter().any(|n| n == node) {
+        Ok(())
+    } else {
+        Err(ToolError::Failed(format!(
+            "no node {node}; running nodes: {}",
+            g.nodes.join(", ")
+        )))
+    }
+}
+
+/// `{name, type}` items of a name → types map, keyed by their name for filtering.
+fn typed(item: &str, map: BTreeMap<String, BTreeSet<String>>) -> Vec<(String, Value)> {
+    map.into_iter()
+        .map(|(name, types)| {
+            let ty = types.into_iter().collect::<Vec<_>>().join(", ");
+            (name.clone(), json!({item: name, "type": ty}))
+        })
+        .collect()
 }
 
 /// `pattern` and `namespace` of a listing, compiled.
@@ -87,9 +130,16 @@ impl Filter {
         })
     }
 
-    /// `{count, <key>: kept, filters}`; when the filters keep nothing but there is
-    /// something, the unfiltered listing too, so a wrong filter is seen as one.
-    fn listing<T: serde::Serialize>(&self, key: &str, kept: Vec<T>, all: Vec<T>) -> Value {
+    /// `{count, <key>: the items whose names the filters keep, filters}`; when they keep
+    /// nothing but there is something, the unfiltered listing too, so a wrong filter is
+    /// seen as one.
+    fn listing(&self, key: &str, items: Vec<(String, Value)>) -> Value {
+        let kept: Vec<&Value> = items
+            .iter()
+            .filter(|(n, _)| self.keeps(n))
+            .map(|(_, v)| v)
+            .collect();
+        let all: Vec<&Value> = items.iter().map(|(_, v)| v).collect();
         let mut out = json!({"count": kept.len(), key: kept, "filters": self.echo});
         if out["count"] == 0
             && !all.is_empty()
@@ -155,9 +205,8 @@ impl Tool for NodeList {
     async fn call(&self, a: ListArgs, _: &ToolContext) -> Result<Value, ToolError> {
         let f = Filter::new(a.pattern, a.namespace)?;
         let g = self.0.snapshot().await?;
-        let nodes: Vec<&String> = g.nodes.iter().filter(|n| f.keeps(n)).collect();
-        let all: Vec<&String> = g.nodes.iter().collect();
-        Ok(f.listing("nodes", nodes, all))
+        let nodes = g.nodes.iter().map(|n| (n.clone(), json!(n))).collect();
+        Ok(f.listing("nodes", nodes))
     }
 }
 
@@ -179,12 +228,7 @@ impl Tool for NodeInfo {
     async fn call(&self, a: NodeArgs, _: &ToolContext) -> Result<Value, ToolError> {
         let node = absolute(&a.node);
         let g = self.0.snapshot().await?;
-        if !g.nodes.contains(&node) {
-            return Err(ToolError::Failed(format!(
-                "no node {node}; running nodes: {}",
-                g.nodes.join(", ")
-            )));
-        }
+        require_node(&g, &node)?;
         let mine = |n: &Option<String>| n.as_deref() == Some(node.as_str());
         let topics = |eps: &[crate::ros::graph::TopicEndpoint]| -> Vec<Value> {
             let set: BTreeSet<(String, String)> = eps
@@ -232,22 +276,7 @@ impl Tool for TopicList {
     async fn call(&self, a: ListArgs, _: &ToolContext) -> Result<Value, ToolError> {
         let f = Filter::new(a.pattern, a.namespace)?;
         let g = self.0.snapshot().await?;
-        let topics: Vec<(bool, Value)> = g
-            .topics()
-            .into_iter()
-            .map(|(t, types)| {
-                (
-                    f.keeps(&t),
-                    json!({"topic": t, "type": types.into_iter().collect::<Vec<_>>().join(", ")}),
-                )
-            })
-            .collect();
-        let kept = topics
-            .iter()
-            .filter(|(k, _)| *k)
-            .map(|(_, v)| v.clone())
-            .collect();
-        Ok(f.listing("topics", kept, topics.into_iter().map(|(_, v)| v).collect()))
+        Ok(f.listing("topics", typed("topic", g.topics())))
     }
 }
 
@@ -289,13 +318,7 @@ impl Tool for TopicInfo {
 }
 
 fn no_topic(topic: &str, g: &Graph) -> ToolError {
-    let topics = g.topics();
-    let near = suggest(topic, topics.keys());
-    ToolError::Failed(if near.is_empty() {
-        format!("no topic {topic}; call ros_topic_list to see the topics")
-    } else {
-        format!("no topic {topic}; did you mean {}?", near.join(" or "))
-    })
+    not_found("topic", topic, g.topics().keys(), "ros_topic_list")
 }
 
 #[derive(Deserialize, JsonSchema)]
@@ -342,8 +365,7 @@ impl Tool for TopicEcho {
         let count = a.count.unwrap_or(1).clamp(1, 20) as usize;
         let window =
             Duration::from_secs_f64(a.timeout_s.unwrap_or(3.0).clamp(0.1, 10.0)).min(cx.timeout);
-        let g = self.0.snapshot().await?;
-        let ty = g.topic_type(&topic).ok_or_else(|| no_topic(&topic, &g))?;
+        let ty = self.0.topic_type(&topic).await?;
         let samples = self
             .0
             .graph
@@ -392,8 +414,7 @@ impl Tool for TopicHz {
         let topic = absolute(&a.topic);
         let window =
             Duration::from_secs_f64(a.window_s.unwrap_or(2.0).clamp(0.5, 10.0)).min(cx.timeout);
-        let g = self.0.snapshot().await?;
-        let ty = g.topic_type(&topic).ok_or_else(|| no_topic(&topic, &g))?;
+        let ty = self.0.topic_type(&topic).await?;
         let samples = self
             .0
             .graph
@@ -468,26 +489,7 @@ impl Tool for ServiceList {
     async fn call(&self, a: ListArgs, _: &ToolContext) -> Result<Value, ToolError> {
         let f = Filter::new(a.pattern, a.namespace)?;
         let g = self.0.snapshot().await?;
-        let services: Vec<(bool, Value)> = g
-            .services()
-            .into_iter()
-            .map(|(s, types)| {
-                (
-                    f.keeps(&s),
-                    json!({"service": s, "type": types.into_iter().collect::<Vec<_>>().join(", ")}),
-                )
-            })
-            .collect();
-        let kept = services
-            .iter()
-            .filter(|(k, _)| *k)
-            .map(|(_, v)| v.clone())
-            .collect();
-        Ok(f.listing(
-            "services",
-            kept,
-            services.into_iter().map(|(_, v)| v).collect(),
-        ))
+        Ok(f.listing("services", typed("service", g.services())))
     }
 }
 
@@ -501,14 +503,12 @@ fn service_type(g: &Graph, service: &str) -> Result<String, ToolError> {
     let services = g.services();
     match services.get(service).and_then(|t| t.iter().next()) {
         Some(t) => Ok(t.clone()),
-        None => {
-            let near = suggest(service, services.keys());
-            Err(ToolError::Failed(if near.is_empty() {
-                format!("no service {service}; call ros_service_list to see the services")
-            } else {
-                format!("no service {service}; did you mean {}?", near.join(" or "))
-            }))
-        }
+        None => Err(not_found(
+            "service",
+            service,
+            services.keys(),
+            "ros_service_list",
+        )),
     }
 }
 
@@ -589,12 +589,7 @@ async fn param_call(
 ) -> Result<Value, ToolError> {
     let node = absolute(node);
     let g = ros.snapshot().await?;
-    if !g.nodes.contains(&node) {
-        return Err(ToolError::Failed(format!(
-            "no node {node}; running nodes: {}",
-            g.nodes.join(", ")
-        )));
-    }
+    require_node(&g, &node)?;
     ros.graph
         .call_service(&node_service(&node, which), ty, request, cx.timeout)
         .await
@@ -893,18 +888,10 @@ impl Tool for LogRead {
 mod tests {
     use super::*;
     use crate::ros::fake::{FakeGraph, Sent};
-    use crate::ros::graph::{DdsEndpoint, Durability, GraphCache, NodeEntities, Qos, Reliability};
+    use crate::ros::graph::testing::{ep, gid};
+    use crate::ros::graph::{GraphCache, NodeEntities};
 
     fn fake() -> Arc<FakeGraph> {
-        let qos = Qos {
-            reliability: Reliability::Reliable,
-            durability: Durability::Volatile,
-        };
-        let gid = |n: u8| {
-            let mut g = [0u8; 16];
-            g[15] = n;
-            g
-        };
         let mut cache = GraphCache::default();
         cache.update_participant(
             gid(99),
@@ -915,13 +902,6 @@ mod tests {
                 writers: vec![gid(2)],
             }],
         );
-        let ep = |n, writer, t: &str, ty: &str| DdsEndpoint {
-            gid: gid(n),
-            writer,
-            dds_topic: t.into(),
-            dds_type: ty.into(),
-            qos,
-        };
         let graph = cache.join(&[
             ep(
                 1,

@@ -11,6 +11,7 @@ use serde_json::{json, Value};
 
 use crate::ros::RosGraph;
 use crate::tool::{Effect, Package, Tool, ToolContext, ToolError};
+use crate::tools::ros::failed;
 
 /// The turtle tools for `turtle` (e.g. "turtle1").
 pub fn package(graph: Arc<dyn RosGraph>, turtle: &str) -> Package {
@@ -37,10 +38,6 @@ pub struct Turtle {
 const HOLD: Duration = Duration::from_millis(1100);
 
 impl Turtle {
-    fn failed(e: crate::ros::RosError) -> ToolError {
-        ToolError::Failed(e.to_string())
-    }
-
     async fn pose(&self) -> Result<Value, ToolError> {
         let topic = format!("/{}/pose", self.name);
         let samples = self
@@ -52,7 +49,7 @@ impl Turtle {
                 Duration::from_secs(3),
             )
             .await
-            .map_err(Self::failed)?;
+            .map_err(failed)?;
         let p = samples
             .into_iter()
             .next()
@@ -72,7 +69,7 @@ impl Turtle {
                 json!({"linear": {"x": linear}, "angular": {"z": angular}}),
             )
             .await
-            .map_err(Self::failed)?;
+            .map_err(failed)?;
         tokio::time::sleep(HOLD).await;
         self.pose().await
     }
@@ -87,7 +84,7 @@ impl Turtle {
         self.graph
             .call_service(service, ty, request, cx.timeout)
             .await
-            .map_err(Self::failed)
+            .map_err(failed)
     }
 }
 
