@@ -4,7 +4,8 @@
     rclpy_peer.py serve   # node /peer: /chatter (std_msgs/String, 10 Hz), /peer/trigger
                           # (std_srvs/Trigger), /peer/set_flag (std_srvs/SetBool), parameter
                           # speed=0.5; runs until killed
-    rclpy_peer.py drive   # finds ferrosa's /turtlesim, sends turtle1 forward at 1 m/s, calls
+    rclpy_peer.py drive   # finds ferrosa's /turtlesim, sends turtle1 forward at 1 m/s
+                          # (10 Hz for 1 s; turtlesim holds the last for 1 s more), calls
                           # /clear; prints one JSON line: nodes, topics, services it saw
 """
 import json
@@ -61,9 +62,13 @@ def drive():
         rclpy.spin_once(node, timeout_sec=0.1)
     topics = {n: t for n, t in node.get_topic_names_and_types()}
     services = {n: t for n, t in node.get_service_names_and_types()}
+    # As a teleop does: 1 m/s at 10 Hz for one second. A single message sent the moment
+    # the subscription matched is sometimes lost on the RustDDS side.
     msg = Twist()
     msg.linear.x = 1.0
-    pub.publish(msg)
+    for _ in range(10):
+        pub.publish(msg)
+        rclpy.spin_once(node, timeout_sec=0.1)
     clear = node.create_client(Empty, "/clear")
     cleared = clear.wait_for_service(timeout_sec=5.0)
     if cleared:
