@@ -5,7 +5,7 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
-use ferrosa::agent::{Agent, AgentConfig, Event, Finish};
+use ferrosa::agent::{Agent, AgentConfig, Event, Finish, ANSWER_TOOL};
 use ferrosa::backend::scripted::Scripted;
 use ferrosa::backend::Gguf;
 use ferrosa::tool::policy::{NoOperator, PolicyFile};
@@ -37,7 +37,7 @@ fn calls(list: &[(&str, Value)]) -> String {
 }
 
 fn answer(text: &str) -> String {
-    call("answer", json!({"text": text}))
+    call(ANSWER_TOOL, json!({"text": text}))
 }
 
 fn agent(script: &[String], packages: Vec<Package>, policy: Policy, context: usize) -> Agent {
@@ -584,7 +584,7 @@ fn many_tools_are_narrowed_to_the_relevant_ones() {
         let offered = a.offered_tools(query);
         let names: Vec<&str> = offered.iter().map(|s| s.name.as_str()).collect();
         assert!(names.contains(&must), "{query}: {names:?}");
-        assert!(names.contains(&"answer"), "answer is always on");
+        assert!(names.contains(&ANSWER_TOOL), "the answer tool is always on");
         assert!(offered.len() < all.len());
         let full = a.prompt_tokens_with(query, &all);
         let narrowed = a.prompt_tokens_with(query, &offered);

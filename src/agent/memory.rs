@@ -23,6 +23,11 @@ impl Memory {
         });
     }
 
+    /// The operator's past queries, oldest first.
+    pub fn queries(&self) -> Vec<&str> {
+        self.exchanges.iter().map(|e| e.query.as_str()).collect()
+    }
+
     pub fn clear(&mut self) {
         self.exchanges.clear();
     }

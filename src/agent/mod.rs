@@ -15,9 +15,11 @@
 //! - `memory`: chat history, trimming, output truncation
 //! - `select`: choosing tools when their specs exceed the budget
 //! - `event`: the typed event stream every front end consumes
+//! - `ground`: dropping optional arguments nobody asked for
 //! - `trace`: JSONL session traces
 
 pub mod event;
+pub mod ground;
 pub mod memory;
 pub mod prompt;
 pub mod select;
@@ -43,7 +45,7 @@ use memory::{truncate_output, Memory};
 use trace::Trace;
 
 /// Name of the pseudo-tool the model calls to give its final answer.
-pub const ANSWER_TOOL: &str = "answer";
+pub const ANSWER_TOOL: &str = "reply";
 /// Longest answer text the grammar allows.
 const ANSWER_CHARS: usize = 240;
 
@@ -165,11 +167,11 @@ pub struct Agent {
 pub fn answer_spec() -> ToolSpec {
     ToolSpec::new(
         ANSWER_TOOL,
-        "Give the final answer to the operator, in a sentence that uses the numbers and names the tools returned.",
+        "Reply to the operator in one sentence, using the summary or the values the last tool returned.",
         // Bounded, so a model that rambles still ends its answer (see `tidy_answer`).
         // No braces or angle brackets: a small model that "closes" the call inside the
         // string (`}}]</tool_call>`) is steered to close the string instead.
-        json!({"type": "object", "properties": {"text": {"type": "string", "maxLength": ANSWER_CHARS, "pattern": "^[^{}<>]*$"}}, "required": ["text"]}),
+        json!({"type": "object", "properties": {"text": {"type": "string", "maxLength": ANSWER_CHARS, "pattern": "^[^{}<>]*[^{}<>:\\s]$"}}, "required": ["text"]}),
     )
     .expect("static spec is valid")
 }
@@ -330,6 +332,11 @@ impl Agent {
         // step offers only `answer`.
         let mut done_calls: Vec<(String, Value)> = Vec::new();
         let mut answer_only = false;
+        // What optional arguments may draw on: the operator's words (this query and the
+        // earlier ones) and what tools returned this run.
+        let mut grounding = self.memory.queries().join("\n");
+        grounding.push('\n');
+        grounding.push_str(query);
         let answer_only_specs: Vec<ToolSpec> = offered
             .iter()
             .filter(|s| s.name == ANSWER_TOOL)
@@ -441,7 +448,7 @@ impl Agent {
                 finish = Finish::Cancelled;
                 break;
             }
-            let turn = match r.turn {
+            let mut turn = match r.turn {
                 Ok(t) => t,
                 Err(e)
                     if r.finish == DecodeFinish::Length
@@ -493,6 +500,20 @@ impl Agent {
                 answer = turn.prose;
                 finish = Finish::Answer;
                 break;
+            }
+            for c in &mut turn.calls {
+                let Some(spec) = offered.iter().find(|s| s.name == c.name) else {
+                    continue;
+                };
+                let dropped = ground::drop_ungrounded(c, spec, &grounding);
+                if !dropped.is_empty() {
+                    if let Some(t) = &mut self.trace {
+                        t.record(
+                            "ungrounded",
+                            json!({"step": step, "tool": c.name, "dropped": dropped}),
+                        );
+                    }
+                }
             }
             if timings.first_call_token_ms.is_none() {
                 timings.first_call_token_ms = first_token.map(|d| d.as_secs_f64() * 1e3);
@@ -552,10 +573,14 @@ impl Agent {
                         ms,
                     },
                 );
-                if ok {
+                // A refused call is as done as a successful one: asking again gets the
+                // same refusal.
+                if ok || matches!(decision, Decision::Refused(_)) {
                     done_calls.push((call.name.clone(), call.arguments.clone()));
                 }
                 let shown = truncate_output(&to_json_spaced(&output), self.config.output_chars);
+                grounding.push('\n');
+                grounding.push_str(&shown);
                 last_observation = shown.clone();
                 let mut m = ChatMessage::new(Role::Tool, shown);
                 m.name = Some(call.name.clone());

@@ -67,6 +67,7 @@ pub fn assistant_turn(
 ) -> Result<TurnResult, DecodeError> {
     let messages = with_tools(req);
     let rendered = backend.chat_template().render(&messages, None, true)?;
+    tracing::debug!(target: "ferrosa::prompt", "{rendered}");
     let prompt = super::prompt_tokens(backend, &rendered, true)?;
 
     let mut constraint = match req.decoding {

@@ -140,12 +140,22 @@ impl Filter {
             .map(|(_, v)| v)
             .collect();
         let all: Vec<&Value> = items.iter().map(|(_, v)| v).collect();
-        let mut out = json!({"count": kept.len(), key: kept, "filters": self.echo});
-        if out["count"] == 0
-            && !all.is_empty()
-            && (self.pattern.is_some() || self.namespace.is_some())
-        {
-            out["note"] = json!("nothing matched the filters; without them there is this");
+        let names = |keep: &dyn Fn(&str) -> bool| -> Vec<&str> {
+            items
+                .iter()
+                .map(|(n, _)| n.as_str())
+                .filter(|n| keep(n))
+                .collect()
+        };
+        let filtered = self.pattern.is_some() || self.namespace.is_some();
+        let kept_names = names(&|n| self.keeps(n));
+        let mut out = json!({"summary": summary(key, &kept_names), "count": kept.len(), key: kept, "filters": self.echo});
+        if kept.is_empty() && !all.is_empty() && filtered {
+            let all_names = names(&|_| true);
+            out["summary"] = json!(format!(
+                "No {key} matched the filters; without them, {}",
+                summary(key, &all_names)
+            ));
             out[format!("all_{key}")] = json!(all);
             out["all_count"] = json!(all.len());
         }
@@ -158,6 +168,29 @@ impl Filter {
         });
         ns_ok && self.pattern.as_ref().is_none_or(|re| re.is_match(name))
     }
+}
+
+/// "2 nodes: /a, /b" (at most 12 names, then "and N more"), the sentence a small model
+/// copies into its answer instead of counting a JSON array itself.
+fn summary(key: &str, names: &[&str]) -> String {
+    const SHOWN: usize = 12;
+    let noun = if names.len() == 1 {
+        key.trim_end_matches('s')
+    } else {
+        key
+    };
+    if names.is_empty() {
+        return format!("0 {key}");
+    }
+    let mut text = format!(
+        "{} {noun}: {}",
+        names.len(),
+        names[..names.len().min(SHOWN)].join(", ")
+    );
+    if names.len() > SHOWN {
+        text.push_str(&format!(" and {} more", names.len() - SHOWN));
+    }
+    text
 }
 
 fn absolute(name: &str) -> String {
@@ -185,11 +218,12 @@ fn suggest<'a>(wanted: &str, names: impl Iterator<Item = &'a String>) -> Vec<Str
 
 #[derive(Deserialize, JsonSchema)]
 pub struct ListArgs {
-    /// Optional regular expression the name must match, e.g. "turtle".
+    /// Only names matching this regular expression; leave out to list all.
     #[serde(default)]
     pub pattern: Option<String>,
-    /// Optional namespace, e.g. "/turtle1".
+    /// Only names under this namespace; leave out to list all.
     #[serde(default)]
+    #[schemars(regex(pattern = r"^/[A-Za-z0-9_/]*$"))]
     pub namespace: Option<String>,
 }
 

@@ -1,0 +1,124 @@
+//! Grounding of optional arguments: a small model fills optional string arguments it was
+//! never asked for (a listing's `namespace` set to the tool's own name, a filter copied
+//! from a description's example), and a filter nobody asked for hides the answer. Before
+//! a call runs, an optional free-text argument is kept only when its words occur in what
+//! the operator said or what a tool returned this run; otherwise it is dropped, which is
+//! always valid (it is optional) and means "no filter" / "the default".
+//!
+//! Required arguments, enums, numbers and booleans are never touched: the grammar already
+//! bounds them, and a required value must be the model's own guess.
+
+use serde_json::Value;
+
+use crate::tool::{ToolCall, ToolSpec};
+
+/// Words of at least this many characters must be grounded; shorter ones ("/", "x") are
+/// left alone.
+const MIN_WORD: usize = 3;
+
+/// Drop the optional string arguments of `call` that `context` never mentions; returns
+/// the names of the dropped arguments.
+pub fn drop_ungrounded(call: &mut ToolCall, spec: &ToolSpec, context: &str) -> Vec<String> {
+    let context = context.to_lowercase();
+    let required: Vec<&str> = spec.parameters["required"]
+        .as_array()
+        .map(|r| r.iter().filter_map(Value::as_str).collect())
+        .unwrap_or_default();
+    let props = &spec.parameters["properties"];
+    let Some(args) = call.arguments.as_object_mut() else {
+        return Vec::new();
+    };
+    let dropped: Vec<String> = args
+        .iter()
+        .filter(|(name, value)| {
+            !required.contains(&name.as_str())
+                && is_free_text(&props[name.as_str()])
+                && value.as_str().is_some_and(|v| !grounded(v, &context))
+        })
+        .map(|(name, _)| name.clone())
+        .collect();
+    for name in &dropped {
+        args.remove(name);
+    }
+    dropped
+}
+
+/// A string property without an enum (or const) of its own.
+fn is_free_text(prop: &Value) -> bool {
+    let ty = &prop["type"];
+    let is_string = ty == "string"
+        || ty
+            .as_array()
+            .is_some_and(|t| t.iter().any(|x| x == "string"));
+    is_string && prop.get("enum").is_none() && prop.get("const").is_none()
+}
+
+/// Every word of `value` (runs of letters, digits and `_`, as in ROS names;
+/// case-insensitive) occurs in `context`.
+fn grounded(value: &str, context: &str) -> bool {
+    value
+        .to_lowercase()
+        .split(|c: char| !c.is_alphanumeric() && c != '_')
+        .filter(|w| w.chars().count() >= MIN_WORD)
+        .all(|w| context.contains(w))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use serde_json::json;
+
+    fn spec() -> ToolSpec {
+        ToolSpec::new(
+            "ros_node_list",
+            "List nodes.",
+            json!({"type": "object", "properties": {
+                "namespace": {"type": "string"},
+                "pattern": {"type": ["string", "null"]},
+                "level": {"type": "string", "enum": ["info", "warn"]},
+                "node": {"type": "string"},
+                "count": {"type": "integer"}
+            }, "required": ["node"]}),
+        )
+        .unwrap()
+    }
+
+    fn call(args: Value) -> ToolCall {
+        ToolCall {
+            name: "ros_node_list".into(),
+            arguments: args,
+        }
+    }
+
+    #[test]
+    fn an_optional_filter_nobody_mentioned_is_dropped() {
+        let mut c = call(json!({"node": "/made_up", "namespace": "ros_node_list", "count": 3}));
+        let dropped = drop_ungrounded(&mut c, &spec(), "list the ROS nodes");
+        assert_eq!(dropped, ["namespace"]);
+        // The required guess and the number stay.
+        assert_eq!(c.arguments, json!({"node": "/made_up", "count": 3}));
+    }
+
+    #[test]
+    fn words_from_the_query_or_a_tool_result_are_kept() {
+        let ctx = "which topics does turtle1 have? {\"nodes\": [\"/turtlesim\"]}";
+        let mut c =
+            call(json!({"node": "/x", "namespace": "/Turtle1", "pattern": "turtlesim|turtle1"}));
+        assert!(drop_ungrounded(&mut c, &spec(), ctx).is_empty());
+        assert_eq!(c.arguments["namespace"], "/Turtle1");
+    }
+
+    #[test]
+    fn one_unknown_word_is_enough_to_drop_and_enums_are_untouched() {
+        let mut c = call(json!({"node": "/x", "pattern": "turtle.*pose", "level": "warn"}));
+        let dropped = drop_ungrounded(&mut c, &spec(), "show turtle logs");
+        assert_eq!(dropped, ["pattern"]);
+        assert_eq!(c.arguments["level"], "warn");
+    }
+
+    #[test]
+    fn short_words_and_empty_values_are_left_alone() {
+        let mut c = call(json!({"node": "/x", "namespace": "/", "pattern": ".*"}));
+        assert!(drop_ungrounded(&mut c, &spec(), "anything").is_empty());
+    }
+}
