@@ -533,6 +533,44 @@ max = 1.0
 }
 
 #[test]
+fn observes_rules_let_read_only_agents_make_query_calls_only() {
+    let runs = Arc::new(AtomicUsize::new(0));
+    let file: PolicyFile = toml::from_str(
+        r#"
+read_only = true
+[[observes]]
+tool = "^ros_service_call$"
+argument = "name"
+pattern = "/robot/get_.*"
+"#,
+    )
+    .unwrap();
+    // No operator and no auto-approval: only calls that observe can run.
+    let policy = Policy::from_file(file, Arc::new(NoOperator)).unwrap();
+    let script = [
+        call("ros_service_call", json!({"name": "/robot/get_state"})),
+        call("ros_service_call", json!({"name": "/robot/reset"})),
+        answer("Done."),
+    ];
+    let mut a = agent(&script, vec![ros_like(&runs)], policy, 8192);
+    let names: Vec<String> = a
+        .registry()
+        .tools()
+        .map(|t| t.spec().name.clone())
+        .collect();
+    assert!(names.contains(&"ros_service_call".to_string()), "{names:?}");
+    assert!(!names.contains(&"ros_param_set".to_string()), "{names:?}");
+    let (r, _) = ask(&mut a, "what state is the robot in, then reset it");
+    assert_eq!(r.steps[0].decision, Decision::Allowed, "{:?}", r.steps);
+    assert!(
+        matches!(&r.steps[1].decision, Decision::Refused(w) if w.contains("read-only")),
+        "{:?}",
+        r.steps[1].decision
+    );
+    assert_eq!(runs.load(Ordering::SeqCst), 1);
+}
+
+#[test]
 fn the_agent_never_imports_ros_or_concrete_tools() {
     let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("src/agent");
     for entry in std::fs::read_dir(dir).unwrap() {

@@ -6,7 +6,7 @@ use std::time::{Duration, Instant};
 
 use ferrosa::ros::ros2::{Ros2Graph, Ros2Options};
 use ferrosa::ros::sim::{Sim, CENTER};
-use ferrosa::ros::RosGraph;
+use ferrosa::ros::{GoalStatus, RosGraph};
 use serde_json::json;
 
 use crate::util::{rerun_in_loopback_netns, runtime};
@@ -99,6 +99,98 @@ fn sim_graph_echo_publish_services_parameters() {
         // Logs: /rosout keeps history for late joiners.
         let logs = graph.subscribe("/rosout", None, 50, Duration::from_secs(2)).await.unwrap();
         assert!(logs.iter().any(|l| l.message["msg"].as_str().unwrap().contains("Spawning turtle [rafael]")), "{logs:?}");
+    });
+}
+
+#[test]
+fn sim_rotate_absolute_action_succeeds_and_cancels() {
+    if rerun_in_loopback_netns("ros::sim_rotate_absolute_action_succeeds_and_cancels", 120) {
+        return;
+    }
+    let rt = runtime();
+    rt.block_on(async {
+        let opts = Ros2Options::default();
+        let graph = Ros2Graph::start(&opts, "_ferrosa_test").unwrap();
+        let sim = Sim::start(&opts).unwrap();
+        wait_for_sim(&graph, Duration::from_secs(20)).await;
+        let action = "/turtle1/rotate_absolute";
+        let ty = "turtlesim/action/RotateAbsolute";
+        let g = graph.graph().await.unwrap();
+        let actions = g.actions();
+        assert_eq!(actions.len(), 1, "{actions:?}");
+        assert_eq!(
+            (actions[0].action.as_str(), actions[0].type_name.as_str()),
+            (action, ty)
+        );
+        assert_eq!(actions[0].servers, ["/turtlesim"]);
+
+        // A quarter turn at turtlesim's 1 rad/s: about 1.6 s, with feedback all along.
+        let start = Instant::now();
+        let done = graph
+            .send_goal(
+                action,
+                ty,
+                json!({"theta": 1.5708}),
+                Duration::from_secs(10),
+            )
+            .await
+            .unwrap();
+        eprintln!(
+            "quarter turn: {:?}, {} feedback",
+            start.elapsed(),
+            done.feedback.len()
+        );
+        assert_eq!(done.status, GoalStatus::Succeeded, "{done:?}");
+        let delta = done.result.as_ref().unwrap()["delta"].as_f64().unwrap();
+        assert!((delta + 1.5708).abs() < 0.05, "turned {delta}: {done:?}");
+        let first = done.feedback.first().expect("feedback while turning");
+        let last = done.feedback.last().unwrap();
+        let remaining = |s: &ferrosa::ros::Sample| s.message["remaining"].as_f64().unwrap();
+        assert!(
+            remaining(first) > remaining(last) + 0.3 && remaining(last) < 0.2,
+            "{:?}",
+            done.feedback
+        );
+        let theta = sim.pose("turtle1").unwrap()["theta"].as_f64().unwrap();
+        assert!((theta - 1.5708).abs() < 0.03, "theta {theta}");
+
+        // A goal followed for 0.3 s is still running; cancelling it stops the turtle.
+        let running = graph
+            .send_goal(
+                action,
+                ty,
+                json!({"theta": -1.5708}),
+                Duration::from_millis(300),
+            )
+            .await
+            .unwrap();
+        assert_eq!(running.status, GoalStatus::Running, "{running:?}");
+        let cancel = graph
+            .cancel_goals(action, ty, Some(&running.goal_id), Duration::from_secs(5))
+            .await
+            .unwrap();
+        assert_eq!(cancel.return_code, "accepted", "{cancel:?}");
+        assert_eq!(cancel.canceling, [running.goal_id.clone()]);
+        tokio::time::sleep(Duration::from_millis(300)).await;
+        let stopped = sim.pose("turtle1").unwrap()["theta"].as_f64().unwrap();
+        tokio::time::sleep(Duration::from_millis(300)).await;
+        let later = sim.pose("turtle1").unwrap()["theta"].as_f64().unwrap();
+        assert!(
+            stopped > 0.0 && (later - stopped).abs() < 1e-6,
+            "{stopped} then {later}"
+        );
+
+        // Nothing left to cancel; an unknown action is an error naming it.
+        let none = graph
+            .cancel_goals(action, ty, None, Duration::from_secs(5))
+            .await
+            .unwrap();
+        assert_eq!(none.return_code, "rejected", "{none:?}");
+        let err = graph
+            .send_goal("/turtle1/spin", ty, json!({}), Duration::from_secs(1))
+            .await
+            .unwrap_err();
+        assert!(err.to_string().contains("/turtle1/spin"), "{err}");
     });
 }
 

@@ -192,7 +192,7 @@ impl Agent {
             .build()
             .map_err(|e| AgentError::Runtime(e.to_string()))?;
         let registry = if policy.read_only {
-            registry.without_actuators()
+            registry.without_actuators(|name| policy.may_observe(name))
         } else {
             registry
         };

@@ -1,5 +1,6 @@
-//! An in-memory `RosGraph`: a fixed graph, messages per topic, services answered from a
-//! table; records every publish and service call, so tool tests run without DDS.
+//! An in-memory `RosGraph`: a fixed graph, messages per topic, services and actions
+//! answered from tables; records every publish, service call, goal and cancel, so tool
+//! tests run without DDS.
 
 use std::collections::BTreeMap;
 use std::sync::Mutex;
@@ -7,7 +8,7 @@ use std::time::Duration;
 
 use serde_json::Value;
 
-use super::{BoxFuture, Graph, Interfaces, RosError, RosGraph, Sample};
+use super::{BoxFuture, CancelOutcome, GoalOutcome, Graph, Interfaces, RosError, RosGraph, Sample};
 
 /// One thing sent to the fake graph.
 #[derive(Debug, Clone, PartialEq)]
@@ -22,12 +23,22 @@ pub enum Sent {
         type_name: String,
         request: Value,
     },
+    Goal {
+        action: String,
+        type_name: String,
+        goal: Value,
+    },
+    Cancel {
+        action: String,
+        goal_id: Option<String>,
+    },
 }
 
 #[derive(Default)]
 pub struct FakeGraph {
     sent: Mutex<Vec<Sent>>,
     services: BTreeMap<String, Value>,
+    actions: BTreeMap<String, GoalOutcome>,
     topics: BTreeMap<String, Vec<Value>>,
     graph: Graph,
     interfaces: Interfaces,
@@ -41,6 +52,12 @@ impl FakeGraph {
     /// A service that answers every request with `response`.
     pub fn with_service(mut self, name: &str, response: Value) -> FakeGraph {
         self.services.insert(name.to_string(), response);
+        self
+    }
+
+    /// An action that answers every goal with `outcome` (and cancels whatever it is asked).
+    pub fn with_action(mut self, name: &str, outcome: GoalOutcome) -> FakeGraph {
+        self.actions.insert(name.to_string(), outcome);
         self
     }
 
@@ -134,6 +151,54 @@ impl RosGraph for FakeGraph {
                 request,
             });
             Ok(response)
+        })
+    }
+
+    fn send_goal<'a>(
+        &'a self,
+        action: &'a str,
+        type_name: &'a str,
+        goal: Value,
+        _wait: Duration,
+    ) -> BoxFuture<'a, Result<GoalOutcome, RosError>> {
+        Box::pin(async move {
+            let outcome = self
+                .actions
+                .get(action)
+                .cloned()
+                .ok_or_else(|| RosError::NoAction(action.to_string()))?;
+            self.sent.lock().expect("fake graph lock").push(Sent::Goal {
+                action: action.to_string(),
+                type_name: type_name.to_string(),
+                goal,
+            });
+            Ok(outcome)
+        })
+    }
+
+    fn cancel_goals<'a>(
+        &'a self,
+        action: &'a str,
+        _type_name: &'a str,
+        goal_id: Option<&'a str>,
+        _timeout: Duration,
+    ) -> BoxFuture<'a, Result<CancelOutcome, RosError>> {
+        Box::pin(async move {
+            let outcome = self
+                .actions
+                .get(action)
+                .ok_or_else(|| RosError::NoAction(action.to_string()))?;
+            self.sent
+                .lock()
+                .expect("fake graph lock")
+                .push(Sent::Cancel {
+                    action: action.to_string(),
+                    goal_id: goal_id.map(str::to_string),
+                });
+            Ok(CancelOutcome {
+                return_code: "accepted".into(),
+                canceling: vec![goal_id.unwrap_or(&outcome.goal_id).to_string()],
+            })
         })
     }
 }

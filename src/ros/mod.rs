@@ -3,7 +3,9 @@
 //! (`geometry_msgs/msg/Twist`); encoding them is the implementation's job.
 //!
 //! Parameters are services (`rcl_interfaces`), so tools reach them through
-//! `call_service`; logs are the `/rosout` topic. Actions are not here yet.
+//! `call_service`; logs are the `/rosout` topic. Actions have their own two calls
+//! (`send_goal`, `cancel_goals`): a goal is followed through acceptance, feedback and
+//! result, which no single service call or subscription covers.
 //!
 //! Layout:
 //! - `graph`: the joined graph (nodes, topics, services, actions) and its cache
@@ -45,6 +47,8 @@ pub enum RosError {
     NoTopic(String),
     #[error("no subscriber matched {topic} within {timeout:?}; is the node running?")]
     NoSubscriber { topic: String, timeout: Duration },
+    #[error("no action server for {0} answered; list actions to see what exists")]
+    NoAction(String),
     #[error("{0}: invalid ROS name")]
     BadName(String),
     #[error("{0}")]
@@ -56,6 +60,38 @@ pub enum RosError {
 pub struct Sample {
     pub t: f64,
     pub message: Value,
+}
+
+/// How a goal ended, or that it had not yet when the wait was over.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum GoalStatus {
+    Rejected,
+    Running,
+    Succeeded,
+    Canceled,
+    Aborted,
+}
+
+/// What became of one goal.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct GoalOutcome {
+    /// The goal's UUID as 32 hex digits (what `cancel_goals` takes).
+    pub goal_id: String,
+    pub status: GoalStatus,
+    /// The action's result message, once it ended.
+    pub result: Option<Value>,
+    /// Feedback messages received, oldest first (`t`: seconds since the goal was sent).
+    pub feedback: Vec<Sample>,
+}
+
+/// The server's answer to a cancel request.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct CancelOutcome {
+    /// `accepted`, `rejected`, `unknown_goal` or `goal_terminated` (action_msgs/CancelGoal).
+    pub return_code: String,
+    /// The goals now canceling (32 hex digits each).
+    pub canceling: Vec<String>,
 }
 
 pub trait RosGraph: Send + Sync {
@@ -87,4 +123,21 @@ pub trait RosGraph: Send + Sync {
         request: Value,
         timeout: Duration,
     ) -> BoxFuture<'a, Result<Value, RosError>>;
+    /// Send `goal` to `action` (type `pkg/action/Name`) and follow it for up to `wait`:
+    /// its feedback, and its result if it ends in time (else it is `Running` and goes on).
+    fn send_goal<'a>(
+        &'a self,
+        action: &'a str,
+        type_name: &'a str,
+        goal: Value,
+        wait: Duration,
+    ) -> BoxFuture<'a, Result<GoalOutcome, RosError>>;
+    /// Cancel one goal of `action` (by its id) or, with `None`, every goal it has.
+    fn cancel_goals<'a>(
+        &'a self,
+        action: &'a str,
+        type_name: &'a str,
+        goal_id: Option<&'a str>,
+        timeout: Duration,
+    ) -> BoxFuture<'a, Result<CancelOutcome, RosError>>;
 }

@@ -11,6 +11,10 @@
 //! ros2-client is async and runtime-agnostic; each participant's spinner and discovery
 //! pump run on a small background thread of their own, so callers may use any runtime.
 
+mod action;
+
+pub(crate) use action::server_qos as action_server_qos;
+
 use std::collections::HashMap;
 use std::net::{IpAddr, Ipv4Addr};
 use std::sync::{Arc, Mutex};
@@ -32,7 +36,7 @@ use super::graph::{
     DdsEndpoint, Durability, Gid, Graph, GraphCache, NodeEntities, Qos, Reliability,
 };
 use super::msg::normalize_type;
-use super::{BoxFuture, Interfaces, RosError, RosGraph, Sample};
+use super::{BoxFuture, CancelOutcome, GoalOutcome, Interfaces, RosError, RosGraph, Sample};
 
 /// Where DDS discovery may reach.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -242,6 +246,7 @@ fn dds_qos(q: &rustdds::QosPolicies) -> Qos {
 
 type Publishers = HashMap<(String, String), Arc<ros2_client::Publisher<Raw>>>;
 type Clients = HashMap<(String, String), Arc<ros2_client::Client<Raw, Raw>>>;
+type ActionClients = HashMap<(String, String), Arc<action::RawActionClient>>;
 
 /// The ROS 2 graph, through one hidden node of our own.
 pub struct Ros2Graph {
@@ -251,6 +256,7 @@ pub struct Ros2Graph {
     interfaces: Interfaces,
     publishers: Mutex<Publishers>,
     clients: Mutex<Clients>,
+    actions: Mutex<ActionClients>,
 }
 
 impl Ros2Graph {
@@ -315,6 +321,7 @@ impl Ros2Graph {
             interfaces: Interfaces::bundled(),
             publishers: Mutex::new(HashMap::new()),
             clients: Mutex::new(HashMap::new()),
+            actions: Mutex::new(HashMap::new()),
         })
     }
 
@@ -640,6 +647,26 @@ impl RosGraph for Ros2Graph {
         timeout: Duration,
     ) -> BoxFuture<'a, Result<Value, RosError>> {
         Box::pin(self.do_call(service, type_name, request, timeout))
+    }
+
+    fn send_goal<'a>(
+        &'a self,
+        action: &'a str,
+        type_name: &'a str,
+        goal: Value,
+        wait: Duration,
+    ) -> BoxFuture<'a, Result<GoalOutcome, RosError>> {
+        Box::pin(self.do_send_goal(action, type_name, goal, wait))
+    }
+
+    fn cancel_goals<'a>(
+        &'a self,
+        action: &'a str,
+        type_name: &'a str,
+        goal_id: Option<&'a str>,
+        timeout: Duration,
+    ) -> BoxFuture<'a, Result<CancelOutcome, RosError>> {
+        Box::pin(self.do_cancel_goals(action, type_name, goal_id, timeout))
     }
 }
 

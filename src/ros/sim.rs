@@ -4,14 +4,16 @@
 //! Node `/turtlesim` with what turtlesim offers: per turtle `<t>/cmd_vel`
 //! (geometry_msgs/Twist, held for 1 s as turtlesim does), `<t>/pose` (turtlesim/Pose),
 //! `<t>/color_sensor` (turtlesim/Color), `<t>/set_pen`, `<t>/teleport_absolute`,
-//! `<t>/teleport_relative`; `/spawn`, `/kill`, `/reset`, `/clear`; parameters
+//! `<t>/teleport_relative`, the `<t>/rotate_absolute` action; `/spawn`, `/kill`,
+//! `/reset`, `/clear`; parameters
 //! `background_r/g/b`; the same kinematics in the same 11.09 × 11.09 arena, with a log
 //! line on `/rosout` when a turtle hits the wall. And what a field robot has for status
 //! questions: `/battery_state` (sensor_msgs/BatteryState, draining faster while moving)
 //! and `/diagnostics` (diagnostic_msgs/DiagnosticArray).
 //!
 //! Messages are built as JSON and encoded by `cdr`, the same codec the tools use.
-//! Not yet here: the `rotate_absolute` action.
+
+mod rotate;
 
 use std::collections::BTreeMap;
 use std::f64::consts::PI;
@@ -105,6 +107,8 @@ fn normalize_angle(a: f64) -> f64 {
 
 struct World {
     turtles: BTreeMap<String, Turtle>,
+    /// The `rotate_absolute` goal each turtle is turning toward.
+    rotations: BTreeMap<String, rotate::Rotation>,
     battery: f64,
     tasks: BTreeMap<String, Vec<JoinHandle<()>>>,
 }
@@ -177,6 +181,7 @@ impl Sim {
         let shared = Arc::new(Shared {
             world: Mutex::new(World {
                 turtles: BTreeMap::new(),
+                rotations: BTreeMap::new(),
                 battery: 0.87,
                 tasks: BTreeMap::new(),
             }),
@@ -369,6 +374,7 @@ fn add_turtle(
             Some(name),
         )?);
     }
+    tasks.extend(rotate::serve(rt, shared, node, name)?);
     let mut world = shared.world.lock().expect("world");
     world.turtles.insert(name.to_string(), turtle);
     world.tasks.insert(name.to_string(), tasks);
@@ -566,6 +572,8 @@ async fn handle(
                 world
                     .turtles
                     .insert("turtle1".into(), Turtle::at(CENTER, CENTER, 0.0));
+                // Goals under way end (aborted) with the turtles they turned.
+                world.rotations.clear();
                 others
             };
             let turtle1_running = s.world.lock().expect("world").tasks.contains_key("turtle1");

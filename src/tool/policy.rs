@@ -1,5 +1,8 @@
 //! Policy: enforced in code on every call, never left to the prompt.
 //!
+//! A call actuates when its tool does, unless an `observes` rule of the policy file says
+//! this call only reads (a service known to be a query, say).
+//!
 //! In order, a call is refused if: the tool is unknown; it actuates in read-only mode;
 //! its arguments do not match the schema; any string in them names something on the
 //! operator's deny-list (or a pattern the model added; it can add, never remove); a limit
@@ -81,6 +84,20 @@ pub struct Only {
     pub arguments: Vec<serde_json::Map<String, Value>>,
 }
 
+/// Calls of an actuating tool that only read: `argument` matching `pattern`, e.g. tool
+/// `ros_service_call`, argument `service`, pattern `^/robot/get_`. Such calls need no
+/// confirmation and are allowed in read-only mode.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Observes {
+    /// Regex on tool names.
+    pub tool: String,
+    /// The string argument the pattern is tried on.
+    pub argument: String,
+    /// Regex the argument's whole value must match.
+    pub pattern: String,
+}
+
 /// The policy file (TOML).
 #[derive(Debug, Clone, Default, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -98,6 +115,8 @@ pub struct PolicyFile {
     pub limit: Vec<Limit>,
     #[serde(default)]
     pub only: Vec<Only>,
+    #[serde(default)]
+    pub observes: Vec<Observes>,
 }
 
 pub struct Policy {
@@ -108,6 +127,8 @@ pub struct Policy {
     pub timeout: Duration,
     limits: Vec<(Regex, Limit)>,
     only: Vec<(Regex, Only)>,
+    /// (tool, argument, anchored value pattern)
+    observes: Vec<(Regex, String, Regex)>,
     confirm: Arc<dyn Confirm>,
 }
 
@@ -165,7 +186,35 @@ impl Policy {
                 .into_iter()
                 .map(|o| Ok((compile(&o.tool)?, o)))
                 .collect::<Result<_, PolicyError>>()?,
+            observes: file
+                .observes
+                .iter()
+                .map(|o| {
+                    Ok((
+                        compile(&o.tool)?,
+                        o.argument.clone(),
+                        compile(&format!("^(?:{})$", o.pattern))?,
+                    ))
+                })
+                .collect::<Result<_, PolicyError>>()?,
             confirm,
+        })
+    }
+
+    /// Whether some calls of `tool` count as observing (an `observes` rule names it).
+    pub fn may_observe(&self, tool: &str) -> bool {
+        self.observes.iter().any(|(re, _, _)| re.is_match(tool))
+    }
+
+    /// Whether an `observes` rule covers this call.
+    fn observes_call(&self, call: &ToolCall) -> bool {
+        self.observes.iter().any(|(re, arg, pattern)| {
+            re.is_match(&call.name)
+                && call
+                    .arguments
+                    .get(arg)
+                    .and_then(Value::as_str)
+                    .is_some_and(|v| pattern.is_match(v))
         })
     }
 
@@ -203,7 +252,7 @@ impl Policy {
         let Some(tool) = tool else {
             return Decision::Refused(format!("there is no tool named {}", call.name));
         };
-        let actuates = tool.effect() == Effect::Actuates;
+        let actuates = tool.effect() == Effect::Actuates && !self.observes_call(call);
         if actuates && self.read_only {
             return Decision::Refused(format!(
                 "{} changes the robot and the agent is read-only; tell the operator it cannot be done",

@@ -120,12 +120,14 @@ impl Registry {
     }
 
     /// Drop every tool that actuates (`--read-only`).
-    pub fn without_actuators(&self) -> Registry {
+    /// Only the observing tools, and the actuating ones `keep` names (those some of
+    /// whose calls the policy counts as observing).
+    pub fn without_actuators(&self, keep: impl Fn(&str) -> bool) -> Registry {
         Registry {
             tools: self
                 .tools
                 .iter()
-                .filter(|(_, t)| t.effect() == Effect::Observes)
+                .filter(|(_, t)| t.effect() == Effect::Observes || keep(&t.spec().name))
                 .cloned()
                 .collect(),
         }

@@ -5,7 +5,9 @@
 //! listings are redacted after, like every tool.
 //!
 //! Parameters are reached through the node's `rcl_interfaces` services, logs through
-//! `/rosout`. Actions are not here yet.
+//! `/rosout`; the action tools are in `action`.
+
+mod action;
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::sync::Arc;
@@ -40,6 +42,9 @@ pub fn package(graph: Arc<dyn RosGraph>) -> Package {
         .with(ParamSet(g()))
         .with(InterfaceShow(g()))
         .with(LogRead(g()))
+        .with(action::ActionList(g()))
+        .with(action::ActionSendGoal(g()))
+        .with(action::ActionCancel(g()))
 }
 
 #[derive(Clone)]
@@ -962,7 +967,8 @@ mod tests {
         )
     }
 
-    fn run<T: Tool>(t: &T, args: Value) -> Result<Value, ToolError> {
+    /// Run a tool on a current-thread runtime with a 5 s limit (also the action tests').
+    pub(super) fn run<T: Tool>(t: &T, args: Value) -> Result<Value, ToolError> {
         let args: T::Args = serde_json::from_value(args).unwrap();
         let cx = ToolContext {
             timeout: Duration::from_secs(5),

@@ -1,0 +1,296 @@
+//! The action tools: `ros_action_list`, `ros_action_send_goal` (follows the goal to its
+//! result, with feedback, within a wait the model chooses and the policy's time limit
+//! bounds) and `ros_action_cancel` (one goal by id, or all of an action's goals).
+
+use std::time::Duration;
+
+use schemars::JsonSchema;
+use serde::Deserialize;
+use serde_json::{json, Map, Value};
+
+use super::{absolute, failed, not_found, Filter, ListArgs, Ros};
+use crate::ros::{GoalStatus, Graph};
+use crate::tool::{Effect, Tool, ToolContext, ToolError};
+
+/// Feedback messages shown in a goal's outcome (the newest; the count says how many came).
+const FEEDBACK_SHOWN: usize = 5;
+/// How long a goal is followed when the model does not say.
+const DEFAULT_WAIT_S: f64 = 10.0;
+
+/// The type of `action`, or a "no action" error with near names.
+fn action_type(g: &Graph, action: &str) -> Result<String, ToolError> {
+    let actions = g.actions();
+    actions
+        .iter()
+        .find(|a| a.action == action)
+        .map(|a| a.type_name.clone())
+        .ok_or_else(|| {
+            let names: Vec<String> = actions.iter().map(|a| a.action.clone()).collect();
+            not_found("action", action, names.iter(), "ros_action_list")
+        })
+}
+
+pub struct ActionList(pub(super) Ros);
+
+impl Tool for ActionList {
+    type Args = ListArgs;
+    const NAME: &'static str = "ros_action_list";
+    const EFFECT: Effect = Effect::Observes;
+    fn description(&self) -> String {
+        "List ROS actions (long-running goals such as rotating to a heading) with their types and servers.".into()
+    }
+    async fn call(&self, a: ListArgs, _: &ToolContext) -> Result<Value, ToolError> {
+        let f = Filter::new(a.pattern, a.namespace)?;
+        let g = self.0.snapshot().await?;
+        let items = g
+            .actions()
+            .into_iter()
+            .map(|a| (a.action.clone(), json!(a)))
+            .collect();
+        Ok(f.listing("actions", items))
+    }
+}
+
+#[derive(Deserialize, JsonSchema)]
+pub struct GoalArgs {
+    /// Action name, e.g. "/turtle1/rotate_absolute".
+    pub action: String,
+    /// Goal fields, e.g. {"theta": 1.57}; absent fields are zero.
+    #[serde(default)]
+    pub goal: Option<Map<String, Value>>,
+    /// Seconds to follow the goal before returning (default 10); it keeps running after.
+    #[serde(default)]
+    #[schemars(range(min = 0.1, max = 120.0))]
+    pub wait_s: Option<f64>,
+}
+
+pub struct ActionSendGoal(pub(super) Ros);
+
+impl Tool for ActionSendGoal {
+    type Args = GoalArgs;
+    const NAME: &'static str = "ros_action_send_goal";
+    const EFFECT: Effect = Effect::Actuates;
+    fn description(&self) -> String {
+        "Send a goal to a ROS action and wait for its result, with its feedback. Moves or changes the robot.".into()
+    }
+    async fn call(&self, a: GoalArgs, cx: &ToolContext) -> Result<Value, ToolError> {
+        let action = absolute(&a.action);
+        let g = self.0.snapshot().await?;
+        let ty = action_type(&g, &action)?;
+        // Leave a second of the policy's time limit for the answer to come back.
+        let limit = cx.timeout.saturating_sub(Duration::from_secs(1));
+        let wait = Duration::from_secs_f64(a.wait_s.unwrap_or(DEFAULT_WAIT_S).clamp(0.1, 120.0))
+            .min(limit.max(Duration::from_millis(100)));
+        let goal = Value::Object(a.goal.unwrap_or_default());
+        let outcome = self
+            .0
+            .graph
+            .send_goal(&action, &ty, goal.clone(), wait)
+            .await
+            .map_err(failed)?;
+        let count = outcome.feedback.len();
+        let shown = &outcome.feedback[count.saturating_sub(FEEDBACK_SHOWN)..];
+        let summary = match outcome.status {
+            GoalStatus::Rejected => format!("{action} rejected the goal"),
+            GoalStatus::Running => format!(
+                "the goal is still running after {:.1} s; cancel it with ros_action_cancel and goal_id {}",
+                wait.as_secs_f64(),
+                outcome.goal_id
+            ),
+            GoalStatus::Succeeded => format!(
+                "the goal succeeded; result {}",
+                outcome.result.as_ref().map(Value::to_string).unwrap_or_default()
+            ),
+            GoalStatus::Canceled => "the goal was canceled".to_string(),
+            GoalStatus::Aborted => "the goal was aborted by the action server".to_string(),
+        };
+        Ok(json!({
+            "summary": summary,
+            "action": action,
+            "type": ty,
+            "goal": goal,
+            "goal_id": outcome.goal_id,
+            "status": outcome.status,
+            "result": outcome.result,
+            "feedback_count": count,
+            "feedback": shown,
+        }))
+    }
+}
+
+#[derive(Deserialize, JsonSchema)]
+pub struct CancelArgs {
+    /// Action name, e.g. "/turtle1/rotate_absolute".
+    pub action: String,
+    /// The goal to cancel (from ros_action_send_goal); leave out to cancel all its goals.
+    #[serde(default)]
+    pub goal_id: Option<String>,
+}
+
+pub struct ActionCancel(pub(super) Ros);
+
+impl Tool for ActionCancel {
+    type Args = CancelArgs;
+    const NAME: &'static str = "ros_action_cancel";
+    const EFFECT: Effect = Effect::Actuates;
+    fn description(&self) -> String {
+        "Cancel a running ROS action goal, or every goal of an action.".into()
+    }
+    async fn call(&self, a: CancelArgs, cx: &ToolContext) -> Result<Value, ToolError> {
+        let action = absolute(&a.action);
+        let g = self.0.snapshot().await?;
+        let ty = action_type(&g, &action)?;
+        let id = a.goal_id.filter(|s| !s.trim().is_empty());
+        let outcome = self
+            .0
+            .graph
+            .cancel_goals(&action, &ty, id.as_deref(), cx.timeout)
+            .await
+            .map_err(failed)?;
+        Ok(json!({
+            "action": action,
+            "goal_id": id,
+            "return_code": outcome.return_code,
+            "canceling_count": outcome.canceling.len(),
+            "canceling": outcome.canceling,
+        }))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::sync::Arc;
+
+    use super::*;
+    use crate::ros::fake::{FakeGraph, Sent};
+    use crate::ros::graph::testing::{ep, gid};
+    use crate::ros::graph::{GraphCache, NodeEntities};
+    use crate::ros::{GoalOutcome, RosGraph, Sample};
+    use crate::tools::ros::tests::run;
+
+    /// `/turtlesim` serving `/turtle1/rotate_absolute`.
+    fn graph() -> Graph {
+        let mut cache = GraphCache::default();
+        cache.update_participant(
+            gid(99),
+            vec![NodeEntities {
+                name: "turtlesim".into(),
+                namespace: "/".into(),
+                readers: vec![gid(1)],
+                writers: vec![],
+            }],
+        );
+        cache.join(&[ep(
+            1,
+            false,
+            "rq/turtle1/rotate_absolute/_action/send_goalRequest",
+            "turtlesim::action::dds_::RotateAbsolute_SendGoal_Request_",
+        )])
+    }
+
+    fn outcome(status: GoalStatus) -> GoalOutcome {
+        GoalOutcome {
+            goal_id: "00112233445566778899aabbccddeeff".into(),
+            status,
+            result: Some(json!({"delta": -1.5})),
+            feedback: (0..8)
+                .map(|i| Sample {
+                    t: 0.1 * f64::from(i),
+                    message: json!({"remaining": 1.5 - 0.2 * f64::from(i)}),
+                })
+                .collect(),
+        }
+    }
+
+    fn ros(fake: FakeGraph) -> (Ros, Arc<FakeGraph>) {
+        let fake = Arc::new(fake.with_graph(graph()));
+        let g: Arc<dyn RosGraph> = fake.clone();
+        (Ros { graph: g }, fake)
+    }
+
+    #[test]
+    fn actions_are_listed_with_their_type_and_server() {
+        let (r, _) = ros(FakeGraph::new());
+        let out = run(&ActionList(r), json!({})).unwrap();
+        assert_eq!(out["count"], 1);
+        assert_eq!(out["actions"][0]["action"], "/turtle1/rotate_absolute");
+        assert_eq!(out["actions"][0]["type"], "turtlesim/action/RotateAbsolute");
+        assert_eq!(out["actions"][0]["servers"], json!(["/turtlesim"]));
+        assert_eq!(out["summary"], "1 action: /turtle1/rotate_absolute");
+    }
+
+    #[test]
+    fn a_goal_reports_its_result_and_the_newest_feedback() {
+        let fake = FakeGraph::new()
+            .with_action("/turtle1/rotate_absolute", outcome(GoalStatus::Succeeded));
+        let (r, fake) = ros(fake);
+        let out = run(
+            &ActionSendGoal(r),
+            json!({"action": "turtle1/rotate_absolute", "goal": {"theta": 1.57}}),
+        )
+        .unwrap();
+        assert_eq!(out["status"], "succeeded");
+        assert_eq!(out["result"]["delta"], -1.5);
+        assert_eq!(out["feedback_count"], 8);
+        assert_eq!(out["feedback"].as_array().unwrap().len(), FEEDBACK_SHOWN);
+        assert!(out["summary"].as_str().unwrap().contains("succeeded"));
+        assert_eq!(
+            fake.sent(),
+            [Sent::Goal {
+                action: "/turtle1/rotate_absolute".into(),
+                type_name: "turtlesim/action/RotateAbsolute".into(),
+                goal: json!({"theta": 1.57}),
+            }]
+        );
+    }
+
+    #[test]
+    fn a_goal_still_running_says_how_to_cancel_it() {
+        let fake =
+            FakeGraph::new().with_action("/turtle1/rotate_absolute", outcome(GoalStatus::Running));
+        let (r, _) = ros(fake);
+        let out = run(
+            &ActionSendGoal(r),
+            json!({"action": "/turtle1/rotate_absolute", "goal": {"theta": 3.0}, "wait_s": 0.5}),
+        )
+        .unwrap();
+        assert_eq!(out["status"], "running");
+        let summary = out["summary"].as_str().unwrap();
+        assert!(
+            summary.contains("ros_action_cancel") && summary.contains("00112233"),
+            "{summary}"
+        );
+    }
+
+    #[test]
+    fn unknown_actions_name_the_near_ones_and_cancel_passes_the_id() {
+        let fake =
+            FakeGraph::new().with_action("/turtle1/rotate_absolute", outcome(GoalStatus::Running));
+        let (r, fake) = ros(fake);
+        let err = run(
+            &ActionSendGoal(Ros {
+                graph: r.graph.clone(),
+            }),
+            json!({"action": "/rotate_absolute", "goal": {}}),
+        )
+        .unwrap_err();
+        assert!(
+            err.to_string()
+                .contains("did you mean /turtle1/rotate_absolute"),
+            "{err}"
+        );
+        let out = run(
+            &ActionCancel(r),
+            json!({"action": "/turtle1/rotate_absolute", "goal_id": "abc"}),
+        )
+        .unwrap();
+        assert_eq!(out["return_code"], "accepted");
+        assert_eq!(
+            fake.sent(),
+            [Sent::Cancel {
+                action: "/turtle1/rotate_absolute".into(),
+                goal_id: Some("abc".into()),
+            }]
+        );
+    }
+}
