@@ -189,6 +189,27 @@ impl AgentOpts {
 
 #[derive(Subcommand)]
 enum EvalCommand {
+    /// Run the ROS task suite: full agent episodes, each against a fresh built-in sim.
+    Ros {
+        /// Cases, one JSON object per line (tests/eval/ros.jsonl is the project's).
+        suite: PathBuf,
+        #[arg(short, long)]
+        model: Option<String>,
+        #[arg(long, value_enum, default_value_t = ui::eval::DecodingChoice::Constrained)]
+        decoding: ui::eval::DecodingChoice,
+        /// First N cases.
+        #[arg(long)]
+        limit: Option<usize>,
+        /// Where per-case JSONL and the summary go.
+        #[arg(long, default_value = "target/eval")]
+        out: PathBuf,
+        #[arg(long, default_value_t = 6)]
+        max_steps: usize,
+        #[arg(long, value_enum, default_value_t = BackendKind::Llama)]
+        backend: BackendKind,
+        #[arg(short, long)]
+        threads: Option<usize>,
+    },
     /// Score one assistant turn per BFCL question, as BFCL's AST checker does.
     Bfcl {
         #[arg(required = true)]
@@ -305,6 +326,43 @@ fn main() -> ExitCode {
             ui::agent::chat(&args)
         }
         Command::Sim => ui::agent::sim(),
+        Command::Eval {
+            command:
+                EvalCommand::Ros {
+                    suite,
+                    model,
+                    decoding,
+                    limit,
+                    out,
+                    max_steps,
+                    backend,
+                    threads,
+                },
+        } => ui::eval::ros(&ui::eval::RosArgs {
+            agent: ui::agent::AgentArgs {
+                model: ui::ModelArgs {
+                    models_dir: dir,
+                    model,
+                    backend,
+                    threads,
+                    max_context: 8192,
+                },
+                yes: false,
+                read_only: false,
+                policy: None,
+                prompt: None,
+                trace_dir: None,
+                log_dirs: Vec::new(),
+                max_steps,
+                decoding: Decoding::Constrained,
+                answer_mode: AnswerMode::Tool,
+                robot: ui::agent::Robot::Sim,
+            },
+            suite,
+            decoding,
+            limit,
+            out,
+        }),
         Command::Eval {
             command:
                 EvalCommand::Bfcl {

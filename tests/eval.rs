@@ -69,3 +69,58 @@ fn bfcl_slice_runs_scores_and_reports() {
         }
     }
 }
+
+/// The ROS suite's first case of every category (ten episodes on a fresh sim each): the
+/// harness runs, scores each case and reports per category, in a loopback namespace.
+#[test]
+fn ros_suite_slice_runs_scores_and_reports() {
+    if crate::util::rerun_in_loopback_netns("eval::ros_suite_slice_runs_scores_and_reports", 600) {
+        return;
+    }
+    let suite = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/eval/ros.jsonl");
+    let text = std::fs::read_to_string(&suite).unwrap();
+    let mut seen = std::collections::BTreeSet::new();
+    let slice: Vec<&str> = text
+        .lines()
+        .filter(|l| {
+            let v: serde_json::Value = serde_json::from_str(l).unwrap();
+            let id = v["id"].as_str().unwrap();
+            seen.insert(
+                id.trim_end_matches(|c: char| c.is_ascii_digit())
+                    .to_string(),
+            )
+        })
+        .collect();
+    assert!(text.lines().count() >= 60 && slice.len() >= 10, "{seen:?}");
+    let out = tempfile::tempdir().unwrap();
+    let path = out.path().join("slice.jsonl");
+    std::fs::write(&path, slice.join("\n")).unwrap();
+    let o = Command::new(env!("CARGO_BIN_EXE_ferrosa"))
+        .args(["eval", "ros"])
+        .arg(&path)
+        .arg("--out")
+        .arg(out.path())
+        .env("FERROSA_MODELS_DIR", models_dir())
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    eprintln!("{stdout}");
+    for category in ["listing", "motion", "notool", "cannot", "all"] {
+        assert!(
+            stdout.contains(&format!("| {category} | constrained |")),
+            "{category} row missing: {stdout}"
+        );
+    }
+    let cases = std::fs::read_to_string(out.path().join("ros_cases.jsonl")).unwrap();
+    assert_eq!(cases.lines().count(), slice.len());
+    for line in cases.lines() {
+        let v: serde_json::Value = serde_json::from_str(line).unwrap();
+        // Constrained decoding: every call the model made was valid for its schema.
+        assert!(
+            v["valid_call"] == true || v["attempted_call"] == false,
+            "{line}"
+        );
+        assert!(v["pass"] == true || v["reason"].is_string(), "{line}");
+    }
+}

@@ -57,7 +57,8 @@ pub fn score(query: &str, spec: &ToolSpec) -> f64 {
 }
 
 /// Indices of the tools to offer: the always-on ones, then the best scoring, within
-/// `budget` tokens as measured by `cost`, in registry order (stable prompts cache better).
+/// `budget` tokens as measured by `cost`, best scoring first and the always-on ones last.
+/// When everything fits, all tools in registry order.
 pub fn select(
     query: &str,
     specs: &[ToolSpec],
@@ -69,29 +70,27 @@ pub fn select(
     if costs.iter().sum::<usize>() <= budget {
         return (0..specs.len()).collect();
     }
-    let mut chosen: Vec<usize> = Vec::new();
-    let mut used = 0;
-    for (i, s) in specs.iter().enumerate() {
-        if always_on.contains(&s.name) {
-            chosen.push(i);
-            used += costs[i];
-        }
-    }
+    let always: Vec<usize> = (0..specs.len())
+        .filter(|&i| always_on.contains(&specs[i].name))
+        .collect();
+    let mut used: usize = always.iter().map(|&i| costs[i]).sum();
     let mut ranked: Vec<(f64, usize)> = specs
         .iter()
         .enumerate()
-        .filter(|(i, _)| !chosen.contains(i))
+        .filter(|(i, _)| !always.contains(i))
         .map(|(i, s)| (score(query, s), i))
         .filter(|(sc, _)| *sc > 0.0)
         .collect();
     ranked.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
+    let mut chosen: Vec<usize> = Vec::new();
     for (_, i) in ranked {
         if used + costs[i] <= budget {
             chosen.push(i);
             used += costs[i];
         }
     }
-    chosen.sort_unstable();
+    // Best first: a small model leans toward the first tool it is shown.
+    chosen.extend(always);
     chosen
 }
 

@@ -5,8 +5,10 @@
 //! Layout:
 //! - `bfcl`: reading BFCL files and answers, Python-typed docs to JSON schema
 //! - `score`: the checker (names, required parameters, allowed values, parallel order)
+//! - `ros`: the ROS task suite (agent episodes on the sim): cases and their checker
 
 pub mod bfcl;
+pub mod ros;
 pub mod score;
 
 use std::ops::ControlFlow;
@@ -184,6 +186,19 @@ pub fn summarize(results: &[CaseResult]) -> Vec<Summary> {
             }
         })
         .collect()
+}
+
+/// One row per decoding mode over every category ("all").
+pub fn summarize_overall(results: &[CaseResult]) -> Vec<Summary> {
+    let all: Vec<CaseResult> = results
+        .iter()
+        .cloned()
+        .map(|mut r| {
+            r.category = "all".into();
+            r
+        })
+        .collect();
+    summarize(&all)
 }
 
 /// A markdown table, decoding modes side by side per category.

@@ -14,6 +14,7 @@
 //! - `msg`: interface definitions (.msg/.srv/.action), the shipped bundle, lookup
 //! - `cdr`: CDR <-> JSON driven by those definitions
 //! - `fake`: an in-memory graph that records what was sent (tests)
+//! - `switch`: a graph whose target is replaced under the tools (a fresh robot per case)
 
 pub mod cdr;
 pub mod fake;
@@ -21,6 +22,7 @@ pub mod graph;
 pub mod msg;
 pub mod ros2;
 pub mod sim;
+pub mod switch;
 
 use std::future::Future;
 use std::pin::Pin;

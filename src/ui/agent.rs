@@ -53,8 +53,9 @@ pub struct RobotLink {
 
 const TURTLESIM_PROMPT: &str = include_str!("../../prompts/turtlesim.toml");
 
-/// Join ROS 2 (and start the sim first when asked), then wait until the graph shows it.
-pub fn connect(robot: Robot) -> anyhow::Result<RobotLink> {
+/// Join ROS 2 (and start the sim first when asked), then wait until the graph shows it;
+/// `verbose` reports the discovery on stderr.
+pub fn connect(robot: Robot, verbose: bool) -> anyhow::Result<RobotLink> {
     if robot == Robot::None {
         return Ok(RobotLink {
             graph: None,
@@ -95,6 +96,7 @@ pub fn connect(robot: Robot) -> anyhow::Result<RobotLink> {
         }
     });
     match found {
+        (true, _) if !verbose => {}
         (true, n) => eprintln!("robot: {n} ROS node(s) discovered in {} ms (domain {}, {:?})", start.elapsed().as_millis(), opts.domain_id, opts.range),
         (false, _) if robot == Robot::Sim => anyhow::bail!("the built-in sim did not appear on ROS 2 within {limit:?}; run with FERROSA_LOG=rustdds=warn to see why"),
         (false, _) => eprintln!("robot: no ROS 2 node found within {limit:?} (domain {}, {:?}); check ROS_DOMAIN_ID and ROS_AUTOMATIC_DISCOVERY_RANGE", opts.domain_id, opts.range),
@@ -143,6 +145,18 @@ pub fn build(args: &AgentArgs) -> anyhow::Result<(Agent, RobotLink)> {
     } else {
         Arc::new(NoOperator)
     };
+    let link = connect(args.robot, true)?;
+    let graph = link.graph.clone().map(|g| g as Arc<dyn RosGraph>);
+    Ok((build_with(args, confirm, graph)?, link))
+}
+
+/// The agent over `graph` (the ROS tools, and the turtle's with `--robot sim`), with
+/// `confirm` asking about actuating calls.
+pub fn build_with(
+    args: &AgentArgs,
+    confirm: Arc<dyn Confirm>,
+    graph: Option<Arc<dyn RosGraph>>,
+) -> anyhow::Result<Agent> {
     let mut policy = match &args.policy {
         Some(p) => Policy::load(p, confirm)?,
         None => Policy::from_file(PolicyFile::default(), confirm)?,
@@ -166,9 +180,7 @@ pub fn build(args: &AgentArgs) -> anyhow::Result<(Agent, RobotLink)> {
         }
         None => RobotPrompt::default_robot(),
     };
-    let link = connect(args.robot)?;
-    if let Some(graph) = &link.graph {
-        let graph: Arc<dyn RosGraph> = graph.clone();
+    if let Some(graph) = graph {
         registry.add(crate::tools::ros::package(graph.clone()));
         if args.robot == Robot::Sim {
             registry.add(crate::tools::turtle::package(graph, "turtle1"));
@@ -187,7 +199,7 @@ pub fn build(args: &AgentArgs) -> anyhow::Result<(Agent, RobotLink)> {
             .with_context(|| format!("cannot create a trace in {}", dir.display()))?;
         agent = agent.with_trace(trace);
     }
-    Ok((agent, link))
+    Ok(agent)
 }
 
 /// Ctrl-C sets the agent's cancel flag instead of killing the process.

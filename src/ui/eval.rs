@@ -1,16 +1,23 @@
-//! `ferrosa eval bfcl PATH...`: run BFCL files through the model, print a markdown
-//! summary (both decoding modes side by side with `--decoding both`) and write every
+//! `ferrosa eval bfcl PATH...`: run BFCL files through the model; `ferrosa eval ros
+//! SUITE`: run agent episodes against a fresh built-in sim per case. Both print a
+//! markdown summary (decoding modes side by side with `--decoding both`) and write every
 //! case as JSONL so failures can be read.
 
 use std::io::Write;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
 
 use anyhow::Context;
 
 use crate::agent::AnswerMode;
+use crate::agent::Event;
 use crate::decode::envelope::Envelope;
 use crate::decode::{Decoding, Grammars, Session};
 use crate::eval::{self, bfcl, CaseResult};
+use crate::ros::switch::SwitchGraph;
+use crate::ros::RosGraph;
+use crate::tool::{Confirm, Decision, ToolCall};
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum DecodingChoice {
@@ -29,6 +36,25 @@ pub struct BfclArgs {
     pub answer_mode: AnswerMode,
 }
 
+impl DecodingChoice {
+    fn modes(self) -> &'static [Decoding] {
+        match self {
+            DecodingChoice::Constrained => &[Decoding::Constrained],
+            DecodingChoice::Free => &[Decoding::Free],
+            DecodingChoice::Both => &[Decoding::Constrained, Decoding::Free],
+        }
+    }
+}
+
+/// The per-case JSONL file in `out`.
+fn case_file(out: &Path, name: &str) -> anyhow::Result<(PathBuf, std::fs::File)> {
+    std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
+    let path = out.join(name);
+    let file =
+        std::fs::File::create(&path).with_context(|| format!("cannot write {}", path.display()))?;
+    Ok((path, file))
+}
+
 pub fn bfcl(args: &BfclArgs) -> anyhow::Result<()> {
     let mut cases = Vec::new();
     for p in &args.paths {
@@ -39,16 +65,8 @@ pub fn bfcl(args: &BfclArgs) -> anyhow::Result<()> {
         .envelope
         .unwrap_or_else(|| Envelope::for_family(resolved.family().unwrap_or("chatml")));
     let grammars = Grammars::new(model.vocab(), model.tokenizer())?;
-    let modes: &[Decoding] = match args.decoding {
-        DecodingChoice::Constrained => &[Decoding::Constrained],
-        DecodingChoice::Free => &[Decoding::Free],
-        DecodingChoice::Both => &[Decoding::Constrained, Decoding::Free],
-    };
-    std::fs::create_dir_all(&args.out)
-        .with_context(|| format!("cannot create {}", args.out.display()))?;
-    let jsonl = args.out.join("bfcl_cases.jsonl");
-    let mut file = std::fs::File::create(&jsonl)
-        .with_context(|| format!("cannot write {}", jsonl.display()))?;
+    let modes = args.decoding.modes();
+    let (jsonl, mut file) = case_file(&args.out, "bfcl_cases.jsonl")?;
     let mut results: Vec<CaseResult> = Vec::new();
     let mut session = Session::new();
     let total = cases.len() * modes.len();
@@ -79,6 +97,118 @@ pub fn bfcl(args: &BfclArgs) -> anyhow::Result<()> {
     print!("{}", eval::markdown(&summaries));
     std::fs::write(
         args.out.join("bfcl_summary.json"),
+        serde_json::to_string_pretty(&summaries)?,
+    )?;
+    eprintln!("per-case results: {}", jsonl.display());
+    Ok(())
+}
+
+pub struct RosArgs {
+    pub agent: super::agent::AgentArgs,
+    pub suite: PathBuf,
+    pub decoding: DecodingChoice,
+    pub limit: Option<usize>,
+    pub out: PathBuf,
+}
+
+/// Approves actuating calls when the current case says the operator would.
+struct CaseOperator(Arc<AtomicBool>);
+
+impl Confirm for CaseOperator {
+    fn confirm(&self, _: &ToolCall) -> bool {
+        self.0.load(Ordering::SeqCst)
+    }
+}
+
+pub fn ros(args: &RosArgs) -> anyhow::Result<()> {
+    use super::agent::{build_with, connect, Robot};
+    let cases = eval::ros::load(&args.suite, args.limit)?;
+    let approve = Arc::new(AtomicBool::new(false));
+    let operator: Arc<dyn Confirm> = Arc::new(CaseOperator(approve.clone()));
+    let mut link = connect(Robot::Sim, false)?;
+    let first: Arc<dyn RosGraph> = link.graph.clone().expect("the sim has a graph");
+    let switch = Arc::new(SwitchGraph::new(first));
+    let (jsonl, mut file) = case_file(&args.out, "ros_cases.jsonl")?;
+    let mut results: Vec<CaseResult> = Vec::new();
+    let total = cases.len() * args.decoding.modes().len();
+    let mut model_name = String::new();
+    for &mode in args.decoding.modes() {
+        let mut agent_args = args.agent.clone();
+        agent_args.decoding = mode;
+        let mut agent = build_with(&agent_args, operator.clone(), Some(switch.clone()))?;
+        model_name = format!(
+            "{} ({})",
+            args.agent.model.model.as_deref().unwrap_or("default"),
+            agent.backend().name()
+        );
+        for case in &cases {
+            // A fresh robot: a new sim and a new participant to see it; the old pair goes.
+            let fresh = connect(Robot::Sim, false)?;
+            switch.replace(fresh.graph.clone().expect("the sim has a graph"));
+            link = fresh;
+            agent.clear();
+            approve.store(case.confirm, Ordering::SeqCst);
+            let (mut calls, mut tokens, mut invalid) = (Vec::new(), 0usize, 0usize);
+            let r = agent.ask(&case.query, &mut |e| match e {
+                Event::Token { .. } => tokens += 1,
+                Event::ToolCall {
+                    name,
+                    arguments,
+                    decision,
+                    ..
+                } => {
+                    if matches!(decision, Decision::Refused(w) if w.starts_with("invalid arguments")) {
+                        invalid += 1;
+                    }
+                    calls.push(ToolCall {
+                        name: name.clone(),
+                        arguments: arguments.clone(),
+                    });
+                }
+                Event::Error { message } if message.contains("did not parse") => invalid += 1,
+                _ => {}
+            })?;
+            let verdict = eval::ros::check(case, &calls, &r.answer);
+            let model_s = r.timings.model_ms / 1e3;
+            let result = CaseResult {
+                id: case.id.clone(),
+                category: case.category(),
+                decoding: format!("{mode:?}").to_lowercase(),
+                pass: verdict.passed(),
+                reason: match verdict {
+                    eval::score::Verdict::Fail(why) => Some(why),
+                    eval::score::Verdict::Pass => None,
+                },
+                attempted_call: !calls.is_empty() || invalid > 0,
+                valid_call: invalid == 0 && !calls.is_empty(),
+                calls,
+                text: r.answer.clone(),
+                ms: r.timings.total_ms,
+                generated_tokens: tokens,
+                tok_per_s: if model_s > 0.0 {
+                    tokens as f64 / model_s
+                } else {
+                    0.0
+                },
+            };
+            writeln!(file, "{}", serde_json::to_string(&result)?)?;
+            results.push(result);
+            let passed = results.iter().filter(|r| r.pass).count();
+            eprint!("\r{} / {total} ({passed} passed)", results.len());
+        }
+    }
+    drop(link);
+    eprintln!();
+    let summaries = eval::summarize(&results);
+    println!(
+        "model {model_name} | suite {} | {} cases per mode\n",
+        args.suite.display(),
+        cases.len()
+    );
+    let overall = eval::summarize_overall(&results);
+    print!("{}", eval::markdown(&[summaries.clone(), overall].concat()));
+    std::fs::write(
+        args.out.join("ros_summary.json"),
         serde_json::to_string_pretty(&summaries)?,
     )?;
     eprintln!("per-case results: {}", jsonl.display());

@@ -1,0 +1,237 @@
+//! The ROS task suite: full agent episodes scored by what the agent did. A case is one
+//! JSON line:
+//!
+//! `{"id", "query", "expect_calls": [{"name", "arguments"?}], "forbid_calls"?: [names],
+//!   "answer_contains"?: [strings], "confirm"?: bool, "category"?: string}`
+//!
+//! Every expected call must have been made (in any order, among any others), its expected
+//! arguments a subset of the call's with BFCL's normalisation (strings case- and
+//! punctuation-insensitive, so `turtle1/pose` is `/turtle1/pose`; numbers within 1e-6,
+//! an int for a float); no call may name a forbidden tool (`"*"` forbids every call); the
+//! answer must contain each string (normalised). A call counts when the model made it,
+//! whatever the policy decided: asking to move the robot unasked is the failure.
+//! `confirm` says whether the operator approves actuating calls. The category is the id
+//! without its trailing number (`motion-03` is `motion`) unless given.
+
+use std::path::Path;
+
+use serde::Deserialize;
+use serde_json::{Map, Value};
+
+use super::score::{normalise, Verdict};
+use crate::tool::ToolCall;
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ExpectCall {
+    pub name: String,
+    #[serde(default)]
+    pub arguments: Map<String, Value>,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RosCase {
+    pub id: String,
+    pub query: String,
+    #[serde(default)]
+    pub expect_calls: Vec<ExpectCall>,
+    #[serde(default)]
+    pub forbid_calls: Vec<String>,
+    #[serde(default)]
+    pub answer_contains: Vec<String>,
+    #[serde(default)]
+    pub confirm: bool,
+    #[serde(default)]
+    pub category: Option<String>,
+}
+
+impl RosCase {
+    pub fn category(&self) -> String {
+        self.category.clone().unwrap_or_else(|| {
+            self.id
+                .trim_end_matches(|c: char| c.is_ascii_digit())
+                .trim_end_matches(['-', '_'])
+                .to_string()
+        })
+    }
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum SuiteError {
+    #[error("cannot read the suite {path}: {message}")]
+    Read { path: String, message: String },
+    #[error("{path}:{line}: {message}")]
+    Case {
+        path: String,
+        line: usize,
+        message: String,
+    },
+}
+
+/// Read a suite; `limit` keeps the first N cases.
+pub fn load(path: &Path, limit: Option<usize>) -> Result<Vec<RosCase>, SuiteError> {
+    let text = std::fs::read_to_string(path).map_err(|e| SuiteError::Read {
+        path: path.display().to_string(),
+        message: e.to_string(),
+    })?;
+    let mut cases = Vec::new();
+    for (i, line) in text.lines().enumerate() {
+        if line.trim().is_empty() {
+            continue;
+        }
+        let case: RosCase = serde_json::from_str(line).map_err(|e| SuiteError::Case {
+            path: path.display().to_string(),
+            line: i + 1,
+            message: e.to_string(),
+        })?;
+        cases.push(case);
+    }
+    if let Some(n) = limit {
+        cases.truncate(n);
+    }
+    Ok(cases)
+}
+
+/// Is `want` a subset of `got` (objects: every wanted key, recursively)?
+pub fn subset_matches(got: &Value, want: &Value) -> bool {
+    match (got, want) {
+        (Value::Object(g), Value::Object(w)) => w
+            .iter()
+            .all(|(k, wv)| g.get(k).is_some_and(|gv| subset_matches(gv, wv))),
+        (Value::Array(g), Value::Array(w)) => {
+            g.len() == w.len() && g.iter().zip(w).all(|(a, b)| subset_matches(a, b))
+        }
+        (Value::Number(g), Value::Number(w)) => match (g.as_f64(), w.as_f64()) {
+            (Some(a), Some(b)) => (a - b).abs() <= 1e-6 * b.abs().max(1.0),
+            _ => false,
+        },
+        (Value::String(g), Value::String(w)) => normalise(g) == normalise(w),
+        _ => got == want,
+    }
+}
+
+/// Score an episode: the calls the model made (every step, in order) and its answer.
+pub fn check(case: &RosCase, calls: &[ToolCall], answer: &str) -> Verdict {
+    for want in &case.expect_calls {
+        let wanted = Value::Object(want.arguments.clone());
+        let same_name: Vec<&ToolCall> = calls.iter().filter(|c| c.name == want.name).collect();
+        if same_name.is_empty() {
+            return Verdict::Fail(format!("no call of {}", want.name));
+        }
+        if !same_name
+            .iter()
+            .any(|c| subset_matches(&c.arguments, &wanted))
+        {
+            return Verdict::Fail(format!(
+                "{} called with {}, expected {}",
+                want.name, same_name[0].arguments, wanted
+            ));
+        }
+    }
+    for forbidden in &case.forbid_calls {
+        if let Some(c) = calls
+            .iter()
+            .find(|c| forbidden == "*" || c.name == *forbidden)
+        {
+            return Verdict::Fail(format!("forbidden call {} {}", c.name, c.arguments));
+        }
+    }
+    let said = normalise(answer);
+    for s in &case.answer_contains {
+        if !said.contains(&normalise(s)) {
+            return Verdict::Fail(format!("the answer does not contain {s:?}"));
+        }
+    }
+    Verdict::Pass
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use serde_json::json;
+
+    fn case(line: Value) -> RosCase {
+        serde_json::from_value(line).unwrap()
+    }
+
+    fn call(name: &str, arguments: Value) -> ToolCall {
+        ToolCall {
+            name: name.into(),
+            arguments,
+        }
+    }
+
+    #[test]
+    fn expected_arguments_are_a_normalised_subset() {
+        let c = case(json!({"id": "echo-01", "query": "q",
+            "expect_calls": [{"name": "ros_topic_echo", "arguments": {"topic": "/turtle1/pose"}}]}));
+        assert_eq!(c.category(), "echo");
+        let made = [
+            call("ros_topic_list", json!({})),
+            call(
+                "ros_topic_echo",
+                json!({"topic": "Turtle1/Pose", "count": 2}),
+            ),
+        ];
+        assert!(check(&c, &made, "").passed());
+        let wrong = [call("ros_topic_echo", json!({"topic": "/turtle1/cmd_vel"}))];
+        assert!(!check(&c, &wrong, "").passed());
+        assert!(!check(&c, &[], "").passed());
+    }
+
+    #[test]
+    fn numbers_match_across_int_and_float_and_objects_nest() {
+        let c = case(json!({"id": "motion_2", "query": "q", "category": "motion",
+            "expect_calls": [{"name": "ros_action_send_goal",
+                              "arguments": {"goal": {"theta": 1.57}}}]}));
+        assert_eq!(c.category(), "motion");
+        let ok = [call(
+            "ros_action_send_goal",
+            json!({"action": "/a", "goal": {"theta": 1.57, "x": 0}}),
+        )];
+        assert!(check(&c, &ok, "").passed());
+        let off = [call(
+            "ros_action_send_goal",
+            json!({"goal": {"theta": 1.6}}),
+        )];
+        assert!(!check(&c, &off, "").passed());
+        let c2 = case(json!({"id": "m", "query": "q",
+            "expect_calls": [{"name": "turtle_move", "arguments": {"distance": 2.0}}]}));
+        assert!(check(&c2, &[call("turtle_move", json!({"distance": 2}))], "").passed());
+    }
+
+    #[test]
+    fn forbidden_calls_and_answer_text() {
+        let c = case(
+            json!({"id": "refuse-01", "query": "fly", "forbid_calls": ["turtle_move"],
+            "answer_contains": ["cannot"]}),
+        );
+        assert!(check(&c, &[], "I CANNOT fly.").passed());
+        assert!(!check(&c, &[], "Sure.").passed());
+        assert!(!check(
+            &c,
+            &[call("turtle_move", json!({"distance": 1}))],
+            "I cannot"
+        )
+        .passed());
+        let none = case(json!({"id": "chat-01", "query": "hi", "forbid_calls": ["*"]}));
+        assert!(check(&none, &[], "hello").passed());
+        assert!(!check(&none, &[call("system_time", json!({}))], "hello").passed());
+    }
+
+    #[test]
+    fn unknown_fields_are_errors_with_the_line() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("s.jsonl");
+        std::fs::write(&p, "{\"id\": \"a-1\", \"query\": \"q\"}\n\n{\"id\": \"b\", \"query\": \"q\", \"expect\": []}\n").unwrap();
+        let e = load(&p, None).unwrap_err().to_string();
+        assert!(e.contains(":3:") && e.contains("expect"), "{e}");
+        std::fs::write(
+            &p,
+            "{\"id\": \"a-1\", \"query\": \"q\"}\n{\"id\": \"b-2\", \"query\": \"r\"}\n",
+        )
+        .unwrap();
+        assert_eq!(load(&p, Some(1)).unwrap().len(), 1);
+    }
+}
