@@ -9,7 +9,10 @@ message packages from PyPI:
     /tmp/rosvenv/bin/pip install 'ros-rclpy[fastrtps]==7.1.6' 'ros-std-msgs<5.5' \
         'ros-std-srvs<5.5' 'ros-geometry-msgs<5.5' 'ros-sensor-msgs<5.5' \
         'ros-nav-msgs<5.5' 'ros-diagnostic-msgs<5.5'
-    python3 scripts/bundle-interfaces.py /tmp/rosvenv/share src/ros/interfaces
+    python3 scripts/bundle-interfaces.py /tmp/rosvenv/share src/ros/interfaces [PKG...]
+
+With package names after the two paths, only those are written (the others stay as they
+are); type_description_interfaces comes with rclpy itself.
 """
 import pathlib
 import sys
@@ -17,7 +20,7 @@ import sys
 PACKAGES = [
     "action_msgs", "builtin_interfaces", "diagnostic_msgs", "geometry_msgs", "nav_msgs",
     "rcl_interfaces", "rosgraph_msgs", "sensor_msgs", "std_msgs", "std_srvs",
-    "unique_identifier_msgs",
+    "unique_identifier_msgs", "type_description_interfaces",
 ]
 
 
@@ -39,10 +42,10 @@ def _in_string(line):
     return head.count('"') % 2 == 1 or head.count("'") % 2 == 1
 
 
-def main(share, dest):
+def main(share, dest, *only):
     share, dest = pathlib.Path(share), pathlib.Path(dest)
     dest.mkdir(parents=True, exist_ok=True)
-    for pkg in PACKAGES:
+    for pkg in only or PACKAGES:
         sections = []
         for kind in ("msg", "srv", "action"):
             for path in sorted((share / pkg / kind).glob(f"*.{kind}")):
@@ -53,4 +56,4 @@ def main(share, dest):
 
 
 if __name__ == "__main__":
-    main(*sys.argv[1:3])
+    main(*sys.argv[1:])

@@ -353,6 +353,23 @@ fn ferrosa_tools_on_an_rclpy_peer() {
                 .starts_with("hello "),
             "{echo}"
         );
+        // A type ferrosa does not ship: its definition (and those it nests) comes from
+        // the peer's ~/get_type_description, found by the hash in discovery.
+        assert!(
+            graph
+                .interfaces()
+                .message("lifecycle_msgs/msg/TransitionEvent")
+                .is_err(),
+            "the test needs a type outside the bundle"
+        );
+        let event = call("ros_topic_echo", json!({"topic": "/peer/transition"}))
+            .await
+            .unwrap();
+        assert_eq!(event["count"], 1, "{event}");
+        let m = &event["messages"][0];
+        assert_eq!(m["transition"]["label"], "configure", "{event}");
+        assert_eq!(m["start_state"]["label"], "unconfigured", "{event}");
+        assert_eq!(m["goal_state"]["id"], 2, "{event}");
         let trig = call("ros_service_call", json!({"service": "/peer/trigger"}))
             .await
             .unwrap();

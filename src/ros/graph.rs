@@ -44,6 +44,22 @@ pub struct DdsEndpoint {
     pub dds_topic: String,
     pub dds_type: String,
     pub qos: Qos,
+    /// The type's hash (`RIHS01_<hex>`), from the endpoint's USER_DATA (Jazzy and newer).
+    pub type_hash: Option<String>,
+}
+
+/// The `typehash=RIHS01_…;` entry ROS 2 (Iron and newer) puts in an endpoint's USER_DATA
+/// (an octet sequence: the text follows its length, so it is searched for).
+pub fn type_hash_from_user_data(user_data: &[u8]) -> Option<String> {
+    const KEY: &[u8] = b"typehash=";
+    let at = user_data.windows(KEY.len()).position(|w| w == KEY)? + KEY.len();
+    let value: Vec<u8> = user_data[at..]
+        .iter()
+        .take_while(|b| b.is_ascii_alphanumeric() || **b == b'_')
+        .copied()
+        .collect();
+    let hash = String::from_utf8(value).ok()?;
+    hash.starts_with("RIHS").then_some(hash)
 }
 
 /// A node's entities as announced on `ros_discovery_info`.
@@ -74,6 +90,9 @@ pub struct TopicEndpoint {
     /// The owning node, when `ros_discovery_info` named it (plain DDS peers have none).
     pub node: Option<String>,
     pub qos: Qos,
+    /// For fetching the type's definition from the node (`~/get_type_description`).
+    #[serde(skip)]
+    pub type_hash: Option<String>,
 }
 
 /// A service server or client after the join.
@@ -247,6 +266,7 @@ impl GraphCache {
                         type_name: normalize_type(&e.dds_type),
                         node,
                         qos: e.qos,
+                        type_hash: e.type_hash.clone(),
                     };
                     if e.writer {
                         graph.publishers.push(ep);
@@ -307,6 +327,7 @@ pub(crate) mod testing {
                 reliability: Reliability::Reliable,
                 durability: Durability::Volatile,
             },
+            type_hash: None,
         }
     }
 }
@@ -315,6 +336,22 @@ pub(crate) mod testing {
 mod tests {
     use super::testing::{ep, gid};
     use super::*;
+
+    #[test]
+    fn type_hashes_are_read_from_user_data() {
+        let hash = "RIHS01_d5f8873a2f0146498f812d7885c7327ce27e463d36811d8792f35ee38c0d6c38";
+        assert_eq!(
+            type_hash_from_user_data(format!("typehash={hash};").as_bytes()).as_deref(),
+            Some(hash)
+        );
+        // As it arrives: a CDR octet sequence, length first.
+        let mut wire = vec![79, 0, 0, 0];
+        wire.extend(format!("typehash={hash};").bytes());
+        assert_eq!(type_hash_from_user_data(&wire).as_deref(), Some(hash));
+        assert_eq!(type_hash_from_user_data(b""), None);
+        assert_eq!(type_hash_from_user_data(b"other=1;"), None);
+        assert_eq!(type_hash_from_user_data(&[0xff, 0xfe]), None);
+    }
 
     #[test]
     fn endpoints_join_their_nodes_by_gid() {

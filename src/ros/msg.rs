@@ -6,7 +6,8 @@
 //! A service `pkg/srv/X` is stored as two messages, `pkg/srv/X_Request` and
 //! `pkg/srv/X_Response`; an action `pkg/action/X` as `X_Goal`, `X_Result`, `X_Feedback`.
 //! Definitions not in the bundle are read from an installed ROS (`AMENT_PREFIX_PATH`,
-//! `share/<pkg>/<kind>/<Name>.<kind>`) on first use.
+//! `share/<pkg>/<kind>/<Name>.<kind>`) on first use, or added by the ROS 2 graph from a
+//! peer's `~/get_type_description` answer (`Interfaces::add`).
 
 use std::collections::BTreeMap;
 use std::path::PathBuf;
@@ -27,6 +28,7 @@ const BUNDLE: &[&str] = &[
     include_str!("interfaces/std_srvs.idl"),
     include_str!("interfaces/turtlesim.idl"),
     include_str!("interfaces/unique_identifier_msgs.idl"),
+    include_str!("interfaces/type_description_interfaces.idl"),
 ];
 
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]

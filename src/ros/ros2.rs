@@ -3,7 +3,8 @@
 //! What ros2-client leaves to us lives here: the graph cache fed from
 //! `ros_discovery_info` (read with our own type, since ros2-client keeps the GID lists
 //! private) and DDS discovery; type-erased payloads (`Raw`) encoded and decoded by
-//! `cdr` from interface definitions; subscriptions that take the QoS their publishers
+//! `cdr` from interface definitions, a type nobody shipped learnt from the node that
+//! uses it (`~/get_type_description`, with the hash from discovery); subscriptions that take the QoS their publishers
 //! offer; a wait for the server before every service call; and the environment
 //! (`ROS_DOMAIN_ID`, `ROS_AUTOMATIC_DISCOVERY_RANGE`, `ROS_LOCALHOST_ONLY`), with
 //! discovery limited to this machine unless the operator says otherwise.
@@ -33,7 +34,8 @@ use serde_json::Value;
 
 use super::cdr;
 use super::graph::{
-    DdsEndpoint, Durability, Gid, Graph, GraphCache, NodeEntities, Qos, Reliability,
+    type_hash_from_user_data, DdsEndpoint, Durability, Gid, Graph, GraphCache, NodeEntities, Qos,
+    Reliability,
 };
 use super::msg::normalize_type;
 use super::{BoxFuture, CancelOutcome, GoalOutcome, Interfaces, RosError, RosGraph, Sample};
@@ -336,6 +338,7 @@ impl Ros2Graph {
                 dds_topic: t.topic_name.clone(),
                 dds_type: t.type_name.clone(),
                 qos: dds_qos(&t.qos()),
+                type_hash: type_hash_from_user_data(&w.user_data),
             });
         }
         for r in dp.discovered_readers() {
@@ -346,6 +349,7 @@ impl Ros2Graph {
                 dds_topic: t.topic_name().clone(),
                 dds_type: t.type_name().clone(),
                 qos: dds_qos(&t.qos()),
+                type_hash: type_hash_from_user_data(&r.user_data),
             });
         }
         out
@@ -367,6 +371,62 @@ impl Ros2Graph {
             .nodes
             .retain(|n| !n.rsplit('/').next().unwrap_or("").starts_with('_'));
         graph
+    }
+
+    /// Learn `ty`, used on `topic`, from a node that publishes or subscribes to it: its
+    /// `~/get_type_description` service (Jazzy and newer) answers with the definitions of
+    /// the type and every type it nests, given the type hash from discovery.
+    async fn learn_type(&self, topic: &str, ty: &str, timeout: Duration) {
+        let g = self.snapshot();
+        let mut asked = Vec::new();
+        for e in g.publishers.iter().chain(&g.subscribers) {
+            let (Some(node), Some(hash)) = (&e.node, &e.type_hash) else {
+                continue;
+            };
+            if e.topic != topic || e.type_name != ty || asked.contains(node) {
+                continue;
+            }
+            asked.push(node.clone());
+            let request = serde_json::json!({
+                "type_name": ty, "type_hash": hash, "include_type_sources": true,
+            });
+            let service = format!("{}/get_type_description", node.trim_end_matches('/'));
+            let answer = self
+                .do_call(
+                    &service,
+                    "type_description_interfaces/srv/GetTypeDescription",
+                    request,
+                    timeout,
+                )
+                .await;
+            let response = match answer {
+                Ok(r) if r["successful"] == true => r,
+                Ok(r) => {
+                    tracing::debug!("{service}: {}", r["failure_reason"]);
+                    continue;
+                }
+                Err(e) => {
+                    tracing::debug!("{service}: {e}");
+                    continue;
+                }
+            };
+            for source in response["type_sources"].as_array().into_iter().flatten() {
+                let (Some(name), Some(text)) = (
+                    source["type_name"].as_str(),
+                    source["raw_file_contents"].as_str(),
+                ) else {
+                    continue;
+                };
+                if matches!(source["encoding"].as_str(), Some("msg" | "srv" | "action")) {
+                    if let Err(e) = self.interfaces.add(name, text) {
+                        tracing::debug!("{name} from {service}: {e}");
+                    }
+                }
+            }
+            if self.interfaces.message(ty).is_ok() {
+                return;
+            }
+        }
     }
 
     async fn do_subscribe(
@@ -404,6 +464,9 @@ impl Ros2Graph {
             (None, Some(w)) => normalize_type(&w.dds_type),
             (None, None) => return Err(RosError::NoTopic(topic.to_string())),
         };
+        if self.interfaces.message(&ty).is_err() {
+            self.learn_type(topic, &ty, Duration::from_secs(3)).await;
+        }
         self.interfaces.message(&ty).map_err(|e| RosError::Decode {
             type_name: ty.clone(),
             reason: e.to_string(),

@@ -1,9 +1,11 @@
 #!/usr/bin/env python3
 """An independent ROS 2 peer (rclpy, rmw_fastrtps, from PyPI) for ferrosa's interop tests.
 
-    rclpy_peer.py serve   # node /peer: /chatter (std_msgs/String, 10 Hz), /peer/trigger
-                          # (std_srvs/Trigger), /peer/set_flag (std_srvs/SetBool), parameter
-                          # speed=0.5; runs until killed
+    rclpy_peer.py serve   # node /peer: /chatter (std_msgs/String, 10 Hz),
+                          # /peer/transition (lifecycle_msgs/TransitionEvent, 10 Hz: a type
+                          # ferrosa does not ship), /peer/trigger (std_srvs/Trigger),
+                          # /peer/set_flag (std_srvs/SetBool), parameter speed=0.5; runs
+                          # until killed
     rclpy_peer.py drive   # finds ferrosa's /turtlesim, sends turtle1 forward at 1 m/s
                           # (10 Hz for 1 s; turtlesim holds the last for 1 s more), calls
                           # /clear; prints one JSON line: nodes, topics, services it saw
@@ -21,13 +23,22 @@ from std_srvs.srv import SetBool, Trigger
 def serve():
     node = Node("peer")
     node.declare_parameter("speed", 0.5)
+    from lifecycle_msgs.msg import State, Transition, TransitionEvent
+
     pub = node.create_publisher(String, "/chatter", 10)
+    events = node.create_publisher(TransitionEvent, "/peer/transition", 10)
     count = [0]
     flag = [False]
 
     def tick():
         count[0] += 1
         pub.publish(String(data=f"hello {count[0]}"))
+        events.publish(TransitionEvent(
+            timestamp=count[0],
+            transition=Transition(id=Transition.TRANSITION_CONFIGURE, label="configure"),
+            start_state=State(id=State.PRIMARY_STATE_UNCONFIGURED, label="unconfigured"),
+            goal_state=State(id=State.PRIMARY_STATE_INACTIVE, label="inactive"),
+        ))
 
     def trigger(_req, resp):
         resp.success = True
