@@ -53,14 +53,22 @@ fn is_free_text(prop: &Value) -> bool {
     is_string && prop.get("enum").is_none() && prop.get("const").is_none()
 }
 
+/// Values without a word this short or shorter ("/", ".*") are left alone; longer ones
+/// that are all punctuation (a regex copied from some schema) are not grounded.
+const MAX_BARE: usize = 4;
+
 /// Every word of `value` (runs of letters, digits and `_`, as in ROS names;
 /// case-insensitive) occurs in `context`.
 fn grounded(value: &str, context: &str) -> bool {
-    value
-        .to_lowercase()
+    let value = value.to_lowercase();
+    let words: Vec<&str> = value
         .split(|c: char| !c.is_alphanumeric() && c != '_')
         .filter(|w| w.chars().count() >= MIN_WORD)
-        .all(|w| context.contains(w))
+        .collect();
+    if words.is_empty() {
+        return value.chars().count() <= MAX_BARE;
+    }
+    words.iter().all(|w| context.contains(w))
 }
 
 #[cfg(test)]
@@ -120,5 +128,8 @@ mod tests {
     fn short_words_and_empty_values_are_left_alone() {
         let mut c = call(json!({"node": "/x", "namespace": "/", "pattern": ".*"}));
         assert!(drop_ungrounded(&mut c, &spec(), "anything").is_empty());
+        // A regex of punctuation copied from another tool's schema is noise.
+        let mut c = call(json!({"node": "/x", "pattern": "^[^{}<>]*[^{}<>:\\s]$"}));
+        assert_eq!(drop_ungrounded(&mut c, &spec(), "anything"), ["pattern"]);
     }
 }
