@@ -16,31 +16,54 @@ use crate::tool::{ToolCall, ToolSpec};
 /// left alone.
 const MIN_WORD: usize = 3;
 
-/// Drop the optional string arguments of `call` that `context` never mentions; returns
-/// the names of the dropped arguments.
-pub fn drop_ungrounded(call: &mut ToolCall, spec: &ToolSpec, context: &str) -> Vec<String> {
-    let context = context.to_lowercase();
-    let required: Vec<&str> = spec.parameters["required"]
-        .as_array()
-        .map(|r| r.iter().filter_map(Value::as_str).collect())
-        .unwrap_or_default();
-    let props = &spec.parameters["properties"];
-    let Some(args) = call.arguments.as_object_mut() else {
-        return Vec::new();
-    };
-    let dropped: Vec<String> = args
-        .iter()
-        .filter(|(name, value)| {
-            !required.contains(&name.as_str())
-                && is_free_text(&props[name.as_str()])
-                && value.as_str().is_some_and(|v| !grounded(v, &context))
-        })
-        .map(|(name, _)| name.clone())
-        .collect();
-    for name in &dropped {
-        args.remove(name);
+/// What optional arguments may draw on: the operator's words and what tools returned,
+/// kept lowercased as it grows.
+#[derive(Debug, Clone, Default)]
+pub struct Grounding {
+    text: String,
+}
+
+impl Grounding {
+    /// Grounding from what the operator said (earlier queries and this one).
+    pub fn new<'a>(said: impl IntoIterator<Item = &'a str>) -> Grounding {
+        let mut g = Grounding::default();
+        for s in said {
+            g.add(s);
+        }
+        g
     }
-    dropped
+
+    /// Add text a tool returned.
+    pub fn add(&mut self, text: &str) {
+        self.text.push('\n');
+        self.text.push_str(&text.to_lowercase());
+    }
+
+    /// Drop the optional string arguments of `call` never mentioned here; returns the
+    /// names of the dropped arguments.
+    pub fn drop_ungrounded(&self, call: &mut ToolCall, spec: &ToolSpec) -> Vec<String> {
+        let required: Vec<&str> = spec.parameters["required"]
+            .as_array()
+            .map(|r| r.iter().filter_map(Value::as_str).collect())
+            .unwrap_or_default();
+        let props = &spec.parameters["properties"];
+        let Some(args) = call.arguments.as_object_mut() else {
+            return Vec::new();
+        };
+        let dropped: Vec<String> = args
+            .iter()
+            .filter(|(name, value)| {
+                !required.contains(&name.as_str())
+                    && is_free_text(&props[name.as_str()])
+                    && value.as_str().is_some_and(|v| !grounded(v, &self.text))
+            })
+            .map(|(name, _)| name.clone())
+            .collect();
+        for name in &dropped {
+            args.remove(name);
+        }
+        dropped
+    }
 }
 
 /// A string property without an enum (or const) of its own.
@@ -58,7 +81,7 @@ fn is_free_text(prop: &Value) -> bool {
 const MAX_BARE: usize = 4;
 
 /// Every word of `value` (runs of letters, digits and `_`, as in ROS names;
-/// case-insensitive) occurs in `context`.
+/// case-insensitive) occurs in `context` (lowercase).
 fn grounded(value: &str, context: &str) -> bool {
     let value = value.to_lowercase();
     let words: Vec<&str> = value
@@ -101,7 +124,7 @@ mod tests {
     #[test]
     fn an_optional_filter_nobody_mentioned_is_dropped() {
         let mut c = call(json!({"node": "/made_up", "namespace": "ros_node_list", "count": 3}));
-        let dropped = drop_ungrounded(&mut c, &spec(), "list the ROS nodes");
+        let dropped = Grounding::new(["list the ROS nodes"]).drop_ungrounded(&mut c, &spec());
         assert_eq!(dropped, ["namespace"]);
         // The required guess and the number stay.
         assert_eq!(c.arguments, json!({"node": "/made_up", "count": 3}));
@@ -112,14 +135,16 @@ mod tests {
         let ctx = "which topics does turtle1 have? {\"nodes\": [\"/turtlesim\"]}";
         let mut c =
             call(json!({"node": "/x", "namespace": "/Turtle1", "pattern": "turtlesim|turtle1"}));
-        assert!(drop_ungrounded(&mut c, &spec(), ctx).is_empty());
+        assert!(Grounding::new([ctx])
+            .drop_ungrounded(&mut c, &spec())
+            .is_empty());
         assert_eq!(c.arguments["namespace"], "/Turtle1");
     }
 
     #[test]
     fn one_unknown_word_is_enough_to_drop_and_enums_are_untouched() {
         let mut c = call(json!({"node": "/x", "pattern": "turtle.*pose", "level": "warn"}));
-        let dropped = drop_ungrounded(&mut c, &spec(), "show turtle logs");
+        let dropped = Grounding::new(["show turtle logs"]).drop_ungrounded(&mut c, &spec());
         assert_eq!(dropped, ["pattern"]);
         assert_eq!(c.arguments["level"], "warn");
     }
@@ -127,9 +152,14 @@ mod tests {
     #[test]
     fn short_words_and_empty_values_are_left_alone() {
         let mut c = call(json!({"node": "/x", "namespace": "/", "pattern": ".*"}));
-        assert!(drop_ungrounded(&mut c, &spec(), "anything").is_empty());
+        assert!(Grounding::new(["anything"])
+            .drop_ungrounded(&mut c, &spec())
+            .is_empty());
         // A regex of punctuation copied from another tool's schema is noise.
         let mut c = call(json!({"node": "/x", "pattern": "^[^{}<>]*[^{}<>:\\s]$"}));
-        assert_eq!(drop_ungrounded(&mut c, &spec(), "anything"), ["pattern"]);
+        assert_eq!(
+            Grounding::new(["anything"]).drop_ungrounded(&mut c, &spec()),
+            ["pattern"]
+        );
     }
 }

@@ -328,15 +328,14 @@ impl Agent {
         let mut finish = Finish::MaxSteps;
         let mut answer = String::new();
         // Calls already run this query (name and arguments). Small models tend to repeat
-        // a call after it succeeded; a repeat gets the same result, so instead the next
-        // step offers only `answer`.
+        // a call after it succeeded (or was refused); a repeat gets the same result, so
+        // instead the next step offers only the answer tool.
         let mut done_calls: Vec<(String, Value)> = Vec::new();
         let mut answer_only = false;
         // What optional arguments may draw on: the operator's words (this query and the
         // earlier ones) and what tools returned this run.
-        let mut grounding = self.memory.queries().join("\n");
-        grounding.push('\n');
-        grounding.push_str(query);
+        let mut grounding =
+            ground::Grounding::new(self.memory.queries().into_iter().chain([query]));
         let answer_only_specs: Vec<ToolSpec> = offered
             .iter()
             .filter(|s| s.name == ANSWER_TOOL)
@@ -505,7 +504,7 @@ impl Agent {
                 let Some(spec) = offered.iter().find(|s| s.name == c.name) else {
                     continue;
                 };
-                let dropped = ground::drop_ungrounded(c, spec, &grounding);
+                let dropped = grounding.drop_ungrounded(c, spec);
                 if !dropped.is_empty() {
                     if let Some(t) = &mut self.trace {
                         t.record(
@@ -579,8 +578,7 @@ impl Agent {
                     done_calls.push((call.name.clone(), call.arguments.clone()));
                 }
                 let shown = truncate_output(&to_json_spaced(&output), self.config.output_chars);
-                grounding.push('\n');
-                grounding.push_str(&shown);
+                grounding.add(&shown);
                 last_observation = shown.clone();
                 let mut m = ChatMessage::new(Role::Tool, shown);
                 m.name = Some(call.name.clone());

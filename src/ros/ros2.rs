@@ -4,10 +4,11 @@
 //! `ros_discovery_info` (read with our own type, since ros2-client keeps the GID lists
 //! private) and DDS discovery; type-erased payloads (`Raw`) encoded and decoded by
 //! `cdr` from interface definitions, a type nobody shipped learnt from the node that
-//! uses it (`~/get_type_description`, with the hash from discovery); subscriptions that take the QoS their publishers
-//! offer; a wait for the server before every service call; and the environment
-//! (`ROS_DOMAIN_ID`, `ROS_AUTOMATIC_DISCOVERY_RANGE`, `ROS_LOCALHOST_ONLY`), with
-//! discovery limited to this machine unless the operator says otherwise.
+//! uses it (`~/get_type_description`, with the hash from discovery); subscriptions that
+//! take the QoS their publishers offer; a wait for the server before every service
+//! call; and the environment (`ROS_DOMAIN_ID`, `ROS_AUTOMATIC_DISCOVERY_RANGE`,
+//! `ROS_LOCALHOST_ONLY`), with discovery limited to this machine unless the operator says
+//! otherwise. Actions are in `action`.
 //!
 //! ros2-client is async and runtime-agnostic; each participant's spinner and discovery
 //! pump run on a small background thread of their own, so callers may use any runtime.
@@ -246,9 +247,8 @@ fn dds_qos(q: &rustdds::QosPolicies) -> Qos {
     }
 }
 
-type Publishers = HashMap<(String, String), Arc<ros2_client::Publisher<Raw>>>;
-type Clients = HashMap<(String, String), Arc<ros2_client::Client<Raw, Raw>>>;
-type ActionClients = HashMap<(String, String), Arc<action::RawActionClient>>;
+/// Endpoints made on first use and kept, by (ROS name, type).
+type Endpoints<T> = Mutex<HashMap<(String, String), Arc<T>>>;
 
 /// The ROS 2 graph, through one hidden node of our own.
 pub struct Ros2Graph {
@@ -256,9 +256,9 @@ pub struct Ros2Graph {
     node: tokio::sync::Mutex<Node>,
     cache: Arc<Mutex<GraphCache>>,
     interfaces: Interfaces,
-    publishers: Mutex<Publishers>,
-    clients: Mutex<Clients>,
-    actions: Mutex<ActionClients>,
+    publishers: Endpoints<ros2_client::Publisher<Raw>>,
+    clients: Endpoints<ros2_client::Client<Raw, Raw>>,
+    actions: Endpoints<action::RawActionClient>,
 }
 
 impl Ros2Graph {
@@ -371,6 +371,28 @@ impl Ros2Graph {
             .nodes
             .retain(|n| !n.rsplit('/').next().unwrap_or("").starts_with('_'));
         graph
+    }
+
+    /// The endpoint kept in `cache` under (`name`, `ty`), or one `make` creates on our
+    /// node, then kept.
+    async fn endpoint<T>(
+        &self,
+        cache: &Endpoints<T>,
+        name: &str,
+        ty: &str,
+        make: impl FnOnce(&mut Node) -> Result<T, RosError>,
+    ) -> Result<Arc<T>, RosError> {
+        let key = (name.to_string(), ty.to_string());
+        let cached = cache.lock().expect("endpoint cache").get(&key).cloned();
+        if let Some(e) = cached {
+            return Ok(e);
+        }
+        let made = Arc::new(make(&mut *self.node.lock().await)?);
+        cache
+            .lock()
+            .expect("endpoint cache")
+            .insert(key, made.clone());
+        Ok(made)
     }
 
     /// Learn `ty`, used on `topic`, from a node that publishes or subscribes to it: its
@@ -550,35 +572,18 @@ impl Ros2Graph {
                 type_name: ty.clone(),
                 reason: e.to_string(),
             })?;
-        let key = (topic.to_string(), ty.clone());
-        let cached = self
-            .publishers
-            .lock()
-            .expect("publishers")
-            .get(&key)
-            .cloned();
-        let publisher = match cached {
-            Some(p) => p,
-            None => {
+        let publisher = self
+            .endpoint(&self.publishers, topic, &ty, |node| {
                 let (pkg, _, short) = split_type(&ty)?;
-                let name = ros_name(topic)?;
                 // Volatile: a late subscriber must never receive an old command.
                 let qos = reliable_qos(QDurability::Volatile, 10);
-                let mut node = self.node.lock().await;
+                let failed = |e| RosError::Other(format!("publish {topic}: {e:?}"));
                 let t = node
-                    .create_topic(&name, MessageTypeName::new(&pkg, &short), &qos)
-                    .map_err(|e| RosError::Other(format!("publish {topic}: {e:?}")))?;
-                let p = Arc::new(
-                    node.create_publisher::<Raw>(&t, Some(qos))
-                        .map_err(|e| RosError::Other(format!("publish {topic}: {e:?}")))?,
-                );
-                self.publishers
-                    .lock()
-                    .expect("publishers")
-                    .insert(key, p.clone());
-                p
-            }
-        };
+                    .create_topic(&ros_name(topic)?, MessageTypeName::new(&pkg, &short), &qos)
+                    .map_err(failed)?;
+                node.create_publisher::<Raw>(&t, Some(qos)).map_err(failed)
+            })
+            .await?;
         // A volatile message sent before any subscriber matched is lost: wait for one.
         let timeout = Duration::from_secs(3);
         let until = Instant::now() + timeout;
@@ -622,28 +627,19 @@ impl Ros2Graph {
                 type_name: req_ty.clone(),
                 reason: e.to_string(),
             })?;
-        let key = (service.to_string(), ty.clone());
-        let cached = self.clients.lock().expect("clients").get(&key).cloned();
-        let client = match cached {
-            Some(c) => c,
-            None => {
-                let name = ros_name(service)?;
+        let client = self
+            .endpoint(&self.clients, service, &ty, |node| {
                 let qos = reliable_qos(QDurability::Volatile, 10);
-                let mut node = self.node.lock().await;
-                let c = Arc::new(
-                    node.create_client::<Raw, Raw>(
-                        ServiceMapping::Enhanced,
-                        &name,
-                        &ServiceTypeName::new(&pkg, &short),
-                        qos.clone(),
-                        qos,
-                    )
-                    .map_err(|e| RosError::Other(format!("client {service}: {e:?}")))?,
-                );
-                self.clients.lock().expect("clients").insert(key, c.clone());
-                c
-            }
-        };
+                node.create_client::<Raw, Raw>(
+                    ServiceMapping::Enhanced,
+                    &ros_name(service)?,
+                    &ServiceTypeName::new(&pkg, &short),
+                    qos.clone(),
+                    qos,
+                )
+                .map_err(|e| RosError::Other(format!("client {service}: {e:?}")))
+            })
+            .await?;
         {
             let node = self.node.lock().await;
             if tokio::time::timeout(timeout, client.wait_for_service(&node))

@@ -139,24 +139,16 @@ impl Filter {
     /// nothing but there is something, the unfiltered listing too, so a wrong filter is
     /// seen as one.
     fn listing(&self, key: &str, items: Vec<(String, Value)>) -> Value {
-        let kept: Vec<&Value> = items
+        let (kept_names, kept): (Vec<&str>, Vec<&Value>) = items
             .iter()
             .filter(|(n, _)| self.keeps(n))
-            .map(|(_, v)| v)
-            .collect();
-        let all: Vec<&Value> = items.iter().map(|(_, v)| v).collect();
-        let names = |keep: &dyn Fn(&str) -> bool| -> Vec<&str> {
-            items
-                .iter()
-                .map(|(n, _)| n.as_str())
-                .filter(|n| keep(n))
-                .collect()
-        };
-        let filtered = self.pattern.is_some() || self.namespace.is_some();
-        let kept_names = names(&|n| self.keeps(n));
+            .map(|(n, v)| (n.as_str(), v))
+            .unzip();
         let mut out = json!({"summary": summary(key, &kept_names), "count": kept.len(), key: kept, "filters": self.echo});
-        if kept.is_empty() && !all.is_empty() && filtered {
-            let all_names = names(&|_| true);
+        let filtered = self.pattern.is_some() || self.namespace.is_some();
+        if kept.is_empty() && !items.is_empty() && filtered {
+            let (all_names, all): (Vec<&str>, Vec<&Value>) =
+                items.iter().map(|(n, v)| (n.as_str(), v)).unzip();
             out["summary"] = json!(format!(
                 "No {key} matched the filters; without them, {}",
                 summary(key, &all_names)

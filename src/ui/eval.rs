@@ -128,6 +128,8 @@ pub fn ros(args: &RosArgs) -> anyhow::Result<()> {
     let mut link = connect(Robot::Sim, false)?;
     let first: Arc<dyn RosGraph> = link.graph.clone().expect("the sim has a graph");
     let switch = Arc::new(SwitchGraph::new(first));
+    // The robot just started serves the first case; every later case gets a new one.
+    let mut used = false;
     let (jsonl, mut file) = case_file(&args.out, "ros_cases.jsonl")?;
     let mut results: Vec<CaseResult> = Vec::new();
     let total = cases.len() * args.decoding.modes().len();
@@ -143,9 +145,12 @@ pub fn ros(args: &RosArgs) -> anyhow::Result<()> {
         );
         for case in &cases {
             // A fresh robot: a new sim and a new participant to see it; the old pair goes.
-            let fresh = connect(Robot::Sim, false)?;
-            switch.replace(fresh.graph.clone().expect("the sim has a graph"));
-            link = fresh;
+            if used {
+                let fresh = connect(Robot::Sim, false)?;
+                switch.replace(fresh.graph.clone().expect("the sim has a graph"));
+                link = fresh;
+            }
+            used = true;
             agent.clear();
             approve.store(case.confirm, Ordering::SeqCst);
             let (mut calls, mut tokens, mut invalid) = (Vec::new(), 0usize, 0usize);
@@ -200,17 +205,17 @@ pub fn ros(args: &RosArgs) -> anyhow::Result<()> {
     drop(link);
     eprintln!();
     let summaries = eval::summarize(&results);
+    std::fs::write(
+        args.out.join("ros_summary.json"),
+        serde_json::to_string_pretty(&summaries)?,
+    )?;
     println!(
         "model {model_name} | suite {} | {} cases per mode\n",
         args.suite.display(),
         cases.len()
     );
     let overall = eval::summarize_overall(&results);
-    print!("{}", eval::markdown(&[summaries.clone(), overall].concat()));
-    std::fs::write(
-        args.out.join("ros_summary.json"),
-        serde_json::to_string_pretty(&summaries)?,
-    )?;
+    print!("{}", eval::markdown(&[summaries, overall].concat()));
     eprintln!("per-case results: {}", jsonl.display());
     Ok(())
 }

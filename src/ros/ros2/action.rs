@@ -104,26 +104,17 @@ impl Ros2Graph {
         kind: &ActionTypeName,
         timeout: Duration,
     ) -> Result<Arc<RawActionClient>, RosError> {
-        let key = (action.to_string(), ty.to_string());
-        let cached = self.actions.lock().expect("actions").get(&key).cloned();
-        let client = match cached {
-            Some(c) => c,
-            None => {
-                let name = ros_name(action)?;
-                let mut node = self.node.lock().await;
-                let c = Arc::new(
-                    node.create_action_client::<Raw, Raw, Raw>(
-                        ServiceMapping::Enhanced,
-                        &name,
-                        kind,
-                        client_qos(),
-                    )
-                    .map_err(|e| RosError::Other(format!("action client {action}: {e:?}")))?,
-                );
-                self.actions.lock().expect("actions").insert(key, c.clone());
-                c
-            }
-        };
+        let client = self
+            .endpoint(&self.actions, action, ty, |node| {
+                node.create_action_client::<Raw, Raw, Raw>(
+                    ServiceMapping::Enhanced,
+                    &ros_name(action)?,
+                    kind,
+                    client_qos(),
+                )
+                .map_err(|e| RosError::Other(format!("action client {action}: {e:?}")))
+            })
+            .await?;
         let node = self.node.lock().await;
         if tokio::time::timeout(timeout, client.goal_client().wait_for_service(&node))
             .await
