@@ -16,10 +16,7 @@ pub async fn wait_for_sim(graph: &Ros2Graph, limit: Duration) -> Duration {
     let start = Instant::now();
     loop {
         let g = graph.graph().await.unwrap();
-        if g.nodes.iter().any(|n| n == "/turtlesim")
-            && g.services().contains_key("/spawn")
-            && g.topics().contains_key("/turtle1/pose")
-        {
+        if Sim::discovered_in(&g) {
             return start.elapsed();
         }
         assert!(

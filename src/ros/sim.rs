@@ -34,6 +34,7 @@ use tokio::task::JoinHandle;
 
 use super::cdr;
 use super::ros2::{background, context, reliable_qos, ros_name, split_type, Raw, Ros2Options};
+use super::graph::Graph;
 use super::{Interfaces, RosError};
 
 /// The arena's side, in metres (turtlesim's 500 px at 45 px/m).
@@ -223,6 +224,19 @@ impl Sim {
             tasks,
             _context: context,
         })
+    }
+
+    /// Whether a graph shows the sim as a client sees it once discovery settles: the node,
+    /// its pose topic and `/spawn` service, and the rotate action attributed to the node
+    /// (its endpoints and the node's entity list arrive separately, in either order).
+    pub fn discovered_in(g: &Graph) -> bool {
+        let attributed = |e: &Option<String>| e.as_deref() == Some("/turtlesim");
+        g.nodes.iter().any(|n| n == "/turtlesim")
+            && g.publishers.iter().any(|p| p.topic == "/turtle1/pose" && attributed(&p.node))
+            && g.servers.iter().any(|s| s.service == "/spawn" && attributed(&s.node))
+            && g.actions().iter().any(|a| {
+                a.action == "/turtle1/rotate_absolute" && a.servers.iter().any(|n| n == "/turtlesim")
+            })
     }
 
     /// A turtle's pose as `turtle/msg/Pose` JSON, read directly (tests, benches).

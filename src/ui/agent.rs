@@ -82,11 +82,7 @@ pub fn connect(robot: Robot, verbose: bool) -> anyhow::Result<RobotLink> {
         loop {
             let g = graph.graph().await.unwrap_or_default();
             let ready = match robot {
-                Robot::Sim => {
-                    g.nodes.iter().any(|n| n == "/turtlesim")
-                        && g.topics().contains_key("/turtle1/pose")
-                        && g.services().contains_key("/spawn")
-                }
+                Robot::Sim => Sim::discovered_in(&g),
                 _ => !g.nodes.is_empty() && start.elapsed() > Duration::from_secs(2),
             };
             if ready || start.elapsed() > limit {

@@ -115,11 +115,14 @@ impl Ros2Graph {
                 .map_err(|e| RosError::Other(format!("action client {action}: {e:?}")))
             })
             .await?;
+        // Both services the goal needs: a result request sent before the server's reader
+        // matches is lost, and the goal then looks as if it never ends.
         let node = self.node.lock().await;
-        if tokio::time::timeout(timeout, client.goal_client().wait_for_service(&node))
-            .await
-            .is_err()
-        {
+        let ready = async {
+            client.goal_client().wait_for_service(&node).await;
+            client.result_client().wait_for_service(&node).await;
+        };
+        if tokio::time::timeout(timeout, ready).await.is_err() {
             return Err(RosError::NoAction(action.to_string()));
         }
         Ok(client)
