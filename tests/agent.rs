@@ -286,6 +286,30 @@ fn history_is_trimmed_oldest_first_to_fit_the_context() {
     assert!(trace.contains("\"kind\":\"query\""));
 }
 
+#[test]
+fn a_long_chat_keeps_a_bounded_history_trimmed_in_chunks() {
+    let turns = 60;
+    let script: Vec<String> = (0..turns)
+        .map(|i| answer(&format!("Answer {i}: the turtle is at the centre.")))
+        .collect();
+    let mut a = agent(&script, vec![], Policy::default(), 8192);
+    a.config.history_tokens = 200;
+    let mut prompts = Vec::new();
+    for i in 0..turns {
+        let (r, _) = ask(&mut a, &format!("question {i}"));
+        assert_eq!(r.finish, Finish::Answer, "{}", r.answer);
+        prompts.push(r.timings.prompt_tokens[0]);
+    }
+    // However long the chat, the history stays within its budget …
+    assert!(a.history_len() < 15, "{} exchanges kept", a.history_len());
+    let first = prompts[0];
+    assert!(prompts.iter().all(|&p| p <= first + 200 + 20), "{prompts:?}");
+    // … and is cut in chunks (the prompt shrinks now and then, not every turn), so most
+    // turns extend the cached prefix instead of evaluating the history again.
+    let shrinks = prompts.windows(2).filter(|w| w[1] < w[0]).count();
+    assert!((2..turns / 3).contains(&shrinks), "{shrinks} shrinks: {prompts:?}");
+}
+
 /// Stand-ins with the ROS tools' argument shapes, to show the deny-list holds on every
 /// kind of call; `runs` counts calls that actually executed.
 #[derive(Clone)]
@@ -357,6 +381,38 @@ fn ros_like(runs: &Arc<AtomicUsize>) -> Package {
         .with(ParamGet(n("get")))
         .with(ParamSet(n("set")))
         .with(ListTopics)
+}
+
+#[test]
+fn actuation_runs_only_when_the_request_points_at_it() {
+    let runs = Arc::new(AtomicUsize::new(0));
+    let approve_all = || {
+        let file = PolicyFile {
+            auto_approve: true,
+            ..Default::default()
+        };
+        Policy::from_file(file, Arc::new(NoOperator)).unwrap()
+    };
+    let publish = call("ros_topic_publish", json!({"name": "/turtle1/cmd_vel", "value": 1.0}));
+    // A question: the model publishes anyway; even with everything approved, it is
+    // refused before it runs, and the model is told why.
+    let script = [publish.clone(), answer("The turtle is at the centre.")];
+    let mut a = agent(&script, vec![ros_like(&runs)], approve_all(), 8192);
+    let (r, _) = ask(&mut a, "where is the turtle?");
+    assert_eq!(runs.load(Ordering::SeqCst), 0, "an unasked publish ran");
+    assert!(
+        matches!(&r.steps[0].decision, Decision::Refused(why) if why.contains("did not ask")),
+        "{:?}",
+        r.steps[0].decision
+    );
+    // Asked for by the tool's own word, or by the target the call names: it runs.
+    for query in ["publish 1.0 on /turtle1/cmd_vel", "send 1.0 to cmd_vel"] {
+        let script = [publish.clone(), answer("Done.")];
+        let mut a = agent(&script, vec![ros_like(&runs)], approve_all(), 8192);
+        let before = runs.load(Ordering::SeqCst);
+        let (r, _) = ask(&mut a, query);
+        assert_eq!(runs.load(Ordering::SeqCst), before + 1, "{query}: {:?}", r.steps);
+    }
 }
 
 #[test]

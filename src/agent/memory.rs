@@ -1,6 +1,12 @@
 //! Conversation memory: completed exchanges (query and answer), trimmed oldest first, a
 //! whole pair at a time, to fit the token budget; and the truncation of long tool outputs
 //! with a note saying how to get the rest.
+//!
+//! Trimming forgets for good and goes down to half the budget at once: dropping one old
+//! exchange per turn would change the prompt right after the system prompt every turn,
+//! and the model would evaluate the whole history again each time; trimming in chunks
+//! keeps the cached prefix valid for many turns. Memory stays bounded however long the
+//! chat runs.
 
 use crate::backend::{ChatMessage, Role};
 
@@ -40,25 +46,31 @@ impl Memory {
         self.exchanges.is_empty()
     }
 
-    /// The newest exchanges whose messages fit in `budget` tokens (by `cost`), as
-    /// user/assistant pairs, and how many older exchanges were left out.
-    pub fn messages_within(
-        &self,
-        budget: usize,
-        cost: impl Fn(&str) -> usize,
-    ) -> (Vec<ChatMessage>, usize) {
-        let mut used = 0;
-        let mut kept = 0;
-        for e in self.exchanges.iter().rev() {
-            let c = cost(&e.query) + cost(&e.answer) + 10;
-            if used + c > budget {
-                break;
-            }
-            used += c;
-            kept += 1;
+    /// Forget the oldest exchanges when all of them cost more than `budget` tokens (by
+    /// `cost`): down to half the budget, so the next trims are many turns away. Returns
+    /// how many were forgotten.
+    pub fn trim(&mut self, budget: usize, cost: impl Fn(&str) -> usize) -> usize {
+        let costs: Vec<usize> = self
+            .exchanges
+            .iter()
+            .map(|e| cost(&e.query) + cost(&e.answer) + 10)
+            .collect();
+        let mut total: usize = costs.iter().sum();
+        if total <= budget {
+            return 0;
         }
-        let dropped = self.exchanges.len() - kept;
-        let msgs = self.exchanges[dropped..]
+        let mut dropped = 0;
+        while dropped < costs.len() && total > budget / 2 {
+            total -= costs[dropped];
+            dropped += 1;
+        }
+        self.exchanges.drain(..dropped);
+        dropped
+    }
+
+    /// The remembered exchanges as user/assistant pairs, oldest first.
+    pub fn messages(&self) -> Vec<ChatMessage> {
+        self.exchanges
             .iter()
             .flat_map(|e| {
                 [
@@ -66,8 +78,7 @@ impl Memory {
                     ChatMessage::new(Role::Assistant, e.answer.clone()),
                 ]
             })
-            .collect();
-        (msgs, dropped)
+            .collect()
     }
 }
 
@@ -88,20 +99,26 @@ mod tests {
     use super::*;
 
     #[test]
-    fn oldest_pairs_go_first_and_pairs_stay_whole() {
+    fn trimming_forgets_oldest_whole_pairs_down_to_half_the_budget() {
         let mut m = Memory::default();
         for i in 0..5 {
             m.push(format!("q{i}"), format!("a{i}"));
         }
-        // Each exchange costs 2 + 2 + 10 = 14 with this cost function.
-        let (msgs, dropped) = m.messages_within(30, |s| s.len());
-        assert_eq!(dropped, 3);
+        // Each exchange costs 2 + 2 + 10 = 14 with this cost function: 70 in all.
+        assert_eq!(m.trim(70, |s| s.len()), 0, "everything fits");
+        assert_eq!(m.len(), 5);
+        // Over 60: down to 30 or less, so three go and two (28) stay.
+        assert_eq!(m.trim(60, |s| s.len()), 3);
+        let msgs = m.messages();
         assert_eq!(msgs.len(), 4);
         assert_eq!(msgs[0].content, "q3");
         assert_eq!(msgs[3].content, "a4");
-        let (msgs, dropped) = m.messages_within(0, |s| s.len());
-        assert!(msgs.is_empty());
-        assert_eq!(dropped, 5);
+        // Room for the next two exchanges before anything is trimmed again.
+        m.push("q5", "a5");
+        m.push("q6", "a6");
+        assert_eq!(m.trim(60, |s| s.len()), 0);
+        assert_eq!(m.trim(0, |s| s.len()), 4);
+        assert!(m.is_empty());
     }
 
     #[test]

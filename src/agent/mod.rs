@@ -20,6 +20,7 @@
 
 pub mod event;
 pub mod ground;
+pub mod intent;
 pub mod memory;
 pub mod prompt;
 pub mod select;
@@ -78,6 +79,12 @@ pub struct AgentConfig {
     pub max_turn_tokens: usize,
     /// Context kept free for the model's reply and the scratchpad.
     pub reserve_tokens: usize,
+    /// Run an actuating call only when the operator's request points at it (see
+    /// `intent`); off, the policy and the operator's confirmation are the only gate.
+    pub asked_actuation_only: bool,
+    /// Tokens the conversation history may take: a longer history makes every turn that
+    /// changes the offered tools evaluate more, and a small model gains little from it.
+    pub history_tokens: usize,
     /// Tokens the tool specs may take before tools are selected per query.
     pub tool_budget_tokens: usize,
     /// Tools always offered when selecting.
@@ -96,6 +103,8 @@ impl AgentConfig {
             answer_mode: AnswerMode::Tool,
             max_turn_tokens: 256,
             reserve_tokens: 1024,
+            history_tokens: 768,
+            asked_actuation_only: true,
             tool_budget_tokens: 1500,
             always_on: vec![ANSWER_TOOL.to_string()],
             output_chars: 1500,
@@ -229,6 +238,11 @@ impl Agent {
         &self.registry
     }
 
+    /// Exchanges the agent remembers (what the next prompt may include).
+    pub fn history_len(&self) -> usize {
+        self.memory.len()
+    }
+
     pub fn backend(&self) -> &dyn Backend {
         self.backend.as_ref()
     }
@@ -341,6 +355,28 @@ impl Agent {
             .filter(|s| s.name == ANSWER_TOOL)
             .cloned()
             .collect();
+        // Actuation the request points at; tools it cannot point at leave the grammar.
+        let intent = intent::Intent::new(query);
+        let actuates = |name: &str| {
+            self.registry.get(name).is_some_and(|t| {
+                t.effect() == crate::tool::Effect::Actuates && !self.policy.may_observe(name)
+            })
+        };
+        let observing = intent::vocabulary(
+            self.registry
+                .tools()
+                .filter(|t| !actuates(&t.spec().name))
+                .map(|t| t.spec()),
+        );
+        let askable: Vec<ToolSpec> = offered
+            .iter()
+            .filter(|s| {
+                !self.config.asked_actuation_only
+                    || !actuates(&s.name)
+                    || intent.may_ask_for(s, &observing)
+            })
+            .cloned()
+            .collect();
 
         for step in 0..self.config.max_steps {
             if self.cancel.load(Ordering::SeqCst) {
@@ -363,8 +399,14 @@ impl Agent {
             let room = self
                 .backend
                 .context_len()
-                .saturating_sub(fixed + self.config.reserve_tokens);
-            let (history, dropped) = self.memory.messages_within(room, |s| self.tokens(s));
+                .saturating_sub(fixed + self.config.reserve_tokens)
+                .min(self.config.history_tokens);
+            let dropped = {
+                let backend = &self.backend;
+                let cost = |s: &str| backend.tokenize(s, false).map_or(s.len() / 3, |t| t.len());
+                self.memory.trim(room, cost)
+            };
+            let history = self.memory.messages();
             if dropped > 0 {
                 if let Some(t) = &mut self.trace {
                     t.record(
@@ -380,6 +422,8 @@ impl Agent {
             let mut req = self.request(&messages, &offered, choice);
             if answer_only && !answer_only_specs.is_empty() {
                 req.allowed = Some(&answer_only_specs);
+            } else if askable.len() < offered.len() {
+                req.allowed = Some(&askable);
             }
             let mut sampler = Sampler::new(self.config.sampler, self.backend.vocab().len());
             let cancel = self.cancel.clone();
@@ -535,8 +579,18 @@ impl Agent {
                 .calls
                 .iter()
                 .map(|c| {
-                    self.policy
-                        .check(self.registry.get(&c.name).map(|t| t.as_ref()), c)
+                    let tool = self.registry.get(&c.name).map(|t| t.as_ref());
+                    let unasked = self.config.asked_actuation_only
+                        && tool.is_some_and(|t| {
+                            self.policy.actuates(t, c) && !intent.asks_for(c, t.spec(), &observing)
+                        });
+                    if unasked {
+                        return Decision::Refused(format!(
+                            "the operator did not ask for {}: no word of the request points at it or at its target; do not act, answer instead",
+                            c.name
+                        ));
+                    }
+                    self.policy.check(tool, c)
                 })
                 .collect();
             for (i, (c, d)) in turn.calls.iter().zip(&decisions).enumerate() {

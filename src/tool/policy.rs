@@ -247,12 +247,18 @@ impl Policy {
             .map(|re| re.as_str().to_string())
     }
 
+    /// Whether this call changes the robot: its tool actuates and no `observes` rule
+    /// covers it.
+    pub fn actuates(&self, tool: &dyn DynTool, call: &ToolCall) -> bool {
+        tool.effect() == Effect::Actuates && !self.observes_call(call)
+    }
+
     /// Check one call; only `Allowed`/`Confirmed` calls may run.
     pub fn check(&self, tool: Option<&dyn DynTool>, call: &ToolCall) -> Decision {
         let Some(tool) = tool else {
             return Decision::Refused(format!("there is no tool named {}", call.name));
         };
-        let actuates = tool.effect() == Effect::Actuates && !self.observes_call(call);
+        let actuates = self.actuates(tool, call);
         if actuates && self.read_only {
             return Decision::Refused(format!(
                 "{} changes the robot and the agent is read-only; tell the operator it cannot be done",
