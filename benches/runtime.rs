@@ -1,25 +1,64 @@
-//! `cargo bench --bench runtime`: prompt and generation tok/s, load time and peak RSS of
-//! every catalog model present × every compiled backend, at a fixed thread count, each
-//! configuration in its own child process so one cannot inflate the next one's memory.
-//! With `LLAMA_BENCH=/path/to/llama-bench`, upstream's figures on the same files and
-//! threads are printed beside ours, with the ratio.
+//! `cargo bench --bench runtime`: what the model runtime delivers on this machine, for
+//! every catalog model present × compiled backend × decoding (plain, constrained), each
+//! configuration in its own child process so load time and peak RSS are its own.
+//!
+//! Per configuration: load time; prompt tok/s at 512 tokens; generation tok/s for 128
+//! tokens at depth 0 and 512 (under the agent's prose-or-call grammar when constrained);
+//! on tool-call turns, tok/s with one sampled token per forward pass and (constrained)
+//! the tool-call output rate with fast-forward, forced tokens included, and forward passes
+//! per call; time to first token of an agent-sized prompt, cold and on a second turn with
+//! the first one cached; peak RSS (VmHWM) against file + KV cache + 64 MiB.
+//! min / median / max over N runs. With `LLAMA_BENCH=/path/to/llama-bench`, upstream's
+//! pp512 / tg128 on the same files and threads are printed beside ours, with the ratio.
 //!
 //! Settings (environment): FERROSA_BENCH_RUNS (5), FERROSA_BENCH_THREADS (physical
-//! cores), FERROSA_BENCH_MODELS / FERROSA_BENCH_BACKENDS (comma lists to restrict).
-//! Output: a markdown table on stdout, JSON in target/bench/runtime.json.
+//! cores), FERROSA_BENCH_MODELS (the catalog's default model; a comma list, or `all` for
+//! every model present), FERROSA_BENCH_BACKENDS / FERROSA_BENCH_DECODING (comma lists to
+//! restrict). Output: a markdown table on stdout, target/bench/runtime.json and
+//! target/bench/runtime.svg.
 
+#[path = "common/chart.rs"]
+mod chart;
+#[path = "common/header.rs"]
+mod header;
+
+use std::ops::ControlFlow;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::Instant;
 
-use ferrosa::backend::{self, BackendKind, LoadOptions, TokenId};
-use ferrosa::decode::sample::argmax;
+use ferrosa::agent::prompt::RobotPrompt;
+use ferrosa::backend::{self, Backend, BackendKind, ChatMessage, LoadOptions, Role, TokenId};
+use ferrosa::decode::envelope::{Envelope, ToolChoice};
+use ferrosa::decode::turn::{with_tools, TurnRequest};
+use ferrosa::decode::{
+    generate, prompt_tokens, Constraint, Decoding, GenerationStats, Grammars, Sampler,
+    SamplerConfig, Session,
+};
 use ferrosa::models::Catalog;
+use ferrosa::tool::{specs_from_json, ToolSpec};
+use header::Spread;
 use serde::{Deserialize, Serialize};
 
 const CHILD_ENV: &str = "FERROSA_BENCH_CHILD";
 const PROMPT: usize = 512;
 const GEN: usize = 128;
+/// Room for the agent-sized prompt, a reply and a second turn.
+const CONTEXT: usize = 4096;
+/// What the process may hold beyond weights and KV cache: code, grammar, buffers.
+const OVERHEAD_MIB: f64 = 64.0;
+
+/// Tool-call turns, one per run in turn: what an operator asks a turtle robot.
+/// The robot description the agent puts before the tools (the built-in sim's).
+const ROBOT_PROMPT: &str = include_str!("../prompts/turtlesim.toml");
+
+const TOOL_QUERIES: [&str; 5] = [
+    "read 3 messages from /turtle1/pose",
+    "move the turtle forward 2 meters",
+    "list the topics under /turtle1",
+    "turn right 45 degrees",
+    "what is the mean of 3, 5 and 10?",
+];
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
 struct Config {
@@ -27,26 +66,9 @@ struct Config {
     path: PathBuf,
     family: String,
     backend: String,
+    decoding: String,
     threads: usize,
     runs: usize,
-}
-
-#[derive(Debug, Clone, Default, Serialize, Deserialize)]
-struct Spread {
-    min: f64,
-    median: f64,
-    max: f64,
-}
-
-impl Spread {
-    fn of(mut v: Vec<f64>) -> Spread {
-        v.sort_by(f64::total_cmp);
-        Spread {
-            min: v[0],
-            median: v[v.len() / 2],
-            max: v[v.len() - 1],
-        }
-    }
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -56,9 +78,27 @@ struct Measured {
     prompt_tps: Spread,
     gen_tps_d0: Spread,
     gen_tps_d512: Spread,
+    /// Tool-call turns: forward passes per second, one sampled token each.
+    tool_turn_tps: Spread,
+    /// Constrained with fast-forward: call tokens emitted per second, forced included.
+    call_output_tps: Option<Spread>,
+    forwards_per_call: Option<f64>,
+    valid_calls: usize,
+    tool_turns: usize,
+    ttft_cold_ms: Spread,
+    ttft_cached_ms: Spread,
+    agent_prompt_tokens: usize,
+    second_turn_new_tokens: usize,
     peak_rss_mib: f64,
     file_mib: f64,
+    kv_mib: f64,
     context: usize,
+}
+
+impl Measured {
+    fn budget_mib(&self) -> f64 {
+        self.file_mib + self.kv_mib + OVERHEAD_MIB
+    }
 }
 
 #[derive(Debug, Clone, Default, Serialize, Deserialize)]
@@ -66,13 +106,6 @@ struct Upstream {
     prompt_tps: Option<f64>,
     gen_tps_d0: Option<f64>,
     gen_tps_d512: Option<f64>,
-}
-
-fn env_usize(key: &str, default: usize) -> usize {
-    std::env::var(key)
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(default)
 }
 
 fn main() {
@@ -83,23 +116,30 @@ fn main() {
         return;
     }
     let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
-    let dir = std::env::var_os("FERROSA_MODELS_DIR")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| root.join("models"));
+    let dir = header::models_dir();
     let catalog = Catalog::load(&dir).expect("catalog");
-    let runs = env_usize("FERROSA_BENCH_RUNS", 5).max(1);
-    let threads = env_usize("FERROSA_BENCH_THREADS", backend::physical_cores());
-    let want = |key: &str, name: &str| {
-        std::env::var(key)
-            .map(|v| v.split(',').any(|x| x.trim() == name))
-            .unwrap_or(true)
-    };
+    let runs = header::env_usize("FERROSA_BENCH_RUNS", 5).max(1);
+    let threads = header::env_usize("FERROSA_BENCH_THREADS", backend::physical_cores());
 
-    print_header(&root, threads, runs);
+    header::print(
+        "ferrosa runtime benchmark",
+        &root,
+        &format!("threads: {threads} | runs: {runs}"),
+    );
+    println!(
+        "prompt: {PROMPT} tokens in one batch; generation: {GEN} tokens, greedy, at depth 0 and {PROMPT}; context {CONTEXT}; figures min / **median** / max"
+    );
+    println!();
     let mut rows = Vec::new();
     for e in &catalog.model {
         let path = dir.join(&e.file);
-        if !path.exists() || !want("FERROSA_BENCH_MODELS", &e.name) {
+        // The default model unless FERROSA_BENCH_MODELS names others (or says "all").
+        let chosen = match std::env::var("FERROSA_BENCH_MODELS") {
+            Ok(v) if v.trim() == "all" => true,
+            Ok(_) => header::wanted("FERROSA_BENCH_MODELS", &e.name),
+            Err(_) => e.name == catalog.default,
+        };
+        if !path.exists() || !chosen {
             continue;
         }
         let arch = backend::Gguf::open(&path)
@@ -114,20 +154,27 @@ fn main() {
                 BackendKind::Llama => cfg!(feature = "llama"),
                 BackendKind::Candle => cfg!(feature = "candle") && arch == "llama",
             };
-            if !compiled || !want("FERROSA_BENCH_BACKENDS", kind.name()) {
+            if !compiled || !header::wanted("FERROSA_BENCH_BACKENDS", kind.name()) {
                 continue;
             }
-            let cfg = Config {
-                model: e.name.clone(),
-                path: path.clone(),
-                family: e.family.clone(),
-                backend: kind.name().to_string(),
-                threads,
-                runs,
-            };
-            match run_child(&cfg) {
-                Ok(m) => rows.push((m, upstream.clone())),
-                Err(err) => eprintln!("{} / {}: {err}", e.name, kind.name()),
+            for decoding in ["plain", "constrained"] {
+                if !header::wanted("FERROSA_BENCH_DECODING", decoding) {
+                    continue;
+                }
+                let cfg = Config {
+                    model: e.name.clone(),
+                    path: path.clone(),
+                    family: e.family.clone(),
+                    backend: kind.name().to_string(),
+                    decoding: decoding.to_string(),
+                    threads,
+                    runs,
+                };
+                eprintln!("measuring {} / {} / {decoding} …", e.name, kind.name());
+                match run_child(&cfg) {
+                    Ok(m) => rows.push((m, upstream.clone())),
+                    Err(err) => eprintln!("{} / {} / {decoding}: {err}", e.name, kind.name()),
+                }
             }
         }
     }
@@ -140,7 +187,11 @@ fn main() {
         .collect();
     let file = out.join("runtime.json");
     std::fs::write(&file, serde_json::to_string_pretty(&json).expect("json")).expect("write json");
-    eprintln!("wrote {}", file.display());
+    let svg = out.join("runtime.svg");
+    match draw(&rows, &svg) {
+        Ok(()) => eprintln!("wrote {} and {}", file.display(), svg.display()),
+        Err(e) => eprintln!("wrote {}; chart failed: {e}", file.display()),
+    }
 }
 
 fn run_child(cfg: &Config) -> Result<Measured, String> {
@@ -156,6 +207,86 @@ fn run_child(cfg: &Config) -> Result<Measured, String> {
     serde_json::from_str(line.trim().lines().last().unwrap_or_default()).map_err(|e| e.to_string())
 }
 
+fn tool_specs() -> Vec<ToolSpec> {
+    specs_from_json(include_str!("../tests/data/robot_tools.json")).expect("tool specs")
+}
+
+/// The tools the agent would offer for a turtle query (it offers a handful, not all).
+fn offered(all: &[ToolSpec]) -> Vec<ToolSpec> {
+    let names = [
+        "ros_topic_echo",
+        "ros_topic_list",
+        "ros_node_list",
+        "turtle_move",
+        "turtle_rotate",
+        "turtle_pose",
+        "calc_stats",
+    ];
+    all.iter()
+        .filter(|s| names.contains(&s.name.as_str()))
+        .cloned()
+        .collect()
+}
+
+struct Child {
+    model: Box<dyn Backend>,
+    grammars: Option<Grammars>,
+    session: Session,
+    envelope: Envelope,
+}
+
+impl Child {
+    /// Generate up to `max` tokens after `prompt` (greedy), under `lark` when constrained.
+    fn run(
+        &mut self,
+        prompt: &[TokenId],
+        max: usize,
+        lark: &str,
+        fast_forward: bool,
+    ) -> (GenerationStats, Vec<TokenId>) {
+        let mut c: Option<Constraint> = self.grammars.as_ref().map(|g| {
+            let mut c = g.compile(lark).expect("grammar");
+            c.set_fast_forward(fast_forward);
+            c
+        });
+        let mut sampler = Sampler::new(SamplerConfig::default(), self.model.vocab().len());
+        let mut out = Vec::new();
+        let (_, stats) = generate(
+            self.model.as_mut(),
+            &mut self.session,
+            prompt,
+            max,
+            &mut sampler,
+            c.as_mut(),
+            |t| {
+                out.push(t);
+                ControlFlow::Continue(())
+            },
+        )
+        .expect("generate");
+        (stats, out)
+    }
+
+    fn render(&self, messages: &[ChatMessage], specs: &[ToolSpec]) -> Vec<TokenId> {
+        let req = TurnRequest {
+            messages,
+            specs,
+            allowed: None,
+            envelope: self.envelope,
+            choice: ToolChoice::Required,
+            parallel: false,
+            decoding: Decoding::Constrained,
+            max_tokens: 64,
+        };
+        let text = self
+            .model
+            .chat_template()
+            .render(&with_tools(&req), None, true)
+            .expect("template");
+        prompt_tokens(self.model.as_ref(), &text, true).expect("tokenize")
+    }
+}
+
 /// One configuration, in this (child) process.
 fn measure(cfg: &Config) -> Measured {
     let kind = match cfg.backend.as_str() {
@@ -165,74 +296,137 @@ fn measure(cfg: &Config) -> Measured {
     let mut opts = LoadOptions::new(cfg.path.clone());
     opts.family = Some(cfg.family.clone());
     opts.threads = cfg.threads;
-    // Prompt plus generation, as llama-bench sizes its context.
-    opts.max_context = PROMPT + GEN + 16;
+    opts.max_context = CONTEXT;
     let t = Instant::now();
-    let mut model = backend::load(kind, &opts).expect("load");
+    let model = backend::load(kind, &opts).expect("load");
+    let constrained = cfg.decoding == "constrained";
+    let grammars =
+        constrained.then(|| Grammars::new(model.vocab(), model.tokenizer()).expect("grammars"));
     let load_ms = t.elapsed().as_secs_f64() * 1e3;
+    let envelope = Envelope::for_family(&cfg.family);
+    let mut c = Child {
+        model,
+        grammars,
+        session: Session::new(),
+        envelope,
+    };
+
+    let specs = offered(&tool_specs());
+    let robot = RobotPrompt::parse(ROBOT_PROMPT, "prompts/turtlesim.toml")
+        .expect("robot prompt")
+        .render();
+    let prose_lark = envelope.grammar(&specs, ToolChoice::Auto, false);
+    let call_lark = envelope.grammar(&specs, ToolChoice::Required, false);
 
     let text = "The rover drove slowly across the rocky plain, stopping every few metres \
                 to photograph the ground, measure the temperature and report its battery. "
         .repeat(64);
-    let mut prompt: Vec<TokenId> = model.vocab().bos().into_iter().collect();
-    prompt.extend(model.tokenize(&text, false).expect("tokenize"));
-    prompt.truncate(PROMPT);
-    assert_eq!(prompt.len(), PROMPT, "benchmark text too short");
-
+    let mut rover = prompt_tokens(c.model.as_ref(), &text, false).expect("tokenize");
+    rover.truncate(PROMPT);
+    assert_eq!(rover.len(), PROMPT, "benchmark text too short");
     // Warm-up: page in the weights and let the thread pool spin up.
-    model.forward(0, &prompt[..16]).expect("warm-up");
-    let gen = |model: &mut Box<dyn backend::Backend>, start: usize| -> f64 {
-        let first = argmax(
-            model
-                .forward(start, &prompt[start..start + 1])
-                .expect("forward"),
-        )
-        .expect("a token");
-        let t = Instant::now();
-        let mut tok = first;
-        for i in 0..GEN {
-            let logits = model.forward(start + 1 + i, &[tok]).expect("forward");
-            tok = argmax(logits).expect("a token");
+    c.run(&rover[..16], 4, &prose_lark, false);
+
+    let (mut pp, mut tg0, mut tg512) = (Vec::new(), Vec::new(), Vec::new());
+    let (mut tool_tps, mut call_tps) = (Vec::new(), Vec::new());
+    let (mut forwards, mut valid) = (0usize, 0usize);
+    let (mut cold, mut cached) = (Vec::new(), Vec::new());
+    let (mut agent_tokens, mut second_new) = (0, 0);
+    for run in 0..cfg.runs {
+        // Prompt: 512 tokens in one batch, nothing cached.
+        c.session.clear();
+        let (s, _) = c.run(&rover, 1, &prose_lark, true);
+        pp.push(s.prompt_tok_per_s());
+        // Depth 512: that prompt stays cached; depth 0: one token from the start.
+        tg512.push(c.run(&rover, GEN, &prose_lark, false).0.gen_tok_per_s());
+        tg0.push(c.run(&rover[..1], GEN, &prose_lark, false).0.gen_tok_per_s());
+
+        // A tool-call turn with the agent's handful of tools.
+        let q = TOOL_QUERIES[run % TOOL_QUERIES.len()];
+        let messages = [
+            ChatMessage::new(Role::System, "You control a turtle robot."),
+            ChatMessage::new(Role::User, q),
+        ];
+        let prompt = c.render(&messages, &specs);
+        if constrained {
+            let (s, out) = c.run(&prompt, 128, &call_lark, true);
+            call_tps.push(s.output_tok_per_s());
+            forwards += s.gen_forwards + 1;
+            let text = c.model.vocab().decode_lossy(&out);
+            valid += envelope
+                .parse(&text, &specs)
+                .map_or(0, |t| usize::from(!t.calls.is_empty()));
         }
-        GEN as f64 / t.elapsed().as_secs_f64()
-    };
-    let mut pp = Vec::new();
-    let mut tg0 = Vec::new();
-    let mut tg512 = Vec::new();
-    for _ in 0..cfg.runs {
-        let t = Instant::now();
-        model.forward(0, &prompt).expect("prompt");
-        pp.push(PROMPT as f64 / t.elapsed().as_secs_f64());
-        // Depth 512: the prompt just evaluated stays in the cache.
-        tg512.push(gen(&mut model, PROMPT - 1));
-        tg0.push(gen(&mut model, 0));
+        // One sampled token per forward: the grammar's cost alone when constrained.
+        let (s, out) = c.run(&prompt, 64, &call_lark, false);
+        tool_tps.push(s.gen_tok_per_s());
+        if !constrained {
+            let text = c.model.vocab().decode_lossy(&out);
+            valid += envelope
+                .parse(&text, &specs)
+                .map_or(0, |t| usize::from(!t.calls.is_empty()));
+        }
+
+        // Time to first token: the robot's instructions and the offered tools (an
+        // agent-sized prompt), cold, then a second turn with the first one (and its
+        // reply) cached.
+        c.session.clear();
+        let agent = [
+            ChatMessage::new(Role::System, robot.clone()),
+            messages[1].clone(),
+        ];
+        let first = c.render(&agent, &specs);
+        let (s, out) = c.run(&first, 48, &call_lark, true);
+        cold.push(s.time_to_first_token.as_secs_f64() * 1e3);
+        let reply = c.model.vocab().decode_lossy(&out);
+        let reply = reply.trim_end_matches(|ch: char| !ch.is_ascii_graphic()).to_string();
+        let messages2 = [
+            agent[0].clone(),
+            agent[1].clone(),
+            ChatMessage::new(Role::Assistant, reply),
+            ChatMessage::new(Role::User, "and then list the ROS nodes"),
+        ];
+        let second = c.render(&messages2, &specs);
+        let (s, _) = c.run(&second, 48, &call_lark, true);
+        cached.push(s.time_to_first_token.as_secs_f64() * 1e3);
+        agent_tokens = first.len();
+        second_new = s.prompt_tokens - s.reused_tokens;
     }
+    let file = std::fs::metadata(&cfg.path).map_or(0, |m| m.len());
+    let kv = backend::Gguf::open(&cfg.path)
+        .ok()
+        .and_then(|g| g.kv_cache_bytes(c.model.context_len()))
+        .unwrap_or(0);
     Measured {
         config: cfg.clone(),
         load_ms,
         prompt_tps: Spread::of(pp),
         gen_tps_d0: Spread::of(tg0),
         gen_tps_d512: Spread::of(tg512),
+        tool_turn_tps: Spread::of(tool_tps),
+        call_output_tps: constrained.then(|| Spread::of(call_tps)),
+        forwards_per_call: constrained.then(|| forwards as f64 / cfg.runs as f64),
+        valid_calls: valid,
+        tool_turns: cfg.runs,
+        ttft_cold_ms: Spread::of(cold),
+        ttft_cached_ms: Spread::of(cached),
+        agent_prompt_tokens: agent_tokens,
+        second_turn_new_tokens: second_new,
         peak_rss_mib: ferrosa::metrics::peak_rss_bytes().map_or(0.0, ferrosa::metrics::mib),
-        file_mib: std::fs::metadata(&cfg.path).map_or(0.0, |m| ferrosa::metrics::mib(m.len())),
-        context: model.context_len(),
+        file_mib: ferrosa::metrics::mib(file),
+        kv_mib: ferrosa::metrics::mib(kv),
+        context: c.model.context_len(),
     }
 }
 
 /// Upstream llama-bench on the same file: pp512, tg128 at depth 0 and at depth 512.
 fn llama_bench(bin: &Path, model: &Path, threads: usize, runs: usize) -> Upstream {
+    eprintln!("running {} on {} …", bin.display(), model.display());
     let out = Command::new(bin)
         .arg("-m")
         .arg(model)
         .args(["-t", &threads.to_string(), "-p", &PROMPT.to_string()])
-        .args([
-            "-n",
-            &GEN.to_string(),
-            "-d",
-            "0,512",
-            "-r",
-            &runs.to_string(),
-        ])
+        .args(["-n", &GEN.to_string(), "-d", "0,512", "-r", &runs.to_string()])
         .args(["-o", "json"])
         .output();
     let Ok(out) = out else {
@@ -265,62 +459,26 @@ fn llama_bench(bin: &Path, model: &Path, threads: usize, runs: usize) -> Upstrea
     }
 }
 
-fn print_header(root: &Path, threads: usize, runs: usize) {
-    let git = Command::new("git")
-        .args(["rev-parse", "--short", "HEAD"])
-        .current_dir(root)
-        .output()
-        .ok()
-        .map(|o| String::from_utf8_lossy(&o.stdout).trim().to_string())
-        .unwrap_or_default();
-    let lock = std::fs::read_to_string(root.join("Cargo.lock")).unwrap_or_default();
-    let version = |name: &str| {
-        let needle = format!("name = \"{name}\"\nversion = \"");
-        lock.find(&needle)
-            .map(|i| {
-                let rest = &lock[i + needle.len()..];
-                rest[..rest.find('"').unwrap_or(0)].to_string()
-            })
-            .unwrap_or_else(|| "?".into())
-    };
-    println!("# ferrosa runtime benchmark");
-    println!();
-    println!(
-        "CPU: {} | logical CPUs: {} | physical cores: {} | threads: {threads} | runs: {runs}",
-        ferrosa::metrics::cpu_model().unwrap_or_default(),
-        std::thread::available_parallelism().map_or(0, |n| n.get()),
-        backend::physical_cores(),
-    );
-    println!(
-        "ferrosa {} (git {git}) | llama-cpp-2 {} | candle-core {}",
-        env!("CARGO_PKG_VERSION"),
-        version("llama-cpp-2"),
-        version("candle-core"),
-    );
-    println!(
-        "prompt: {PROMPT} tokens in one batch; generation: {GEN} tokens, greedy, at depth 0 and {PROMPT}; figures min / median / max tok/s"
-    );
-    println!();
-}
-
 fn print_table(rows: &[(Measured, Upstream)]) {
-    println!("| model | backend | load ms | pp{PROMPT} tok/s | tg{GEN} @0 tok/s | tg{GEN} @{PROMPT} tok/s | peak RSS MiB (file) | llama-bench pp / tg@0 / tg@{PROMPT} | ratio pp / tg@0 / tg@{PROMPT} |");
-    println!("|---|---|---|---|---|---|---|---|---|");
     let fmt = |s: &Spread| format!("{:.0} / **{:.0}** / {:.0}", s.min, s.median, s.max);
     let opt = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.0}"));
     let ratio =
         |ours: f64, up: Option<f64>| up.map_or("-".to_string(), |u| format!("{:.2}", ours / u));
+
+    println!("## Throughput (tok/s)");
+    println!();
+    println!("| model | backend | decoding | load ms | pp{PROMPT} | tg{GEN} @0 | tg{GEN} @{PROMPT} | llama-bench pp / tg@0 / tg@{PROMPT} | ratio pp / tg@0 / tg@{PROMPT} |");
+    println!("|---|---|---|---|---|---|---|---|---|");
     for (m, u) in rows {
         println!(
-            "| {} | {} | {:.0} | {} | {} | {} | {:.0} ({:.0}) | {} / {} / {} | {} / {} / {} |",
+            "| {} | {} | {} | {:.0} | {} | {} | {} | {} / {} / {} | {} / {} / {} |",
             m.config.model,
             m.config.backend,
+            m.config.decoding,
             m.load_ms,
             fmt(&m.prompt_tps),
             fmt(&m.gen_tps_d0),
             fmt(&m.gen_tps_d512),
-            m.peak_rss_mib,
-            m.file_mib,
             opt(u.prompt_tps),
             opt(u.gen_tps_d0),
             opt(u.gen_tps_d512),
@@ -329,4 +487,78 @@ fn print_table(rows: &[(Measured, Upstream)]) {
             ratio(m.gen_tps_d512.median, u.gen_tps_d512),
         );
     }
+    println!();
+    println!("## Tool calls, first token, memory");
+    println!();
+    println!("| model | backend | decoding | tool-turn tok/s (1 token / forward) | call output tok/s (fast-forward) | vs plain tool-turn | forwards / call | calls parsed | TTFT cold ms | TTFT 2nd turn ms | cold / 2nd | peak RSS MiB | file + KV + {OVERHEAD_MIB:.0} MiB |");
+    println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|");
+    for (m, _) in rows {
+        let plain = rows
+            .iter()
+            .find(|(p, _)| {
+                p.config.decoding == "plain"
+                    && p.config.model == m.config.model
+                    && p.config.backend == m.config.backend
+            })
+            .map(|(p, _)| p.tool_turn_tps.median);
+        let vs = match (&m.call_output_tps, plain) {
+            (Some(c), Some(p)) => format!("{:.2}", c.median / p),
+            _ => "-".into(),
+        };
+        println!(
+            "| {} | {} | {} | {} | {} | {vs} | {} | {} / {} | {} | {} | {:.1} | {:.0} | {:.0} ({:.0} + {:.0} + {OVERHEAD_MIB:.0}) {} |",
+            m.config.model,
+            m.config.backend,
+            m.config.decoding,
+            fmt(&m.tool_turn_tps),
+            m.call_output_tps.as_ref().map_or("-".into(), fmt),
+            m.forwards_per_call.map_or("-".into(), |f| format!("{f:.1}")),
+            m.valid_calls,
+            m.tool_turns,
+            fmt(&m.ttft_cold_ms),
+            fmt(&m.ttft_cached_ms),
+            m.ttft_cold_ms.median / m.ttft_cached_ms.median.max(1e-9),
+            m.peak_rss_mib,
+            m.budget_mib(),
+            m.file_mib,
+            m.kv_mib,
+            if m.peak_rss_mib <= m.budget_mib() { "within" } else { "**over**" },
+        );
+    }
+    if let Some((m, _)) = rows.first() {
+        println!();
+        println!(
+            "Time to first token: a {}-token prompt (the sim's robot prompt file and the offered tools), nothing cached; then a second turn adding {} tokens to it. Context {} tokens; KV cache f16.",
+            m.agent_prompt_tokens, m.second_turn_new_tokens, m.context
+        );
+    }
+    println!();
+}
+
+fn draw(rows: &[(Measured, Upstream)], path: &Path) -> Result<(), String> {
+    let label = |m: &Measured| {
+        format!(
+            "{} {} {}",
+            m.config.model, m.config.backend, m.config.decoding
+        )
+    };
+    let mut speed = chart::Bars::new("tok/s (median)", &["pp512", "tg128 @0", "tool-call output"]);
+    let mut memory = chart::Bars::new("MiB", &["peak RSS", "file + KV + 64 MiB"]);
+    for (m, u) in rows {
+        let out = m
+            .call_output_tps
+            .as_ref()
+            .map_or(m.tool_turn_tps.median, |s| s.median);
+        speed.group(
+            &label(m),
+            &[m.prompt_tps.median, m.gen_tps_d0.median, out],
+        );
+        memory.group(&label(m), &[m.peak_rss_mib, m.budget_mib()]);
+        if m.config.decoding == "plain" && m.config.backend == "llama.cpp" {
+            if let (Some(p), Some(g)) = (u.prompt_tps, u.gen_tps_d0) {
+                speed.group(&format!("{} llama-bench", m.config.model), &[p, g, 0.0]);
+            }
+        }
+    }
+    chart::draw(path, "ferrosa runtime, 2 CPU threads", &[speed, memory])
 }

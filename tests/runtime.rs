@@ -255,3 +255,13 @@ fn gemma3_base_model_continues_text_with_the_fallback_template() {
     let text = text_of(m.as_ref(), &ids);
     assert!(text.contains("Paris"), "{text:?}");
 }
+
+#[test]
+fn kv_cache_size_follows_the_file_dimensions() {
+    // SmolLM2-135M: 30 layers, 3 KV heads of 64 dimensions, f16 K and V. llama.cpp
+    // reports the same 180 MiB for an 8192-token context when it creates the cache.
+    let path = crate::util::models_dir().join("SmolLM2-135M-Instruct.Q4_1.gguf");
+    let g = ferrosa::backend::Gguf::open(&path).unwrap();
+    assert_eq!(g.kv_cache_bytes(8192), Some(8192 * 30 * 3 * (64 + 64) * 2));
+    assert_eq!(g.kv_cache_bytes(8192).unwrap() / (1 << 20), 180);
+}

@@ -57,24 +57,17 @@ pub fn greedy(model: &mut dyn Backend, prompt: &str, n: usize) -> Vec<u32> {
 /// one (`unshare -n`, `ip link set lo up`, `timeout`) and returns true (the caller
 /// returns); inside, it returns false and the test body runs.
 pub fn rerun_in_loopback_netns(test: &str, limit_s: u32) -> bool {
-    if std::env::var_os("FERROSA_IN_NETNS").is_some() {
+    if std::env::var_os(ferrosa::ros::ros2::IN_LOOPBACK_NETNS).is_some() {
         return false;
     }
     let exe = std::env::current_exe().expect("the test binary");
-    let status = std::process::Command::new("unshare")
-        .args([
-            "-n",
-            "sh",
-            "-c",
-            "ip link set lo up && exec timeout -k 5 \"$@\"",
-            "sh",
-        ])
-        .arg(limit_s.to_string())
-        .arg(exe)
-        .args(["--exact", test, "--nocapture", "--test-threads=1"])
-        .env("FERROSA_IN_NETNS", "1")
-        .status()
-        .expect("unshare (util-linux) and ip (iproute2) are needed for the ROS tests; run as root");
+    let status = ferrosa::ros::ros2::loopback_netns(
+        &exe,
+        ["--exact", test, "--nocapture", "--test-threads=1"],
+        limit_s,
+    )
+    .status()
+    .expect("unshare (util-linux) and ip (iproute2) are needed for the ROS tests; run as root");
     assert!(
         status.success(),
         "{test} inside the loopback-only namespace: {status}"

@@ -322,6 +322,18 @@ impl Gguf {
         self.get_u64(&format!("{arch}.{suffix}"))
     }
 
+    /// Bytes of an f16 K and V cache for `n_ctx` positions on every layer (the most a
+    /// runtime keeps; sliding-window layers may keep less).
+    pub fn kv_cache_bytes(&self, n_ctx: usize) -> Option<u64> {
+        let layers = self.arch_u64("block_count")?;
+        let heads = self.arch_u64("attention.head_count")?;
+        let kv_heads = self.arch_u64("attention.head_count_kv").unwrap_or(heads);
+        let head = self.arch_u64("embedding_length")? / heads.max(1);
+        let k = self.arch_u64("attention.key_length").unwrap_or(head);
+        let v = self.arch_u64("attention.value_length").unwrap_or(head);
+        Some(n_ctx as u64 * layers * kv_heads * (k + v) * 2)
+    }
+
     pub fn context_length(&self) -> Option<u64> {
         self.arch_u64("context_length")
     }

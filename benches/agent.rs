@@ -1,0 +1,274 @@
+//! `cargo bench --bench agent`: the whole agent against the built-in sim robot with the
+//! real default model, as an operator meets it.
+//!
+//! 1. End-to-end latency of a fixed set of operator requests (query → tool calls →
+//!    answer): the first request after start (nothing cached), then each request N times
+//!    after `/clear` (the system prompt stays cached), min / median / max, with the time to
+//!    the first token, the model's and the tools' share, and what was called.
+//! 2. Memory across a long chat: resident memory after 1 turn and after 200 (history kept
+//!    and trimmed by the agent), against the KV cache the context can fill. The turns are
+//!    small talk the model answers without a tool (about 0.5 s each; a tool request costs
+//!    several seconds once history builds up, too long for 200 of them here): they grow
+//!    the history, the trace of prompts and the KV cache use as any turn does, while the
+//!    tool paths are exercised by part 1.
+//!
+//! The sim speaks DDS, so the bench re-runs itself in a network namespace with only
+//! loopback (`unshare -n`, as root), under a time limit. Settings: FERROSA_BENCH_RUNS (3),
+//! FERROSA_BENCH_TURNS (200), FERROSA_BENCH_THREADS (physical cores). Output: markdown on
+//! stdout, target/bench/agent.json, target/bench/agent.svg.
+
+#[path = "common/chart.rs"]
+mod chart;
+#[path = "common/header.rs"]
+mod header;
+
+use std::path::PathBuf;
+use std::sync::Arc;
+
+use ferrosa::agent::{AnswerMode, RunResult};
+use ferrosa::decode::Decoding;
+use ferrosa::tool::{Confirm, ToolCall};
+use ferrosa::ui::agent::{build_with, connect, AgentArgs, Robot};
+use ferrosa::ui::ModelArgs;
+use header::Spread;
+use serde::Serialize;
+
+/// The whole bench, inside the namespace, must end within this.
+const LIMIT_S: u32 = 900;
+
+/// What an operator asks a turtle robot: listing, pose, topics, status, motion.
+const REQUESTS: [&str; 5] = [
+    "list the ROS nodes",
+    "where is the turtle?",
+    "what topics are there?",
+    "what is the battery level?",
+    "move the turtle forward 1 meter",
+];
+
+/// The long chat's turn.
+const SMALL_TALK: &str = "hello, are you there?";
+
+/// The operator at the keyboard says yes to every motion the requests ask for.
+struct Yes;
+
+impl Confirm for Yes {
+    fn confirm(&self, _: &ToolCall) -> bool {
+        true
+    }
+}
+
+#[derive(Debug, Serialize)]
+struct RequestRow {
+    request: String,
+    total_ms: Spread,
+    first_token_ms: Spread,
+    model_ms: Spread,
+    tools_ms: Spread,
+    steps: Spread,
+    tools: Vec<String>,
+    answer: String,
+}
+
+#[derive(Debug, Serialize)]
+struct MemoryRow {
+    turns: usize,
+    rss_after_1_mib: f64,
+    rss_after_n_mib: f64,
+    peak_rss_mib: f64,
+    kv_cache_mib: f64,
+    context: usize,
+    history_kept_at_end: usize,
+    seconds: f64,
+}
+
+fn mib_now() -> f64 {
+    ferrosa::metrics::rss_bytes().map_or(0.0, ferrosa::metrics::mib)
+}
+
+fn main() {
+    if std::env::var_os(ferrosa::ros::ros2::IN_LOOPBACK_NETNS).is_none() {
+        rerun_in_loopback_netns();
+        return;
+    }
+    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
+    let runs = header::env_usize("FERROSA_BENCH_RUNS", 3).max(1);
+    let turns = header::env_usize("FERROSA_BENCH_TURNS", 200).max(2);
+    let threads = header::env_usize("FERROSA_BENCH_THREADS", ferrosa::backend::physical_cores());
+    let args = AgentArgs {
+        model: ModelArgs {
+            models_dir: header::models_dir(),
+            model: None,
+            backend: ferrosa::backend::BackendKind::Llama,
+            threads: Some(threads),
+            max_context: 8192,
+        },
+        yes: true,
+        read_only: false,
+        policy: None,
+        prompt: None,
+        trace_dir: None,
+        log_dirs: Vec::new(),
+        max_steps: 10,
+        decoding: Decoding::Constrained,
+        answer_mode: AnswerMode::Tool,
+        robot: Robot::Sim,
+    };
+    header::print(
+        "ferrosa agent benchmark",
+        &root,
+        &format!("threads: {threads} | runs: {runs} | chat turns: {turns} | default model, llama.cpp, constrained, built-in sim"),
+    );
+
+    let t = std::time::Instant::now();
+    let link = connect(Robot::Sim, false).expect("start the sim");
+    let discovered_ms = t.elapsed().as_secs_f64() * 1e3;
+    let graph = link.graph.clone().map(|g| g as Arc<dyn ferrosa::ros::RosGraph>);
+    let t = std::time::Instant::now();
+    let mut agent = build_with(&args, Arc::new(Yes), graph).expect("build the agent");
+    let load_ms = t.elapsed().as_secs_f64() * 1e3;
+    println!("sim discovered in {discovered_ms:.0} ms; agent (model, grammars, tools) built in {load_ms:.0} ms");
+    println!();
+
+    let ask = |agent: &mut ferrosa::agent::Agent, q: &str| -> RunResult {
+        agent.ask(q, &mut |_| {}).expect("the agent runs")
+    };
+
+    // 1. Latency.
+    let first = ask(&mut agent, REQUESTS[0]);
+    let mut rows = Vec::new();
+    for q in REQUESTS {
+        let mut results = Vec::new();
+        for _ in 0..runs {
+            agent.clear();
+            results.push(ask(&mut agent, q));
+        }
+        let spread = |f: &dyn Fn(&RunResult) -> f64| Spread::of(results.iter().map(f).collect());
+        let last = results.last().expect("runs ≥ 1");
+        rows.push(RequestRow {
+            request: q.to_string(),
+            total_ms: spread(&|r| r.timings.total_ms),
+            first_token_ms: spread(&|r| r.timings.first_token_ms.unwrap_or(0.0)),
+            model_ms: spread(&|r| r.timings.model_ms),
+            tools_ms: spread(&|r| r.timings.tools_ms),
+            steps: spread(&|r| r.steps.len() as f64),
+            tools: last.steps.iter().map(|s| s.name.clone()).collect(),
+            answer: last.answer.clone(),
+        });
+    }
+    let f = |s: &Spread| format!("{:.0} / **{:.0}** / {:.0}", s.min, s.median, s.max);
+    println!("## Requests against the sim (ms, min / **median** / max over {runs}, after /clear)");
+    println!();
+    println!(
+        "First request after start, nothing cached: \"{}\" {:.0} ms (first token {:.0} ms, prompt {} tokens), answer: {}",
+        REQUESTS[0],
+        first.timings.total_ms,
+        first.timings.first_token_ms.unwrap_or(0.0),
+        first.timings.prompt_tokens.first().copied().unwrap_or(0),
+        first.answer
+    );
+    println!();
+    println!("| request | total | first token | model | tools | steps | calls (last run) | answer (last run) |");
+    println!("|---|---|---|---|---|---|---|---|");
+    for r in &rows {
+        println!(
+            "| {} | {} | {} | {} | {} | {:.0}–{:.0} | {} | {} |",
+            r.request,
+            f(&r.total_ms),
+            f(&r.first_token_ms),
+            f(&r.model_ms),
+            f(&r.tools_ms),
+            r.steps.min,
+            r.steps.max,
+            r.tools.join(" → "),
+            r.answer.replace('|', "\\|"),
+        );
+    }
+    println!();
+
+    // 2. Memory over a long chat: the history grows until the agent trims it.
+    agent.clear();
+    let t = std::time::Instant::now();
+    ask(&mut agent, SMALL_TALK);
+    let after_1 = mib_now();
+    for turn in 2..=turns {
+        let r = ask(&mut agent, SMALL_TALK);
+        if turn % 20 == 0 || turn <= 3 {
+            eprintln!(
+                "turn {turn}: {:.0} ms, prompt tokens {:?} (cached {:?}), {} exchanges remembered, RSS {:.0} MiB",
+                r.timings.total_ms,
+                r.timings.prompt_tokens,
+                r.timings.reused_tokens,
+                agent.history_len(),
+                mib_now()
+            );
+        }
+    }
+    let after_n = mib_now();
+    let kv = ferrosa::backend::Gguf::open(
+        &ferrosa::models::resolve(None, &args.model.models_dir)
+            .expect("default model")
+            .path,
+    )
+    .ok()
+    .and_then(|g| g.kv_cache_bytes(agent.backend().context_len()))
+    .map_or(0.0, ferrosa::metrics::mib);
+    let memory = MemoryRow {
+        turns,
+        rss_after_1_mib: after_1,
+        rss_after_n_mib: after_n,
+        peak_rss_mib: ferrosa::metrics::peak_rss_bytes().map_or(0.0, ferrosa::metrics::mib),
+        kv_cache_mib: kv,
+        context: agent.backend().context_len(),
+        history_kept_at_end: agent.history_len(),
+        seconds: t.elapsed().as_secs_f64(),
+    };
+    println!("## Memory over {turns} chat turns of \"{SMALL_TALK}\" (history kept, trimmed by the agent)");
+    println!();
+    println!("| RSS after 1 turn MiB | after {turns} MiB | growth MiB | KV cache at full context MiB | peak RSS MiB | exchanges kept | wall s |");
+    println!("|---|---|---|---|---|---|---|");
+    println!(
+        "| {:.0} | {:.0} | {:+.0} | {:.0} ({} tokens) | {:.0} | {} | {:.0} |",
+        memory.rss_after_1_mib,
+        memory.rss_after_n_mib,
+        memory.rss_after_n_mib - memory.rss_after_1_mib,
+        memory.kv_cache_mib,
+        memory.context,
+        memory.peak_rss_mib,
+        memory.history_kept_at_end,
+        memory.seconds,
+    );
+    println!();
+
+    let out = root.join("target").join("bench");
+    let _ = std::fs::create_dir_all(&out);
+    let file = out.join("agent.json");
+    let json = serde_json::json!({"requests": rows, "memory": memory, "first": first.timings});
+    std::fs::write(&file, serde_json::to_string_pretty(&json).expect("json")).expect("write json");
+    let mut latency = chart::Bars::new("ms (median)", &["total", "first token", "tools"]);
+    for r in &rows {
+        latency.group(
+            &r.request,
+            &[r.total_ms.median, r.first_token_ms.median, r.tools_ms.median],
+        );
+    }
+    let mut mem = chart::Bars::new("MiB", &["RSS after 1 turn", "RSS after N turns", "KV cache"]);
+    mem.group(
+        &format!("{turns} turns"),
+        &[memory.rss_after_1_mib, memory.rss_after_n_mib, memory.kv_cache_mib],
+    );
+    let svg = out.join("agent.svg");
+    match chart::draw(&svg, "ferrosa agent on the built-in sim, 2 CPU threads", &[latency, mem]) {
+        Ok(()) => eprintln!("wrote {} and {}", file.display(), svg.display()),
+        Err(e) => eprintln!("wrote {}; chart failed: {e}", file.display()),
+    }
+    drop(link);
+}
+
+/// Run this bench again inside a network namespace with only loopback, under a limit.
+fn rerun_in_loopback_netns() {
+    let exe = std::env::current_exe().expect("the bench binary");
+    let status = ferrosa::ros::ros2::loopback_netns(&exe, std::env::args_os().skip(1), LIMIT_S)
+        .status()
+        .expect("unshare (util-linux) and ip (iproute2) are needed: run as root after .ci/setup");
+    assert!(status.success(), "agent bench in the loopback namespace: {status}");
+}
