@@ -12,7 +12,7 @@
 //! pp512 / tg128 on the same files and threads are printed beside ours, with the ratio.
 //!
 //! Settings (environment): FERROSA_BENCH_RUNS (5), FERROSA_BENCH_THREADS (physical
-//! cores), FERROSA_BENCH_MODELS (the catalog's default model; a comma list, or `all` for
+//! cores), FERROSA_BENCH_CONTEXT (4096), FERROSA_BENCH_MODELS (the catalog's default model; a comma list, or `all` for
 //! every model present), FERROSA_BENCH_BACKENDS / FERROSA_BENCH_DECODING (comma lists to
 //! restrict). Output: a markdown table on stdout, target/bench/runtime.json and
 //! target/bench/runtime.svg.
@@ -90,6 +90,9 @@ struct Measured {
     agent_prompt_tokens: usize,
     second_turn_new_tokens: usize,
     peak_rss_mib: f64,
+    /// Resident right after the model loaded, and what the grammar set-up added.
+    loaded_rss_mib: f64,
+    grammars_mib: f64,
     file_mib: f64,
     kv_mib: f64,
     context: usize,
@@ -296,13 +299,15 @@ fn measure(cfg: &Config) -> Measured {
     let mut opts = LoadOptions::new(cfg.path.clone());
     opts.family = Some(cfg.family.clone());
     opts.threads = cfg.threads;
-    opts.max_context = CONTEXT;
+    opts.max_context = header::env_usize("FERROSA_BENCH_CONTEXT", CONTEXT);
     let t = Instant::now();
     let model = backend::load(kind, &opts).expect("load");
+    let rss_model = ferrosa::metrics::rss_bytes().unwrap_or(0);
     let constrained = cfg.decoding == "constrained";
     let grammars =
         constrained.then(|| Grammars::new(model.vocab(), model.tokenizer()).expect("grammars"));
     let load_ms = t.elapsed().as_secs_f64() * 1e3;
+    let rss_grammars = ferrosa::metrics::rss_bytes().unwrap_or(0).saturating_sub(rss_model);
     let envelope = Envelope::for_family(&cfg.family);
     let mut c = Child {
         model,
@@ -413,6 +418,8 @@ fn measure(cfg: &Config) -> Measured {
         agent_prompt_tokens: agent_tokens,
         second_turn_new_tokens: second_new,
         peak_rss_mib: ferrosa::metrics::peak_rss_bytes().map_or(0.0, ferrosa::metrics::mib),
+        loaded_rss_mib: ferrosa::metrics::mib(rss_model),
+        grammars_mib: ferrosa::metrics::mib(rss_grammars),
         file_mib: ferrosa::metrics::mib(file),
         kv_mib: ferrosa::metrics::mib(kv),
         context: c.model.context_len(),
@@ -490,8 +497,8 @@ fn print_table(rows: &[(Measured, Upstream)]) {
     println!();
     println!("## Tool calls, first token, memory");
     println!();
-    println!("| model | backend | decoding | tool-turn tok/s (1 token / forward) | call output tok/s (fast-forward) | vs plain tool-turn | forwards / call | calls parsed | TTFT cold ms | TTFT 2nd turn ms | cold / 2nd | peak RSS MiB | file + KV + {OVERHEAD_MIB:.0} MiB |");
-    println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|");
+    println!("| model | backend | decoding | tool-turn tok/s (1 token / forward) | call output tok/s (fast-forward) | vs plain tool-turn | forwards / call | calls parsed | TTFT cold ms | TTFT 2nd turn ms | cold / 2nd | RSS after load (+ grammars) MiB | peak RSS MiB | file + KV + {OVERHEAD_MIB:.0} MiB |");
+    println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
     for (m, _) in rows {
         let plain = rows
             .iter()
@@ -506,7 +513,7 @@ fn print_table(rows: &[(Measured, Upstream)]) {
             _ => "-".into(),
         };
         println!(
-            "| {} | {} | {} | {} | {} | {vs} | {} | {} / {} | {} | {} | {:.1} | {:.0} | {:.0} ({:.0} + {:.0} + {OVERHEAD_MIB:.0}) {} |",
+            "| {} | {} | {} | {} | {} | {vs} | {} | {} / {} | {} | {} | {:.1} | {:.0} (+{:.0}) | {:.0} | {:.0} ({:.0} + {:.0} + {OVERHEAD_MIB:.0}) {} |",
             m.config.model,
             m.config.backend,
             m.config.decoding,
@@ -518,6 +525,8 @@ fn print_table(rows: &[(Measured, Upstream)]) {
             fmt(&m.ttft_cold_ms),
             fmt(&m.ttft_cached_ms),
             m.ttft_cold_ms.median / m.ttft_cached_ms.median.max(1e-9),
+            m.loaded_rss_mib,
+            m.grammars_mib,
             m.peak_rss_mib,
             m.budget_mib(),
             m.file_mib,

@@ -17,6 +17,10 @@ fn bfcl_dir() -> PathBuf {
     d
 }
 
+/// Questions per BFCL category in CI: enough to see a category's accuracy move, few
+/// enough for CI's time (the full runs are documented commands).
+const BFCL_SLICE: usize = 20;
+
 #[test]
 fn bfcl_slice_runs_scores_and_reports() {
     let d = bfcl_dir();
@@ -33,7 +37,7 @@ fn bfcl_slice_runs_scores_and_reports() {
         .arg("eval")
         .arg("bfcl")
         .args(&files)
-        .args(["--limit", "4", "--out"])
+        .args(["--limit", &BFCL_SLICE.to_string(), "--out"])
         .arg(out.path())
         .env("FERROSA_MODELS_DIR", models_dir())
         .output()
@@ -49,12 +53,12 @@ fn bfcl_slice_runs_scores_and_reports() {
         "irrelevance",
     ] {
         assert!(
-            stdout.contains(&format!("| {c} | constrained | 4 |")),
+            stdout.contains(&format!("| {c} | constrained | {BFCL_SLICE} |")),
             "{c} row missing: {stdout}"
         );
     }
     let cases = std::fs::read_to_string(out.path().join("bfcl_cases.jsonl")).unwrap();
-    assert_eq!(cases.lines().count(), 20);
+    assert_eq!(cases.lines().count(), 5 * BFCL_SLICE);
     for line in cases.lines() {
         let v: serde_json::Value = serde_json::from_str(line).unwrap();
         // Constrained decoding: a call the model makes is a valid call.
