@@ -122,7 +122,10 @@ fn main() {
     let t = std::time::Instant::now();
     let link = connect(Robot::Sim, false).expect("start the sim");
     let discovered_ms = t.elapsed().as_secs_f64() * 1e3;
-    let graph = link.graph.clone().map(|g| g as Arc<dyn ferrosa::ros::RosGraph>);
+    let graph = link
+        .graph
+        .clone()
+        .map(|g| g as Arc<dyn ferrosa::ros::RosGraph>);
     let t = std::time::Instant::now();
     let mut agent = build_with(&args, Arc::new(Yes), graph).expect("build the agent");
     let load_ms = t.elapsed().as_secs_f64() * 1e3;
@@ -248,16 +251,31 @@ fn main() {
     for r in &rows {
         latency.group(
             &r.request,
-            &[r.total_ms.median, r.first_token_ms.median, r.tools_ms.median],
+            &[
+                r.total_ms.median,
+                r.first_token_ms.median,
+                r.tools_ms.median,
+            ],
         );
     }
-    let mut mem = chart::Bars::new("MiB", &["RSS after 1 turn", "RSS after N turns", "KV cache"]);
+    let mut mem = chart::Bars::new(
+        "MiB",
+        &["RSS after 1 turn", "RSS after N turns", "KV cache"],
+    );
     mem.group(
         &format!("{turns} turns"),
-        &[memory.rss_after_1_mib, memory.rss_after_n_mib, memory.kv_cache_mib],
+        &[
+            memory.rss_after_1_mib,
+            memory.rss_after_n_mib,
+            memory.kv_cache_mib,
+        ],
     );
     let svg = out.join("agent.svg");
-    match chart::draw(&svg, "ferrosa agent on the built-in sim, 2 CPU threads", &[latency, mem]) {
+    match chart::draw(
+        &svg,
+        "ferrosa agent on the built-in sim, 2 CPU threads",
+        &[latency, mem],
+    ) {
         Ok(()) => eprintln!("wrote {} and {}", file.display(), svg.display()),
         Err(e) => eprintln!("wrote {}; chart failed: {e}", file.display()),
     }
@@ -270,5 +288,8 @@ fn rerun_in_loopback_netns() {
     let status = ferrosa::ros::ros2::loopback_netns(&exe, std::env::args_os().skip(1), LIMIT_S)
         .status()
         .expect("unshare (util-linux) and ip (iproute2) are needed: run as root after .ci/setup");
-    assert!(status.success(), "agent bench in the loopback namespace: {status}");
+    assert!(
+        status.success(),
+        "agent bench in the loopback namespace: {status}"
+    );
 }

@@ -11,8 +11,10 @@
 //!
 //! No wall-clock assertion anywhere: this prints figures and the machine.
 
+#[path = "common/header.rs"]
+mod header;
+
 use std::ops::ControlFlow;
-use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use criterion::{BatchSize, Criterion, Throughput};
@@ -28,12 +30,6 @@ struct Case {
     label: String,
     lark: String,
     tokens: Vec<TokenId>,
-}
-
-fn models_dir() -> PathBuf {
-    std::env::var_os("FERROSA_MODELS_DIR")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("models"))
 }
 
 fn specs() -> Vec<ToolSpec> {
@@ -91,7 +87,7 @@ fn percentile(sorted: &[Duration], p: f64) -> Duration {
 }
 
 fn main() {
-    let dir = models_dir();
+    let dir = header::models_dir();
     let catalog = Catalog::load(&dir).expect("catalog");
     println!("# ferrosa decode benchmark");
     println!(

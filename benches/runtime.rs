@@ -307,7 +307,9 @@ fn measure(cfg: &Config) -> Measured {
     let grammars =
         constrained.then(|| Grammars::new(model.vocab(), model.tokenizer()).expect("grammars"));
     let load_ms = t.elapsed().as_secs_f64() * 1e3;
-    let rss_grammars = ferrosa::metrics::rss_bytes().unwrap_or(0).saturating_sub(rss_model);
+    let rss_grammars = ferrosa::metrics::rss_bytes()
+        .unwrap_or(0)
+        .saturating_sub(rss_model);
     let envelope = Envelope::for_family(&cfg.family);
     let mut c = Child {
         model,
@@ -344,7 +346,11 @@ fn measure(cfg: &Config) -> Measured {
         pp.push(s.prompt_tok_per_s());
         // Depth 512: that prompt stays cached; depth 0: one token from the start.
         tg512.push(c.run(&rover, GEN, &prose_lark, false).0.gen_tok_per_s());
-        tg0.push(c.run(&rover[..1], GEN, &prose_lark, false).0.gen_tok_per_s());
+        tg0.push(
+            c.run(&rover[..1], GEN, &prose_lark, false)
+                .0
+                .gen_tok_per_s(),
+        );
 
         // A tool-call turn with the agent's handful of tools.
         let q = TOOL_QUERIES[run % TOOL_QUERIES.len()];
@@ -384,7 +390,9 @@ fn measure(cfg: &Config) -> Measured {
         let (s, out) = c.run(&first, 48, &call_lark, true);
         cold.push(s.time_to_first_token.as_secs_f64() * 1e3);
         let reply = c.model.vocab().decode_lossy(&out);
-        let reply = reply.trim_end_matches(|ch: char| !ch.is_ascii_graphic()).to_string();
+        let reply = reply
+            .trim_end_matches(|ch: char| !ch.is_ascii_graphic())
+            .to_string();
         let messages2 = [
             agent[0].clone(),
             agent[1].clone(),
@@ -433,7 +441,14 @@ fn llama_bench(bin: &Path, model: &Path, threads: usize, runs: usize) -> Upstrea
         .arg("-m")
         .arg(model)
         .args(["-t", &threads.to_string(), "-p", &PROMPT.to_string()])
-        .args(["-n", &GEN.to_string(), "-d", "0,512", "-r", &runs.to_string()])
+        .args([
+            "-n",
+            &GEN.to_string(),
+            "-d",
+            "0,512",
+            "-r",
+            &runs.to_string(),
+        ])
         .args(["-o", "json"])
         .output();
     let Ok(out) = out else {
@@ -558,10 +573,7 @@ fn draw(rows: &[(Measured, Upstream)], path: &Path) -> Result<(), String> {
             .call_output_tps
             .as_ref()
             .map_or(m.tool_turn_tps.median, |s| s.median);
-        speed.group(
-            &label(m),
-            &[m.prompt_tps.median, m.gen_tps_d0.median, out],
-        );
+        speed.group(&label(m), &[m.prompt_tps.median, m.gen_tps_d0.median, out]);
         memory.group(&label(m), &[m.peak_rss_mib, m.budget_mib()]);
         if m.config.decoding == "plain" && m.config.backend == "llama.cpp" {
             if let (Some(p), Some(g)) = (u.prompt_tps, u.gen_tps_d0) {

@@ -303,11 +303,17 @@ fn a_long_chat_keeps_a_bounded_history_trimmed_in_chunks() {
     // However long the chat, the history stays within its budget …
     assert!(a.history_len() < 15, "{} exchanges kept", a.history_len());
     let first = prompts[0];
-    assert!(prompts.iter().all(|&p| p <= first + 200 + 20), "{prompts:?}");
+    assert!(
+        prompts.iter().all(|&p| p <= first + 200 + 20),
+        "{prompts:?}"
+    );
     // … and is cut in chunks (the prompt shrinks now and then, not every turn), so most
     // turns extend the cached prefix instead of evaluating the history again.
     let shrinks = prompts.windows(2).filter(|w| w[1] < w[0]).count();
-    assert!((2..turns / 3).contains(&shrinks), "{shrinks} shrinks: {prompts:?}");
+    assert!(
+        (2..turns / 3).contains(&shrinks),
+        "{shrinks} shrinks: {prompts:?}"
+    );
 }
 
 /// Stand-ins with the ROS tools' argument shapes, to show the deny-list holds on every
@@ -393,7 +399,10 @@ fn actuation_runs_only_when_the_request_points_at_it() {
         };
         Policy::from_file(file, Arc::new(NoOperator)).unwrap()
     };
-    let publish = call("ros_topic_publish", json!({"name": "/turtle1/cmd_vel", "value": 1.0}));
+    let publish = call(
+        "ros_topic_publish",
+        json!({"name": "/turtle1/cmd_vel", "value": 1.0}),
+    );
     // A question: the model publishes anyway; even with everything approved, it is
     // refused before it runs, and the model is told why.
     let script = [publish.clone(), answer("The turtle is at the centre.")];
@@ -411,7 +420,12 @@ fn actuation_runs_only_when_the_request_points_at_it() {
         let mut a = agent(&script, vec![ros_like(&runs)], approve_all(), 8192);
         let before = runs.load(Ordering::SeqCst);
         let (r, _) = ask(&mut a, query);
-        assert_eq!(runs.load(Ordering::SeqCst), before + 1, "{query}: {:?}", r.steps);
+        assert_eq!(
+            runs.load(Ordering::SeqCst),
+            before + 1,
+            "{query}: {:?}",
+            r.steps
+        );
     }
 }
 

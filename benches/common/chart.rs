@@ -32,7 +32,11 @@ pub fn draw(path: &Path, title: &str, panels: &[Bars]) -> Result<(), String> {
     let root = SVGBackend::new(path, (1500, height)).into_drawing_area();
     root.fill(&WHITE).map_err(|x| e(&x))?;
     let root = root.titled(title, ("sans-serif", 22)).map_err(|x| e(&x))?;
-    for (area, bars) in root.split_evenly((panels.len().max(1), 1)).iter().zip(panels) {
+    for (area, bars) in root
+        .split_evenly((panels.len().max(1), 1))
+        .iter()
+        .zip(panels)
+    {
         let n = bars.groups.len().max(1);
         let top = bars
             .groups
@@ -80,7 +84,9 @@ pub fn draw(path: &Path, title: &str, panels: &[Bars]) -> Result<(), String> {
                 .draw_series(rects)
                 .map_err(|x| e(&x))?
                 .label(name.as_str())
-                .legend(move |(x, y)| Rectangle::new([(x, y - 5), (x + 10, y + 5)], color.filled()));
+                .legend(move |(x, y)| {
+                    Rectangle::new([(x, y - 5), (x + 10, y + 5)], color.filled())
+                });
         }
         chart
             .configure_series_labels()

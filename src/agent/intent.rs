@@ -88,8 +88,16 @@ mod tests {
 
     fn tools() -> (Vec<ToolSpec>, Vec<ToolSpec>) {
         let observing = vec![
-            spec("turtle_pose", "Where the turtle is: its pose (x, y, heading).", json!({})),
-            spec("ros_service_list", "List the ROS services with their types.", json!({})),
+            spec(
+                "turtle_pose",
+                "Where the turtle is: its pose (x, y, heading).",
+                json!({}),
+            ),
+            spec(
+                "ros_service_list",
+                "List the ROS services with their types.",
+                json!({}),
+            ),
         ];
         let actuating = vec![
             spec(
@@ -128,7 +136,10 @@ mod tests {
         let drive = Intent::new("drive forward 2 meters");
         assert!(drive.names_tool(&act[0], &vocab));
         let moving = Intent::new("move the turtle back");
-        assert!(moving.names_tool(&act[0], &vocab), "stems meet: move / moves");
+        assert!(
+            moving.names_tool(&act[0], &vocab),
+            "stems meet: move / moves"
+        );
         // A service call is pointed at by the service it names.
         let spawn = Intent::new("spawn a new turtle at x 2 y 3");
         assert!(spawn.may_ask_for(&act[1], &vocab));
@@ -138,6 +149,10 @@ mod tests {
         };
         assert!(spawn.asks_for(&call("/spawn"), &act[1], &vocab));
         assert!(!spawn.asks_for(&call("/kill"), &act[1], &vocab));
-        assert!(!Intent::new("what services are there?").asks_for(&call("/reset"), &act[1], &vocab));
+        assert!(!Intent::new("what services are there?").asks_for(
+            &call("/reset"),
+            &act[1],
+            &vocab
+        ));
     }
 }

@@ -26,6 +26,7 @@ pub mod prompt;
 pub mod select;
 pub mod trace;
 
+use std::collections::BTreeSet;
 use std::ops::ControlFlow;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -40,7 +41,7 @@ use crate::decode::turn::{assistant_turn, with_tools, TurnRequest};
 use crate::decode::{
     DecodeError, Decoding, Finish as DecodeFinish, Grammars, Sampler, SamplerConfig, Session,
 };
-use crate::tool::{Decision, Policy, Registry, ToolCall, ToolContext, ToolError, ToolSpec};
+use crate::tool::{Decision, Effect, Policy, Registry, ToolCall, ToolContext, ToolError, ToolSpec};
 pub use event::Event;
 use memory::{truncate_output, Memory};
 use trace::Trace;
@@ -160,6 +161,9 @@ pub struct RunResult {
 
 pub struct Agent {
     backend: Box<dyn Backend>,
+    /// Names of the tools that always actuate, and the vocabulary of the others (`intent`).
+    actuators: BTreeSet<String>,
+    observing: BTreeSet<String>,
     grammars: Grammars,
     registry: Registry,
     policy: Arc<Policy>,
@@ -185,6 +189,13 @@ pub fn answer_spec() -> ToolSpec {
     .expect("static spec is valid")
 }
 
+/// Tokens `text` takes in a prompt (a guess from its length if it cannot be tokenized).
+fn token_count(backend: &dyn Backend, text: &str) -> usize {
+    backend
+        .tokenize(text, true)
+        .map_or(text.len() / 3, |t| t.len())
+}
+
 impl Agent {
     pub fn new(
         backend: Box<dyn Backend>,
@@ -205,7 +216,22 @@ impl Agent {
         } else {
             registry
         };
+        // Tools whose every call changes the robot (no `observes` rule may cover one),
+        // and the words of all the others, for telling which actuation a request asks for.
+        let actuators: BTreeSet<String> = registry
+            .tools()
+            .filter(|t| t.effect() == Effect::Actuates && !policy.may_observe(&t.spec().name))
+            .map(|t| t.spec().name.clone())
+            .collect();
+        let observing = intent::vocabulary(
+            registry
+                .tools()
+                .filter(|t| !actuators.contains(&t.spec().name))
+                .map(|t| t.spec()),
+        );
         Ok(Agent {
+            actuators,
+            observing,
             backend,
             grammars,
             registry,
@@ -253,9 +279,7 @@ impl Agent {
     }
 
     fn tokens(&self, text: &str) -> usize {
-        self.backend
-            .tokenize(text, true)
-            .map_or(text.len() / 3, |t| t.len())
+        token_count(self.backend.as_ref(), text)
     }
 
     /// Which tools to offer for `query`, by the token cost of their specs.
@@ -357,23 +381,12 @@ impl Agent {
             .collect();
         // Actuation the request points at; tools it cannot point at leave the grammar.
         let intent = intent::Intent::new(query);
-        let actuates = |name: &str| {
-            self.registry.get(name).is_some_and(|t| {
-                t.effect() == crate::tool::Effect::Actuates && !self.policy.may_observe(name)
-            })
-        };
-        let observing = intent::vocabulary(
-            self.registry
-                .tools()
-                .filter(|t| !actuates(&t.spec().name))
-                .map(|t| t.spec()),
-        );
         let askable: Vec<ToolSpec> = offered
             .iter()
             .filter(|s| {
                 !self.config.asked_actuation_only
-                    || !actuates(&s.name)
-                    || intent.may_ask_for(s, &observing)
+                    || !self.actuators.contains(&s.name)
+                    || intent.may_ask_for(s, &self.observing)
             })
             .cloned()
             .collect();
@@ -401,11 +414,8 @@ impl Agent {
                 .context_len()
                 .saturating_sub(fixed + self.config.reserve_tokens)
                 .min(self.config.history_tokens);
-            let dropped = {
-                let backend = &self.backend;
-                let cost = |s: &str| backend.tokenize(s, false).map_or(s.len() / 3, |t| t.len());
-                self.memory.trim(room, cost)
-            };
+            let backend = self.backend.as_ref();
+            let dropped = self.memory.trim(room, |s| token_count(backend, s));
             let history = self.memory.messages();
             if dropped > 0 {
                 if let Some(t) = &mut self.trace {
@@ -582,7 +592,7 @@ impl Agent {
                     let tool = self.registry.get(&c.name).map(|t| t.as_ref());
                     let unasked = self.config.asked_actuation_only
                         && tool.is_some_and(|t| {
-                            self.policy.actuates(t, c) && !intent.asks_for(c, t.spec(), &observing)
+                            self.policy.actuates(t, c) && !intent.asks_for(c, t.spec(), &self.observing)
                         });
                     if unasked {
                         return Decision::Refused(format!(

@@ -33,8 +33,8 @@ use serde_json::{json, Value};
 use tokio::task::JoinHandle;
 
 use super::cdr;
-use super::ros2::{background, context, reliable_qos, ros_name, split_type, Raw, Ros2Options};
 use super::graph::Graph;
+use super::ros2::{background, context, reliable_qos, ros_name, split_type, Raw, Ros2Options};
 use super::{Interfaces, RosError};
 
 /// The arena's side, in metres (turtlesim's 500 px at 45 px/m).
@@ -232,10 +232,15 @@ impl Sim {
     pub fn discovered_in(g: &Graph) -> bool {
         let attributed = |e: &Option<String>| e.as_deref() == Some("/turtlesim");
         g.nodes.iter().any(|n| n == "/turtlesim")
-            && g.publishers.iter().any(|p| p.topic == "/turtle1/pose" && attributed(&p.node))
-            && g.servers.iter().any(|s| s.service == "/spawn" && attributed(&s.node))
+            && g.publishers
+                .iter()
+                .any(|p| p.topic == "/turtle1/pose" && attributed(&p.node))
+            && g.servers
+                .iter()
+                .any(|s| s.service == "/spawn" && attributed(&s.node))
             && g.actions().iter().any(|a| {
-                a.action == "/turtle1/rotate_absolute" && a.servers.iter().any(|n| n == "/turtlesim")
+                a.action == "/turtle1/rotate_absolute"
+                    && a.servers.iter().any(|n| n == "/turtlesim")
             })
     }
 
