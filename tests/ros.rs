@@ -378,6 +378,29 @@ fn ferrosa_tools_on_an_rclpy_peer() {
                 .starts_with("triggered after"),
             "{trig}"
         );
+        // ferrosa publishes once, as soon as the subscriber has matched: a Fast DDS
+        // reader must still get it (the peer reports what it received).
+        let sent = call(
+            "ros_topic_publish",
+            json!({"topic": "/peer/command", "message": {"data": "go"}}),
+        )
+        .await
+        .unwrap();
+        assert_eq!(sent["type"], "std_msgs/msg/String", "{sent}");
+        let heard = async {
+            for _ in 0..20 {
+                let t = call("ros_service_call", json!({"service": "/peer/trigger"}))
+                    .await
+                    .unwrap();
+                let m = t["response"]["message"].as_str().unwrap_or("").to_string();
+                if m.ends_with("commands: ['go']") {
+                    return Ok(m);
+                }
+                tokio::time::sleep(Duration::from_millis(100)).await;
+            }
+            Err("the peer never received the published command")
+        };
+        heard.await.unwrap();
         let flag = call(
             "ros_service_call",
             json!({"service": "/peer/set_flag", "request": {"data": true}}),

@@ -627,6 +627,11 @@ impl Ros2Graph {
                 type_name: req_ty.clone(),
                 reason: e.to_string(),
             })?;
+        let fresh = !self
+            .clients
+            .lock()
+            .expect("endpoint cache")
+            .contains_key(&(service.to_string(), ty.clone()));
         let client = self
             .endpoint(&self.clients, service, &ty, |node| {
                 let qos = reliable_qos(QDurability::Volatile, 10);
@@ -649,18 +654,33 @@ impl Ros2Graph {
                 return Err(RosError::NoService(service.to_string()));
             }
         }
-        let left = timeout
-            .saturating_sub(start.elapsed())
-            .max(Duration::from_millis(100));
-        let raw = match tokio::time::timeout(left, client.async_call_service(Raw(bytes))).await {
-            Ok(Ok(raw)) => raw,
-            Ok(Err(e)) => return Err(RosError::Other(format!("call {service}: {e:?}"))),
-            Err(_) => {
-                return Err(RosError::Timeout {
-                    service: service.to_string(),
-                    timeout,
-                })
+        if fresh {
+            // We see the server, but the server may not see our reply reader yet: Fast DDS
+            // waits only 100 ms for it before dropping the reply. Give discovery a moment.
+            tokio::time::sleep(NEW_CLIENT_SETTLE).await;
+        }
+        // Calls that read or set state by value may be sent again if the reply went
+        // missing; anything else is sent once (a second /spawn would spawn twice).
+        let attempts = if idempotent_service(&ty) { 2 } else { 1 };
+        let mut raw = None;
+        for attempt in 1..=attempts {
+            let left = timeout.saturating_sub(start.elapsed());
+            let wait =
+                if attempt < attempts { left / 2 } else { left }.max(Duration::from_millis(100));
+            match tokio::time::timeout(wait, client.async_call_service(Raw(bytes.clone()))).await {
+                Ok(Ok(r)) => {
+                    raw = Some(r);
+                    break;
+                }
+                Ok(Err(e)) => return Err(RosError::Other(format!("call {service}: {e:?}"))),
+                Err(_) => tracing::debug!(service, attempt, "no reply"),
             }
+        }
+        let Some(raw) = raw else {
+            return Err(RosError::Timeout {
+                service: service.to_string(),
+                timeout,
+            });
         };
         let resp_ty = format!("{ty}_Response");
         cdr::decode(&self.interfaces, &resp_ty, &raw.0, 0).map_err(|e| RosError::Decode {
@@ -798,6 +818,15 @@ mod tests {
 
 /// Set in a process that `loopback_netns` started.
 pub const IN_LOOPBACK_NETNS: &str = "FERROSA_IN_NETNS";
+
+/// Pause before the first request of a new service client (see `do_call`).
+const NEW_CLIENT_SETTLE: Duration = Duration::from_millis(300);
+
+/// Services whose requests may be repeated without changing the outcome: parameter
+/// services (get, list, describe, set to a value) and type descriptions.
+fn idempotent_service(ty: &str) -> bool {
+    ty.starts_with("rcl_interfaces/srv/") || ty.starts_with("type_description_interfaces/srv/")
+}
 
 /// A command that runs `exe args…` in a new network namespace whose only interface is
 /// loopback (`unshare -n`, then `ip link set lo up`), killed after `limit_s` seconds: DDS

@@ -4,8 +4,9 @@
     rclpy_peer.py serve   # node /peer: /chatter (std_msgs/String, 10 Hz),
                           # /peer/transition (lifecycle_msgs/TransitionEvent, 10 Hz: a type
                           # ferrosa does not ship), /peer/trigger (std_srvs/Trigger),
-                          # /peer/set_flag (std_srvs/SetBool), parameter speed=0.5; runs
-                          # until killed
+                          # /peer/set_flag (std_srvs/SetBool), parameter speed=0.5, and
+                          # a subscriber on /peer/command (std_msgs/String) whose messages
+                          # /peer/trigger reports; runs until killed
     rclpy_peer.py drive   # finds ferrosa's /turtlesim, sends turtle1 forward at 1 m/s
                           # (10 Hz for 1 s; turtlesim holds the last for 1 s more), calls
                           # /clear; prints one JSON line: nodes, topics, services it saw
@@ -29,6 +30,12 @@ def serve():
     events = node.create_publisher(TransitionEvent, "/peer/transition", 10)
     count = [0]
     flag = [False]
+    commands = []
+
+    def command(msg):
+        commands.append(msg.data)
+
+    node.create_subscription(String, "/peer/command", command, 10)
 
     def tick():
         count[0] += 1
@@ -42,7 +49,7 @@ def serve():
 
     def trigger(_req, resp):
         resp.success = True
-        resp.message = f"triggered after {count[0]} messages"
+        resp.message = f"triggered after {count[0]} messages; commands: {commands}"
         return resp
 
     def set_flag(req, resp):
