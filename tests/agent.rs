@@ -8,6 +8,7 @@ use std::time::Duration;
 use ferrosa::agent::{Agent, AgentConfig, Event, Finish, ANSWER_TOOL};
 use ferrosa::backend::scripted::Scripted;
 use ferrosa::backend::Gguf;
+use ferrosa::decode::envelope::Envelope;
 use ferrosa::tool::policy::{NoOperator, PolicyFile};
 use ferrosa::tool::{
     Confirm, Decision, Effect, Package, Policy, Registry, Tool, ToolCall, ToolContext, ToolError,
@@ -19,21 +20,19 @@ use serde_json::{json, Value};
 use crate::util::model_path;
 
 fn call(name: &str, args: Value) -> String {
-    format!(
-        "<tool_call>[{}]</tool_call>",
-        ferrosa::decode::envelope::to_json_spaced(&json!({"name": name, "arguments": args}))
-    )
+    calls(&[(name, args)])
 }
 
+/// Calls written as the SmolLM2 envelope writes them.
 fn calls(list: &[(&str, Value)]) -> String {
-    let items: Vec<Value> = list
+    let items: Vec<ToolCall> = list
         .iter()
-        .map(|(n, a)| json!({"name": n, "arguments": a}))
+        .map(|(n, a)| ToolCall {
+            name: n.to_string(),
+            arguments: a.clone(),
+        })
         .collect();
-    format!(
-        "<tool_call>{}</tool_call>",
-        ferrosa::decode::envelope::to_json_spaced(&Value::Array(items))
-    )
+    Envelope::Smollm2.render_calls(&items)
 }
 
 fn answer(text: &str) -> String {

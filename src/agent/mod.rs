@@ -68,6 +68,8 @@ pub enum AnswerMode {
     Tool,
     /// The model may answer in prose (tool choice `auto`).
     Prose,
+    /// Calls only, or an empty call list when no tool fits (tool choice `decline`).
+    Decline,
 }
 
 #[derive(Debug, Clone)]
@@ -346,6 +348,7 @@ impl Agent {
         let choice = match self.config.answer_mode {
             AnswerMode::Tool => ToolChoice::Required,
             AnswerMode::Prose => ToolChoice::Auto,
+            AnswerMode::Decline => ToolChoice::Decline,
         };
         if let Some(t) = &mut self.trace {
             t.record(

@@ -34,6 +34,9 @@ pub enum ToolChoice {
     Auto,
     /// One or more calls, nothing else.
     Required,
+    /// Calls, or an empty call list that declines (the way SmolLM2 was trained to say
+    /// that no tool fits). Envelopes with no empty form treat it as `Auto`.
+    Decline,
     /// Prose only.
     None,
 }
@@ -137,10 +140,11 @@ impl Envelope {
         } else {
             choice
         };
-        let start = match choice {
-            ToolChoice::Auto => "auto",
-            ToolChoice::Required => "required",
-            ToolChoice::None => "none",
+        let start = match (choice, self) {
+            (ToolChoice::Auto, _) | (ToolChoice::Decline, Envelope::Qwen) => "auto",
+            (ToolChoice::Required, _) => "required",
+            (ToolChoice::Decline, _) => "decline",
+            (ToolChoice::None, _) => "none",
         };
         let mut array = json!({
             "type": "array",
@@ -152,10 +156,13 @@ impl Envelope {
         let mut one = Envelope::call_any_of(specs);
         one["x-guidance"] = Envelope::separators();
         let (template, calls) = match self {
-            Envelope::Smollm2 => (SMOLLM2, array),
+            Envelope::Smollm2 => (SMOLLM2, one),
             Envelope::Qwen => (QWEN, one),
             Envelope::Json => {
                 array.as_object_mut().map(|o| o.remove("x-guidance"));
+                if choice == ToolChoice::Decline {
+                    array["minItems"] = json!(0);
+                }
                 let wrapper = json!({
                     "type": "object",
                     "properties": {"tool_calls": array},
@@ -184,19 +191,45 @@ impl Envelope {
         }))
     }
 
-    /// System-prompt text that lists the tools and shows the call format.
-    pub fn describe_tools(&self, specs: &[ToolSpec]) -> String {
+    /// System-prompt text that lists the tools, shows the call format and says what to
+    /// write when no tool fits, as `choice` allows.
+    pub fn describe_tools(&self, specs: &[ToolSpec], choice: ToolChoice) -> String {
         let listing: Vec<String> = specs.iter().map(Envelope::describe_tool).collect();
-        let example = ToolCall {
-            name: "tool_name".into(),
-            arguments: json!({"argument": "value"}),
+        let example = |n: usize| ToolCall {
+            name: format!("function_name{n}"),
+            arguments: json!({"argument1": "value1", "argument2": "value2"}),
         };
-        let format = self.render_calls(std::slice::from_ref(&example));
-        format!(
-            "You can call these tools:\n<tools>\n{}\n</tools>\nTo call a tool, reply with only:\n{}\nIf no tool is needed, answer in plain text.",
-            listing.join("\n"),
-            format
-        )
+        match self {
+            Envelope::Smollm2 => {
+                // The layout the family was trained on: the list in <tools>, one call per
+                // line, an empty list for "none of these".
+                let format = self.render_calls(&[example(1), example(2)]);
+                let none = match choice {
+                    ToolChoice::Decline => "\nIf none of the functions fits the request, reply <tool_call>[]</tool_call>.",
+                    ToolChoice::Auto => "\nIf no function is needed, answer in plain text.",
+                    ToolChoice::Required | ToolChoice::None => "",
+                };
+                format!(
+                    "You have these functions:\n<tools>[{}]</tools>\nCall the functions the request needs, one line per call (several calls when the request asks for several things), and write nothing else:\n{format}{none}",
+                    listing.join(",\n")
+                )
+            }
+            _ => {
+                let format = self.render_calls(&[example(1)]);
+                let none = match (choice, self) {
+                    (ToolChoice::Decline, Envelope::Json) => {
+                        let empty = self.render_calls(&[]);
+                        format!("\nIf no tool fits, reply with only:\n{empty}")
+                    }
+                    (ToolChoice::Required, _) => String::new(),
+                    _ => "\nIf no tool is needed, answer in plain text.".into(),
+                };
+                format!(
+                    "You can call these tools:\n<tools>\n{}\n</tools>\nTo call a tool, reply with only:\n{format}{none}",
+                    listing.join("\n")
+                )
+            }
+        }
     }
 
     /// How calls appear in an assistant message: exactly what the grammar produces.
@@ -206,9 +239,13 @@ impl Envelope {
             .map(|c| json!({"name": c.name, "arguments": c.arguments}))
             .collect();
         match self {
+            Envelope::Smollm2 if objs.is_empty() => "<tool_call>[]</tool_call>".into(),
             Envelope::Smollm2 => format!(
-                "<tool_call>{}</tool_call>",
-                to_json_spaced(&Value::Array(objs))
+                "<tool_call>[\n{}\n]</tool_call>",
+                objs.iter()
+                    .map(to_json_spaced)
+                    .collect::<Vec<_>>()
+                    .join(",\n")
             ),
             Envelope::Qwen => objs
                 .iter()
@@ -219,7 +256,8 @@ impl Envelope {
         }
     }
 
-    /// Split a finished turn into prose and calls, checking every call against `specs`.
+    /// Split a finished turn into prose and calls, checking every call against `specs` and
+    /// dropping word-for-word repeats.
     pub fn parse(&self, text: &str, specs: &[ToolSpec]) -> Result<Turn, EnvelopeError> {
         let (prose, raw_calls) = match self {
             Envelope::Smollm2 => match text.find("<tool_call>") {
@@ -288,10 +326,15 @@ impl Envelope {
                     name: name.to_string(),
                     errors,
                 })?;
-            calls.push(ToolCall {
+            let call = ToolCall {
                 name: name.to_string(),
                 arguments: arguments.clone(),
-            });
+            };
+            // A call repeated word for word in one turn is a small model looping, never a
+            // second request: keep the first.
+            if !calls.contains(&call) {
+                calls.push(call);
+            }
         }
         Ok(Turn {
             prose: prose.trim().to_string(),
@@ -365,6 +408,43 @@ mod tests {
     }
 
     #[test]
+    fn word_for_word_repeats_in_one_turn_are_dropped() {
+        let mean = |v: Value| ToolCall {
+            name: "calc_mean".into(),
+            arguments: json!({ "values": v }),
+        };
+        let looped = vec![
+            mean(json!([1])),
+            mean(json!([2])),
+            mean(json!([1])),
+            mean(json!([2])),
+        ];
+        let text = Envelope::Smollm2.render_calls(&looped);
+        let turn = Envelope::Smollm2.parse(&text, &specs()).unwrap();
+        assert_eq!(turn.calls, vec![mean(json!([1])), mean(json!([2]))]);
+    }
+
+    #[test]
+    fn smollm2_calls_are_one_per_line_and_an_empty_list_declines() {
+        let calls = vec![ToolCall {
+            name: "system_time".into(),
+            arguments: json!({}),
+        }];
+        assert_eq!(
+            Envelope::Smollm2.render_calls(&calls),
+            "<tool_call>[\n{\"name\": \"system_time\", \"arguments\": {}}\n]</tool_call>"
+        );
+        assert_eq!(
+            Envelope::Smollm2.render_calls(&[]),
+            "<tool_call>[]</tool_call>"
+        );
+        let prompt = Envelope::Smollm2.describe_tools(&specs(), ToolChoice::Decline);
+        assert!(prompt.contains("<tool_call>[]</tool_call>"), "{prompt}");
+        let prompt = Envelope::Smollm2.describe_tools(&specs(), ToolChoice::Required);
+        assert!(!prompt.contains("[]"), "{prompt}");
+    }
+
+    #[test]
     fn prose_turns_have_no_calls() {
         for env in [Envelope::Smollm2, Envelope::Qwen, Envelope::Json] {
             let turn = env.parse("The mean is 6.", &specs()).unwrap();
@@ -399,7 +479,12 @@ mod tests {
     #[test]
     fn grammar_fills_every_placeholder() {
         for env in [Envelope::Smollm2, Envelope::Qwen, Envelope::Json] {
-            for choice in [ToolChoice::Auto, ToolChoice::Required, ToolChoice::None] {
+            for choice in [
+                ToolChoice::Auto,
+                ToolChoice::Required,
+                ToolChoice::Decline,
+                ToolChoice::None,
+            ] {
                 let g = env.grammar(&specs(), choice, true);
                 assert!(!g.contains('@'), "{env:?} {choice:?}: {g}");
             }

@@ -45,7 +45,7 @@ pub fn with_tools(req: &TurnRequest) -> Vec<ChatMessage> {
     if req.specs.is_empty() || req.choice == ToolChoice::None {
         return messages;
     }
-    let tools = req.envelope.describe_tools(req.specs);
+    let tools = req.envelope.describe_tools(req.specs, req.choice);
     match messages.first_mut() {
         Some(m) if m.role == Role::System => {
             m.content = format!("{}\n\n{tools}", m.content.trim_end());

@@ -77,6 +77,7 @@ pub fn run_case(
             ToolChoice::Required
         }
         AnswerMode::Prose => ToolChoice::Auto,
+        AnswerMode::Decline => ToolChoice::Decline,
     };
     let req = TurnRequest {
         messages: &messages,
