@@ -195,41 +195,25 @@ impl Envelope {
     /// write when no tool fits, as `choice` allows.
     pub fn describe_tools(&self, specs: &[ToolSpec], choice: ToolChoice) -> String {
         let listing: Vec<String> = specs.iter().map(Envelope::describe_tool).collect();
-        let example = |n: usize| ToolCall {
-            name: format!("function_name{n}"),
+        let example = ToolCall {
+            name: "function_name1".into(),
             arguments: json!({"argument1": "value1", "argument2": "value2"}),
         };
-        match self {
-            Envelope::Smollm2 => {
-                // The layout the family was trained on: the list in <tools>, one call per
-                // line, an empty list for "none of these".
-                let format = self.render_calls(&[example(1), example(2)]);
-                let none = match choice {
-                    ToolChoice::Decline => "\nIf none of the functions fits the request, reply <tool_call>[]</tool_call>.",
-                    ToolChoice::Auto => "\nIf no function is needed, answer in plain text.",
-                    ToolChoice::Required | ToolChoice::None => "",
-                };
+        let format = self.render_calls(&[example]);
+        let none = match (choice, self) {
+            (ToolChoice::Decline, Envelope::Smollm2 | Envelope::Json) => {
                 format!(
-                    "You have these functions:\n<tools>[{}]</tools>\nCall the functions the request needs, one line per call (several calls when the request asks for several things), and write nothing else:\n{format}{none}",
-                    listing.join(",\n")
+                    "\nIf no tool fits, reply with only:\n{}",
+                    self.render_calls(&[])
                 )
             }
-            _ => {
-                let format = self.render_calls(&[example(1)]);
-                let none = match (choice, self) {
-                    (ToolChoice::Decline, Envelope::Json) => {
-                        let empty = self.render_calls(&[]);
-                        format!("\nIf no tool fits, reply with only:\n{empty}")
-                    }
-                    (ToolChoice::Required, _) => String::new(),
-                    _ => "\nIf no tool is needed, answer in plain text.".into(),
-                };
-                format!(
-                    "You can call these tools:\n<tools>\n{}\n</tools>\nTo call a tool, reply with only:\n{format}{none}",
-                    listing.join("\n")
-                )
-            }
-        }
+            (ToolChoice::Required, _) => String::new(),
+            _ => "\nIf no tool is needed, answer in plain text.".into(),
+        };
+        format!(
+            "You can call these tools:\n<tools>\n{}\n</tools>\nTo call a tool, reply with only:\n{format}{none}",
+            listing.join("\n")
+        )
     }
 
     /// How calls appear in an assistant message: exactly what the grammar produces.
