@@ -226,11 +226,17 @@ fn qwen_envelope_with_special_marker_tokens_decodes_valid_calls() {
     }
 }
 
-#[test]
-fn prose_mode_never_emits_the_marker_and_none_mode_never_calls() {
+/// A uniform model over SmolLM2's vocabulary and the grammars for it.
+fn smollm2_uniform() -> (Uniform, Grammars) {
     let g = Gguf::open(&model_path("smollm2-135m")).unwrap();
     let backend = Uniform::from_gguf(&g).unwrap();
     let grammars = Grammars::new(backend.vocab(), backend.tokenizer()).unwrap();
+    (backend, grammars)
+}
+
+#[test]
+fn prose_mode_never_emits_the_marker_and_none_mode_never_calls() {
+    let (backend, grammars) = smollm2_uniform();
     let specs = random_tools(&mut Rng::new(3));
     let lark = Envelope::Smollm2.grammar(&specs, ToolChoice::Auto, true);
     let mut c = grammars.compile(&lark).unwrap();
@@ -250,9 +256,7 @@ fn prose_mode_never_emits_the_marker_and_none_mode_never_calls() {
 
 #[test]
 fn decline_mode_allows_an_empty_call_list_and_required_mode_does_not() {
-    let g = Gguf::open(&model_path("smollm2-135m")).unwrap();
-    let backend = Uniform::from_gguf(&g).unwrap();
-    let grammars = Grammars::new(backend.vocab(), backend.tokenizer()).unwrap();
+    let (backend, grammars) = smollm2_uniform();
     let specs = random_tools(&mut Rng::new(5));
     let empty = backend
         .tokenize("<tool_call>[]</tool_call>", false)

@@ -146,23 +146,18 @@ impl Envelope {
             (ToolChoice::Decline, _) => "decline",
             (ToolChoice::None, _) => "none",
         };
-        let mut array = json!({
-            "type": "array",
-            "items": Envelope::call_any_of(specs),
-            "minItems": 1,
-            "x-guidance": Envelope::separators(),
-        });
-        array["maxItems"] = json!(if parallel { MAX_PARALLEL } else { 1 });
         let mut one = Envelope::call_any_of(specs);
         one["x-guidance"] = Envelope::separators();
         let (template, calls) = match self {
             Envelope::Smollm2 => (SMOLLM2, one),
             Envelope::Qwen => (QWEN, one),
             Envelope::Json => {
-                array.as_object_mut().map(|o| o.remove("x-guidance"));
-                if choice == ToolChoice::Decline {
-                    array["minItems"] = json!(0);
-                }
+                let array = json!({
+                    "type": "array",
+                    "items": Envelope::call_any_of(specs),
+                    "minItems": if choice == ToolChoice::Decline { 0 } else { 1 },
+                    "maxItems": if parallel { MAX_PARALLEL } else { 1 },
+                });
                 let wrapper = json!({
                     "type": "object",
                     "properties": {"tool_calls": array},

@@ -374,25 +374,25 @@ impl Ros2Graph {
     }
 
     /// The endpoint kept in `cache` under (`name`, `ty`), or one `make` creates on our
-    /// node, then kept.
+    /// node, then kept; `true` when it was made by this call.
     async fn endpoint<T>(
         &self,
         cache: &Endpoints<T>,
         name: &str,
         ty: &str,
         make: impl FnOnce(&mut Node) -> Result<T, RosError>,
-    ) -> Result<Arc<T>, RosError> {
+    ) -> Result<(Arc<T>, bool), RosError> {
         let key = (name.to_string(), ty.to_string());
         let cached = cache.lock().expect("endpoint cache").get(&key).cloned();
         if let Some(e) = cached {
-            return Ok(e);
+            return Ok((e, false));
         }
         let made = Arc::new(make(&mut *self.node.lock().await)?);
         cache
             .lock()
             .expect("endpoint cache")
             .insert(key, made.clone());
-        Ok(made)
+        Ok((made, true))
     }
 
     /// Learn `ty`, used on `topic`, from a node that publishes or subscribes to it: its
@@ -572,7 +572,7 @@ impl Ros2Graph {
                 type_name: ty.clone(),
                 reason: e.to_string(),
             })?;
-        let publisher = self
+        let (publisher, _) = self
             .endpoint(&self.publishers, topic, &ty, |node| {
                 let (pkg, _, short) = split_type(&ty)?;
                 // Volatile: a late subscriber must never receive an old command.
@@ -627,12 +627,7 @@ impl Ros2Graph {
                 type_name: req_ty.clone(),
                 reason: e.to_string(),
             })?;
-        let fresh = !self
-            .clients
-            .lock()
-            .expect("endpoint cache")
-            .contains_key(&(service.to_string(), ty.clone()));
-        let client = self
+        let (client, fresh) = self
             .endpoint(&self.clients, service, &ty, |node| {
                 let qos = reliable_qos(QDurability::Volatile, 10);
                 node.create_client::<Raw, Raw>(
@@ -749,6 +744,15 @@ impl RosGraph for Ros2Graph {
     }
 }
 
+/// Pause before the first request of a new service client (see `do_call`).
+const NEW_CLIENT_SETTLE: Duration = Duration::from_millis(300);
+
+/// Services whose requests may be repeated without changing the outcome: parameter
+/// services (get, list, describe, set to a value) and type descriptions.
+fn idempotent_service(ty: &str) -> bool {
+    ty.starts_with("rcl_interfaces/srv/") || ty.starts_with("type_description_interfaces/srv/")
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -818,15 +822,6 @@ mod tests {
 
 /// Set in a process that `loopback_netns` started.
 pub const IN_LOOPBACK_NETNS: &str = "FERROSA_IN_NETNS";
-
-/// Pause before the first request of a new service client (see `do_call`).
-const NEW_CLIENT_SETTLE: Duration = Duration::from_millis(300);
-
-/// Services whose requests may be repeated without changing the outcome: parameter
-/// services (get, list, describe, set to a value) and type descriptions.
-fn idempotent_service(ty: &str) -> bool {
-    ty.starts_with("rcl_interfaces/srv/") || ty.starts_with("type_description_interfaces/srv/")
-}
 
 /// A command that runs `exe args…` in a new network namespace whose only interface is
 /// loopback (`unshare -n`, then `ip link set lo up`), killed after `limit_s` seconds: DDS

@@ -104,7 +104,7 @@ impl Ros2Graph {
         kind: &ActionTypeName,
         timeout: Duration,
     ) -> Result<Arc<RawActionClient>, RosError> {
-        let client = self
+        let (client, _) = self
             .endpoint(&self.actions, action, ty, |node| {
                 node.create_action_client::<Raw, Raw, Raw>(
                     ServiceMapping::Enhanced,
