@@ -476,8 +476,9 @@ fn rclpy_sees_and_drives_the_sim() {
     assert_eq!(seen["subscribers"], 1, "{seen}");
     assert_eq!(seen["cleared"], true, "{seen}");
     std::thread::sleep(Duration::from_millis(1200));
-    // Driven for about 1.9 s at 1 m/s: the first command received to the last plus the
-    // 1 s turtlesim holds it.
+    // At 1 m/s from the first command received to the last (up to 0.9 s), plus the 1 s
+    // turtlesim holds the last one. Under load the ten can arrive together, which leaves
+    // just the hold: 62 updates of 16 ms, 0.992 m (seen once in a clean CI run: 0.993 m).
     let x = sim.pose("turtle1").unwrap()["x"].as_f64().unwrap();
-    assert!((1.0..2.2).contains(&(x - CENTER)), "x = {x}");
+    assert!((0.95..2.2).contains(&(x - CENTER)), "x = {x}");
 }
