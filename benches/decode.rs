@@ -200,6 +200,7 @@ fn generation(mut model: Box<dyn Backend>, grammars: &Grammars) {
                 parallel: false,
                 decoding: Decoding::Constrained,
                 max_tokens: 128,
+                relevance_gate: None,
             };
             let rendered = model
                 .chat_template()

@@ -280,6 +280,7 @@ impl Child {
             parallel: false,
             decoding: Decoding::Constrained,
             max_tokens: 64,
+            relevance_gate: None,
         };
         let text = self
             .model

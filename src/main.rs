@@ -229,6 +229,10 @@ enum EvalCommand {
         /// How the model may decline to call: the `answer` pseudo-function, or prose.
         #[arg(long, value_enum, default_value_t = AnswerMode::Tool)]
         answer_mode: AnswerMode,
+        /// Call the likeliest function only when the question made it likelier than a
+        /// content-free question does; otherwise answer (tool answer mode only).
+        #[arg(long)]
+        relevance_gate: bool,
         #[arg(long, value_enum, default_value_t = BackendKind::Llama)]
         backend: BackendKind,
         #[arg(short, long)]
@@ -373,6 +377,7 @@ fn main() -> ExitCode {
                     out,
                     envelope,
                     answer_mode,
+                    relevance_gate,
                     backend,
                     threads,
                 },
@@ -390,6 +395,7 @@ fn main() -> ExitCode {
             out,
             envelope,
             answer_mode,
+            relevance_gate,
         }),
         Command::Models { command } => match command {
             ModelsCommand::List => ui::models::list(&dir),

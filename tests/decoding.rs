@@ -8,7 +8,7 @@ use ferrosa::backend::uniform::Uniform;
 use ferrosa::backend::{Backend, BackendKind, ChatMessage, Detokenizer, Gguf, Role};
 use ferrosa::decode::envelope::{Envelope, ToolChoice};
 use ferrosa::decode::sample::Rng;
-use ferrosa::decode::turn::{assistant_turn, TurnRequest};
+use ferrosa::decode::turn::{assistant_turn, TurnRequest, TurnResult};
 use ferrosa::decode::{generate, Decoding, Finish, Grammars, Sampler, SamplerConfig, Session};
 use ferrosa::tool::{ToolCall, ToolSpec};
 use serde_json::{json, Map, Value};
@@ -311,6 +311,20 @@ fn robot_tools() -> Vec<ToolSpec> {
         .collect()
 }
 
+/// One assistant turn, greedy.
+fn greedy_turn(
+    model: &mut dyn Backend,
+    session: &mut Session,
+    grammars: &Grammars,
+    req: &TurnRequest,
+) -> TurnResult {
+    let mut sampler = Sampler::new(SamplerConfig::default(), model.vocab().len());
+    assistant_turn(model, session, grammars, &mut sampler, req, |_| {
+        ControlFlow::Continue(())
+    })
+    .unwrap()
+}
+
 /// The real model, 50 requests, required mode: every turn is a schema-valid call. The
 /// same requests decoded freely are parsed the same way and their validity printed (run
 /// with `--nocapture` to see both rates).
@@ -347,17 +361,9 @@ fn real_model_makes_only_valid_calls_when_constrained() {
                 // Free decoding rambles (prose, code); 64 tokens is room for any call it
                 // could make to these tools and keeps the test short.
                 max_tokens: if decoding == Decoding::Free { 64 } else { 160 },
+                relevance_gate: None,
             };
-            let mut sampler = Sampler::new(SamplerConfig::default(), model.vocab().len());
-            let r = assistant_turn(
-                model.as_mut(),
-                &mut session,
-                &grammars,
-                &mut sampler,
-                &req,
-                |_| ControlFlow::Continue(()),
-            )
-            .unwrap();
+            let r = greedy_turn(model.as_mut(), &mut session, &grammars, &req);
             let ok = matches!(&r.turn, Ok(t) if !t.calls.is_empty());
             if decoding == Decoding::Constrained {
                 assert!(
@@ -378,4 +384,91 @@ fn real_model_makes_only_valid_calls_when_constrained() {
         100.0 * forced as f64 / emitted.max(1) as f64
     );
     assert_eq!(valid[0], 50);
+}
+
+/// The relevance gate on the real model: over operator requests (28 robot tools and a
+/// `reply` tool to fall back on) every gated turn is still a schema-valid call; a
+/// question no tool touches takes the fallback; a request for two plays of one tool gets
+/// two different calls.
+#[test]
+fn relevance_gate_keeps_calls_valid_and_declines_unrelated_questions() {
+    let mut model = load("smollm2-135m", BackendKind::Llama, 8192);
+    let grammars = Grammars::new(model.vocab(), model.tokenizer()).unwrap();
+    let mut specs = robot_tools();
+    specs.push(ferrosa::agent::answer_spec());
+    let system = ChatMessage::new(
+        Role::System,
+        "You are the control assistant of a small mobile robot. Use the tools to act.",
+    );
+    let mut session = Session::new();
+    let mut turn = |specs: &[ToolSpec], q: &str| {
+        let messages = [system.clone(), ChatMessage::new(Role::User, q)];
+        let req = TurnRequest {
+            messages: &messages,
+            specs,
+            allowed: None,
+            envelope: Envelope::Smollm2,
+            choice: ToolChoice::Required,
+            parallel: true,
+            decoding: Decoding::Constrained,
+            max_tokens: 160,
+            relevance_gate: Some(ferrosa::agent::ANSWER_TOOL),
+        };
+        let r = greedy_turn(model.as_mut(), &mut session, &grammars, &req);
+        match (&r.turn, r.finish) {
+            (Ok(t), Finish::EndOfGeneration) if !t.calls.is_empty() => Some(t.calls.clone()),
+            // A value that runs past the token limit is cut off, gate or not.
+            (_, Finish::Length) => None,
+            _ => panic!(
+                "{q:?} gave no valid call: {:?} {:?} {}",
+                r.turn, r.finish, r.text
+            ),
+        }
+    };
+    // A dozen of them: a gated turn over 29 tools costs several times a plain one.
+    let requests: Vec<&str> = include_str!("data/operator_requests.txt")
+        .lines()
+        .take(12)
+        .collect();
+    let (mut declined, mut cut_off) = (0, 0);
+    for q in &requests {
+        match turn(&specs, q) {
+            Some(calls) => declined += usize::from(calls[0].name == ferrosa::agent::ANSWER_TOOL),
+            None => cut_off += 1,
+        }
+    }
+    eprintln!(
+        "gated: {declined} of {} operator requests answered without a tool, {cut_off} cut off at 160 tokens",
+        requests.len()
+    );
+    for q in [
+        "Who wrote the play Hamlet?",
+        "What is the capital of France?",
+    ] {
+        let calls = turn(&specs, q).expect("a reply within 160 tokens");
+        assert_eq!(
+            calls[0].name,
+            ferrosa::agent::ANSWER_TOOL,
+            "{q:?}: {calls:?}"
+        );
+    }
+    let music = [
+        ToolSpec::new(
+            "spotify.play",
+            "Play specific tracks from a given artist for a specific time duration.",
+            json!({"type": "object", "properties": {
+                "artist": {"type": "string", "description": "The artist whose songs you want to play."},
+                "duration": {"type": "integer", "description": "The duration for which the songs should be played, in minutes."}},
+                "required": ["artist", "duration"]}),
+        )
+        .unwrap(),
+        ferrosa::agent::answer_spec(),
+    ];
+    let calls = turn(
+        &music,
+        "Play songs from the artists Taylor Swift and Maroon 5, with a play time of 20 minutes and 15 minutes respectively, on Spotify.",
+    )
+    .expect("two short calls within 160 tokens");
+    assert_eq!(calls.len(), 2, "{calls:?}");
+    assert!(calls.iter().all(|c| c.name == "spotify.play"), "{calls:?}");
 }

@@ -38,7 +38,14 @@ fn bfcl_slice_runs_scores_and_reports() {
         .arg("eval")
         .arg("bfcl")
         .args(&files)
-        .args(["--limit", &BFCL_SLICE.to_string(), "--out"])
+        // The relevance gate: the harness's best decoding, and the path the other tests
+        // do not take (plain turns are decoded all over the suite).
+        .args([
+            "--relevance-gate",
+            "--limit",
+            &BFCL_SLICE.to_string(),
+            "--out",
+        ])
         .arg(out.path())
         .env("FERROSA_MODELS_DIR", models_dir())
         .output()

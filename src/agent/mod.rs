@@ -330,6 +330,7 @@ impl Agent {
             parallel: true,
             decoding: self.config.decoding,
             max_tokens: self.config.max_turn_tokens,
+            relevance_gate: None,
         }
     }
 

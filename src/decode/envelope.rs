@@ -211,6 +211,17 @@ impl Envelope {
         )
     }
 
+    /// What follows one call in a list when another comes, and what closes the list,
+    /// for envelopes that write several calls as one list (`None` for Qwen's one block
+    /// per call).
+    pub fn list_separators(&self) -> Option<(&'static str, &'static str)> {
+        match self {
+            Envelope::Smollm2 => Some((",\n", "\n]</tool_call>")),
+            Envelope::Json => Some((", ", "]}")),
+            Envelope::Qwen => None,
+        }
+    }
+
     /// How calls appear in an assistant message: exactly what the grammar produces.
     pub fn render_calls(&self, calls: &[ToolCall]) -> String {
         let objs: Vec<Value> = calls

@@ -11,9 +11,12 @@
 //! - `constraint`: per-model grammar factory and per-turn constraint (mask, commit, forced tokens)
 //! - `envelope`: tool-call formats per model family: grammar, prompt text, parser
 //! - `turn`: one assistant turn with tools: prompt, constrained generation, parse
+//! - `gate`: the relevance gate: which tool, and whether another call follows, decided
+//!   by what the request changed in the model's likelihoods
 
 pub mod constraint;
 pub mod envelope;
+pub mod gate;
 pub mod sample;
 pub mod trie;
 pub mod turn;

@@ -7,6 +7,7 @@
 use std::ops::ControlFlow;
 
 use super::envelope::{Envelope, EnvelopeError, ToolChoice, Turn};
+use super::gate;
 use super::{generate, DecodeError, Decoding, Finish, GenerationStats, Grammars, Sampler, Session};
 use crate::backend::{Backend, ChatMessage, Detokenizer, Role};
 use crate::tool::ToolSpec;
@@ -25,6 +26,10 @@ pub struct TurnRequest<'a> {
     pub parallel: bool,
     pub decoding: Decoding,
     pub max_tokens: usize,
+    /// The relevance gate (see `calibrate`): the tool to call instead of the likeliest one
+    /// when the request did not make that one likelier than a content-free request did.
+    /// Applies to constrained turns that must call, when this tool is among those allowed.
+    pub relevance_gate: Option<&'a str>,
 }
 
 #[derive(Debug)]
@@ -70,14 +75,29 @@ pub fn assistant_turn(
     tracing::debug!(target: "ferrosa::prompt", "{rendered}");
     let prompt = super::prompt_tokens(backend, &rendered, true)?;
 
-    let mut constraint = match req.decoding {
-        Decoding::Constrained => {
-            let lark =
-                req.envelope
-                    .grammar(req.allowed.unwrap_or(req.specs), req.choice, req.parallel);
-            Some(grammars.compile(&lark)?)
+    let lark = (req.decoding == Decoding::Constrained).then(|| {
+        req.envelope
+            .grammar(req.allowed.unwrap_or(req.specs), req.choice, req.parallel)
+    });
+    if let (Some(lark), Some(fallback)) = (&lark, req.relevance_gate) {
+        let gated = gate::gated_turn(
+            backend,
+            session,
+            grammars,
+            sampler,
+            req,
+            fallback,
+            &prompt,
+            lark,
+            &mut on_text,
+        )?;
+        if let Some(g) = gated {
+            return Ok(finish_turn(req, g.text, g.finish, g.stats));
         }
-        Decoding::Free => None,
+    }
+    let mut constraint = match &lark {
+        Some(lark) => Some(grammars.compile(lark)?),
+        None => None,
     };
     let vocab = backend.vocab().clone();
     let mut detok = Detokenizer::new(false);
@@ -100,6 +120,16 @@ pub fn assistant_turn(
     piece.clear();
     detok.finish(&mut piece);
     text.push_str(&piece);
+    Ok(finish_turn(req, text, finish, stats))
+}
+
+/// Parse a finished turn's text.
+fn finish_turn(
+    req: &TurnRequest,
+    text: String,
+    finish: Finish,
+    stats: GenerationStats,
+) -> TurnResult {
     let turn = req.envelope.parse(&text, req.specs);
     if let (Decoding::Constrained, Err(e), Finish::EndOfGeneration) = (req.decoding, &turn, finish)
     {
@@ -107,10 +137,10 @@ pub fn assistant_turn(
         // normally; anything else is a defect in the grammar or the parser.
         tracing::error!(error = %e, %text, "constrained output failed to parse: this is a bug");
     }
-    Ok(TurnResult {
+    TurnResult {
         text,
         turn,
         finish,
         stats,
-    })
+    }
 }

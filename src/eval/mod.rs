@@ -55,6 +55,7 @@ pub fn run_case(
     envelope: Envelope,
     decoding: Decoding,
     answer_mode: AnswerMode,
+    relevance_gate: bool,
     case: &Case,
 ) -> Result<CaseResult, DecodeError> {
     let mut messages = vec![ChatMessage::new(Role::System, SYSTEM)];
@@ -89,6 +90,7 @@ pub fn run_case(
         decoding,
         // Room for the longest answer text (240 characters can be 240 digit tokens).
         max_tokens: 320,
+        relevance_gate: (relevance_gate && answer_mode == AnswerMode::Tool).then_some(ANSWER_TOOL),
     };
     let mut sampler = Sampler::new(SamplerConfig::default(), backend.vocab().len());
     let start = Instant::now();

@@ -34,6 +34,7 @@ pub struct BfclArgs {
     pub out: PathBuf,
     pub envelope: Option<Envelope>,
     pub answer_mode: AnswerMode,
+    pub relevance_gate: bool,
 }
 
 impl DecodingChoice {
@@ -79,6 +80,7 @@ pub fn bfcl(args: &BfclArgs) -> anyhow::Result<()> {
                 envelope,
                 mode,
                 args.answer_mode,
+                args.relevance_gate,
                 case,
             )?;
             writeln!(file, "{}", serde_json::to_string(&r)?)?;
@@ -89,9 +91,14 @@ pub fn bfcl(args: &BfclArgs) -> anyhow::Result<()> {
     eprintln!();
     let summaries = eval::summarize(&results);
     println!(
-        "model {} | envelope {envelope:?} | answer mode {:?} | {} cases per mode\n",
+        "model {} | envelope {envelope:?} | answer mode {:?}{} | {} cases per mode\n",
         resolved.path.display(),
         args.answer_mode,
+        if args.relevance_gate {
+            " | relevance gate"
+        } else {
+            ""
+        },
         cases.len()
     );
     print!("{}", eval::markdown(&summaries));

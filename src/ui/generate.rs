@@ -69,6 +69,7 @@ pub fn run(args: &GenerateArgs) -> anyhow::Result<()> {
                 parallel: args.parallel,
                 decoding: args.decoding,
                 max_tokens: args.max_tokens,
+                relevance_gate: None,
             };
             let mut sampler = Sampler::new(args.sampler, model.vocab().len());
             let r = assistant_turn(
