@@ -143,7 +143,7 @@ pub(super) fn gated_turn(
         .envelope
         .list_separators()
         .filter(|_| req.parallel && names[chosen] != names[fallback]);
-    let call_depth = json_depth(&text).saturating_sub(1);
+    let call_depth = JsonDepth::over(&text).depth.saturating_sub(1);
     let mut decide = separators.is_some();
     let finish = loop {
         if stopped {
@@ -164,9 +164,9 @@ pub(super) fn gated_turn(
         let mut guarded = NoRepeats {
             seq: session.tokens().to_vec(),
             call_start: full.len(),
-            earlier: calls.clone(),
-            names: quoted_names.clone(),
-            fallback: quoted_names[fallback].clone(),
+            earlier: &calls,
+            names: &quoted_names,
+            fallback: &quoted_names[fallback],
             inner: &mut *backend,
         };
         let (finish, s) = generate(
@@ -350,11 +350,6 @@ fn call_opening(req: &TurnRequest, name: &str) -> String {
     text[..end].to_string()
 }
 
-/// Brackets open at the end of `text`, JSON strings skipped.
-fn json_depth(text: &str) -> usize {
-    JsonDepth::over(text).depth
-}
-
 /// Bracket depth of JSON written a character at a time.
 #[derive(Debug, Clone, Copy, Default)]
 struct JsonDepth {
@@ -407,11 +402,11 @@ struct NoRepeats<'a> {
     /// Where the call being written starts in `seq`.
     call_start: usize,
     /// The calls written before it.
-    earlier: Vec<Vec<u8>>,
+    earlier: &'a [Vec<u8>],
     /// Every tool's name as a call spells it, closing quote included.
-    names: Vec<Vec<u8>>,
+    names: &'a [Vec<u8>],
     /// The fallback's, which a later call may not take.
-    fallback: Vec<u8>,
+    fallback: &'a [u8],
 }
 
 /// Pushed below every ordinary logit, far above the grammar's -inf.
@@ -442,7 +437,7 @@ impl NoRepeats<'_> {
             return Vec::new();
         }
         let mut banned = Vec::new();
-        for e in &self.earlier {
+        for e in self.earlier {
             let Some(rest) = e.strip_prefix(cur) else {
                 continue;
             };
@@ -477,7 +472,7 @@ impl NoRepeats<'_> {
         let others: Vec<&[u8]> = self
             .names
             .iter()
-            .filter(|n| **n != self.fallback)
+            .filter(|n| n.as_slice() != self.fallback)
             .filter_map(|n| n.strip_prefix(typed))
             .collect();
         let vocab = self.inner.vocab();
@@ -610,9 +605,10 @@ mod tests {
 
     #[test]
     fn json_depth_skips_strings_and_escapes() {
-        assert_eq!(json_depth("<tool_call>[\n{\"name\": \"f\""), 2);
-        assert_eq!(json_depth(r#"{"a": "}]\"{", "b": [1, {"c": 2}]}"#), 0);
-        assert_eq!(json_depth(r#"{"tool_calls": [{"name": "x""#), 3);
+        let depth = |t: &str| JsonDepth::over(t).depth;
+        assert_eq!(depth("<tool_call>[\n{\"name\": \"f\""), 2);
+        assert_eq!(depth(r#"{"a": "}]\"{", "b": [1, {"c": 2}]}"#), 0);
+        assert_eq!(depth(r#"{"tool_calls": [{"name": "x""#), 3);
     }
 
     #[test]

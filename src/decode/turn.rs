@@ -26,7 +26,7 @@ pub struct TurnRequest<'a> {
     pub parallel: bool,
     pub decoding: Decoding,
     pub max_tokens: usize,
-    /// The relevance gate (see `calibrate`): the tool to call instead of the likeliest one
+    /// The relevance gate (see `decode::gate`): the tool to call instead of the likeliest one
     /// when the request did not make that one likelier than a content-free request did.
     /// Applies to constrained turns that must call, when this tool is among those allowed.
     pub relevance_gate: Option<&'a str>,
