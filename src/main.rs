@@ -197,7 +197,10 @@ enum EvalCommand {
         model: Option<String>,
         #[arg(long, value_enum, default_value_t = ui::eval::DecodingChoice::Constrained)]
         decoding: ui::eval::DecodingChoice,
-        /// First N cases.
+        /// Pass over the first N cases.
+        #[arg(long, default_value_t = 0)]
+        skip: usize,
+        /// At most N cases (after --skip).
         #[arg(long)]
         limit: Option<usize>,
         /// Where per-case JSONL and the summary go.
@@ -218,7 +221,11 @@ enum EvalCommand {
         model: Option<String>,
         #[arg(long, value_enum, default_value_t = ui::eval::DecodingChoice::Constrained)]
         decoding: ui::eval::DecodingChoice,
-        /// First N questions of each file.
+        /// Pass over the first N questions of each file (e.g. to tune on questions a
+        /// report built from the first ones does not use).
+        #[arg(long, default_value_t = 0)]
+        skip: usize,
+        /// At most N questions of each file (after --skip).
         #[arg(long)]
         limit: Option<usize>,
         /// Where per-case JSONL and the summary go.
@@ -336,6 +343,7 @@ fn main() -> ExitCode {
                     suite,
                     model,
                     decoding,
+                    skip,
                     limit,
                     out,
                     max_steps,
@@ -364,6 +372,7 @@ fn main() -> ExitCode {
             },
             suite,
             decoding,
+            skip,
             limit,
             out,
         }),
@@ -373,6 +382,7 @@ fn main() -> ExitCode {
                     paths,
                     model,
                     decoding,
+                    skip,
                     limit,
                     out,
                     envelope,
@@ -391,6 +401,7 @@ fn main() -> ExitCode {
             },
             paths,
             decoding,
+            skip,
             limit,
             out,
             envelope,

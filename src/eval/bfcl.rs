@@ -126,8 +126,9 @@ fn read_lines(path: &Path) -> Result<Vec<(usize, Value)>, BfclError> {
         .collect()
 }
 
-/// Load a category file and its answers (from `possible_answer/` beside it, if any).
-pub fn load(path: &Path, limit: Option<usize>) -> Result<Vec<Case>, BfclError> {
+/// Load a category file and its answers (from `possible_answer/` beside it, if any):
+/// the questions after the first `skip`, at most `limit` of them.
+pub fn load(path: &Path, skip: usize, limit: Option<usize>) -> Result<Vec<Case>, BfclError> {
     let category = category_of(path);
     let answers_path = path
         .parent()
@@ -154,7 +155,7 @@ pub fn load(path: &Path, limit: Option<usize>) -> Result<Vec<Case>, BfclError> {
         }
     }
     let mut cases = Vec::new();
-    for (line, v) in read_lines(path)? {
+    for (line, v) in read_lines(path)?.into_iter().skip(skip) {
         let err = |message: String| BfclError::Line {
             path: path.to_path_buf(),
             line,
@@ -242,5 +243,46 @@ mod tests {
             category_of(Path::new("BFCL_v3_parallel_multiple.json")),
             "parallel_multiple"
         );
+    }
+
+    #[test]
+    fn skip_and_limit_pick_questions_and_keep_their_answers() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("BFCL_v4_simple_python.json");
+        let question = |i: usize| {
+            json!({
+                "id": format!("simple_python_{i}"),
+                "question": [[{"role": "user", "content": format!("area of a square of side {i}")}]],
+                "function": [{
+                    "name": "square_area",
+                    "description": "Area of a square.",
+                    "parameters": {"type": "dict", "properties": {"side": {"type": "integer"}}, "required": ["side"]}
+                }]
+            })
+            .to_string()
+        };
+        let lines: Vec<String> = (0..4).map(question).collect();
+        std::fs::write(&path, lines.join("\n")).unwrap();
+        std::fs::create_dir(dir.path().join("possible_answer")).unwrap();
+        let answers: Vec<String> = (0..4)
+            .map(|i| {
+                json!({"id": format!("simple_python_{i}"), "ground_truth": [{"square_area": {"side": [i]}}]})
+                    .to_string()
+            })
+            .collect();
+        std::fs::write(
+            dir.path()
+                .join("possible_answer")
+                .join("BFCL_v4_simple_python.json"),
+            answers.join("\n"),
+        )
+        .unwrap();
+
+        let cases = load(&path, 1, Some(2)).unwrap();
+        let ids: Vec<&str> = cases.iter().map(|c| c.id.as_str()).collect();
+        assert_eq!(ids, ["simple_python_1", "simple_python_2"]);
+        assert_eq!(cases[1].answer[0].1["side"], json!([2]));
+        assert_eq!(load(&path, 0, None).unwrap().len(), 4);
+        assert!(load(&path, 9, Some(2)).unwrap().is_empty());
     }
 }

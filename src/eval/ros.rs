@@ -69,8 +69,8 @@ pub enum SuiteError {
     },
 }
 
-/// Read a suite; `limit` keeps the first N cases.
-pub fn load(path: &Path, limit: Option<usize>) -> Result<Vec<RosCase>, SuiteError> {
+/// Read a suite; the cases after the first `skip`, at most `limit` of them.
+pub fn load(path: &Path, skip: usize, limit: Option<usize>) -> Result<Vec<RosCase>, SuiteError> {
     let text = std::fs::read_to_string(path).map_err(|e| SuiteError::Read {
         path: path.display().to_string(),
         message: e.to_string(),
@@ -87,6 +87,7 @@ pub fn load(path: &Path, limit: Option<usize>) -> Result<Vec<RosCase>, SuiteErro
         })?;
         cases.push(case);
     }
+    cases.drain(..skip.min(cases.len()));
     if let Some(n) = limit {
         cases.truncate(n);
     }
@@ -221,13 +222,17 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let p = dir.path().join("s.jsonl");
         std::fs::write(&p, "{\"id\": \"a-1\", \"query\": \"q\"}\n\n{\"id\": \"b\", \"query\": \"q\", \"expect\": []}\n").unwrap();
-        let e = load(&p, None).unwrap_err().to_string();
+        let e = load(&p, 0, None).unwrap_err().to_string();
         assert!(e.contains(":3:") && e.contains("expect"), "{e}");
         std::fs::write(
             &p,
             "{\"id\": \"a-1\", \"query\": \"q\"}\n{\"id\": \"b-2\", \"query\": \"r\"}\n",
         )
         .unwrap();
-        assert_eq!(load(&p, Some(1)).unwrap().len(), 1);
+        assert_eq!(load(&p, 0, Some(1)).unwrap().len(), 1);
+        let rest = load(&p, 1, None).unwrap();
+        assert_eq!(rest.len(), 1);
+        assert_eq!(rest[0].id, "b-2");
+        assert!(load(&p, 5, None).unwrap().is_empty());
     }
 }

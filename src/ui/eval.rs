@@ -30,6 +30,8 @@ pub struct BfclArgs {
     pub model: super::ModelArgs,
     pub paths: Vec<PathBuf>,
     pub decoding: DecodingChoice,
+    /// Questions (cases) passed over first, e.g. to tune on ones a report does not use.
+    pub skip: usize,
     pub limit: Option<usize>,
     pub out: PathBuf,
     pub envelope: Option<Envelope>,
@@ -59,7 +61,7 @@ fn case_file(out: &Path, name: &str) -> anyhow::Result<(PathBuf, std::fs::File)>
 pub fn bfcl(args: &BfclArgs) -> anyhow::Result<()> {
     let mut cases = Vec::new();
     for p in &args.paths {
-        cases.extend(bfcl::load(p, args.limit)?);
+        cases.extend(bfcl::load(p, args.skip, args.limit)?);
     }
     let (resolved, _, mut model) = args.model.load()?;
     let envelope = args
@@ -114,6 +116,8 @@ pub struct RosArgs {
     pub agent: super::agent::AgentArgs,
     pub suite: PathBuf,
     pub decoding: DecodingChoice,
+    /// Questions (cases) passed over first, e.g. to tune on ones a report does not use.
+    pub skip: usize,
     pub limit: Option<usize>,
     pub out: PathBuf,
 }
@@ -129,7 +133,7 @@ impl Confirm for CaseOperator {
 
 pub fn ros(args: &RosArgs) -> anyhow::Result<()> {
     use super::agent::{build_with, connect, Robot};
-    let cases = eval::ros::load(&args.suite, args.limit)?;
+    let cases = eval::ros::load(&args.suite, args.skip, args.limit)?;
     let approve = Arc::new(AtomicBool::new(false));
     let operator: Arc<dyn Confirm> = Arc::new(CaseOperator(approve.clone()));
     let mut link = connect(Robot::Sim, false)?;
