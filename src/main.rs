@@ -240,6 +240,10 @@ enum EvalCommand {
         /// content-free question does; otherwise answer (tool answer mode only).
         #[arg(long)]
         relevance_gate: bool,
+        /// Offer only the question's functions and require a call: the model cannot
+        /// answer (BFCL's "forced" setting; irrelevance then always fails).
+        #[arg(long, conflicts_with_all = ["relevance_gate", "answer_mode"])]
+        force_call: bool,
         #[arg(long, value_enum, default_value_t = BackendKind::Llama)]
         backend: BackendKind,
         #[arg(short, long)]
@@ -388,6 +392,7 @@ fn main() -> ExitCode {
                     envelope,
                     answer_mode,
                     relevance_gate,
+                    force_call,
                     backend,
                     threads,
                 },
@@ -405,8 +410,11 @@ fn main() -> ExitCode {
             limit,
             out,
             envelope,
-            answer_mode,
-            relevance_gate,
+            rules: ferrosa::eval::TurnRules {
+                answer_mode,
+                force_call,
+                relevance_gate,
+            },
         }),
         Command::Models { command } => match command {
             ModelsCommand::List => ui::models::list(&dir),

@@ -82,6 +82,48 @@ fn bfcl_slice_runs_scores_and_reports() {
     }
 }
 
+/// `--force-call` (BFCL's "forced" setting, the one the llama-server bar quotes beside
+/// may-answer): every turn is a call to one of the question's functions, so an
+/// irrelevance question cannot pass; `--skip` starts past the questions passed over.
+#[test]
+fn bfcl_forced_calls_start_after_skip_and_always_call() {
+    let d = bfcl_dir();
+    let out = tempfile::tempdir().unwrap();
+    let o = Command::new(env!("CARGO_BIN_EXE_ferrosa"))
+        .arg("eval")
+        .arg("bfcl")
+        .args(["simple_python", "irrelevance"].map(|c| d.join(format!("BFCL_v4_{c}.json"))))
+        .args(["--force-call", "--skip", "10", "--limit", "2", "--out"])
+        .arg(out.path())
+        .env("FERROSA_MODELS_DIR", models_dir())
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(stdout.contains("call forced"), "{stdout}");
+    let cases = std::fs::read_to_string(out.path().join("bfcl_cases.jsonl")).unwrap();
+    let ids: Vec<String> = cases
+        .lines()
+        .map(|l| {
+            let v: serde_json::Value = serde_json::from_str(l).unwrap();
+            assert_eq!(v["attempted_call"], true, "{l}");
+            if v["category"] == "irrelevance" {
+                assert_eq!(v["pass"], false, "{l}");
+            }
+            v["id"].as_str().unwrap().to_string()
+        })
+        .collect();
+    assert_eq!(
+        ids,
+        [
+            "simple_python_10",
+            "simple_python_11",
+            "irrelevance_10",
+            "irrelevance_11"
+        ]
+    );
+}
+
 /// The categories CI runs (their first case each): a listing, a reading, a motion, a
 /// chat and a refusal. The whole suite is a documented command.
 const CI_CATEGORIES: [&str; 5] = ["listing", "echo", "motion", "notool", "cannot"];

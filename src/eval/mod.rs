@@ -45,17 +45,29 @@ pub struct CaseResult {
     pub tok_per_s: f64,
 }
 
+/// How a BFCL turn may end.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct TurnRules {
+    /// How the model answers instead of calling.
+    pub answer_mode: AnswerMode,
+    /// The case's functions only and a call required: the model cannot answer (BFCL's
+    /// "forced" setting; `answer_mode` is then unused).
+    pub force_call: bool,
+    /// Decide the turn with the relevance gate (`AnswerMode::Tool` only).
+    pub relevance_gate: bool,
+}
+
 /// Run one case: one assistant turn with the case's functions, where the model may call
-/// or answer. With `AnswerMode::Tool` (the agent's default) answering is the `answer`
-/// pseudo-function, so the turn is always structured; its call is not counted as a call.
+/// or answer (unless `rules.force_call`). With `AnswerMode::Tool` (the agent's default)
+/// answering is the `answer` pseudo-function, so the turn is always structured; its call
+/// is not counted as a call.
 pub fn run_case(
     backend: &mut dyn Backend,
     session: &mut Session,
     grammars: &Grammars,
     envelope: Envelope,
     decoding: Decoding,
-    answer_mode: AnswerMode,
-    relevance_gate: bool,
+    rules: TurnRules,
     case: &Case,
 ) -> Result<CaseResult, DecodeError> {
     let mut messages = vec![ChatMessage::new(Role::System, SYSTEM)];
@@ -72,7 +84,8 @@ pub fn run_case(
         }
     }
     let mut specs = case.functions.clone();
-    let choice = match answer_mode {
+    let choice = match rules.answer_mode {
+        _ if rules.force_call => ToolChoice::Required,
         AnswerMode::Tool => {
             specs.push(answer_spec());
             ToolChoice::Required
@@ -90,7 +103,10 @@ pub fn run_case(
         decoding,
         // Room for the longest answer text (240 characters can be 240 digit tokens).
         max_tokens: 320,
-        relevance_gate: (relevance_gate && answer_mode == AnswerMode::Tool).then_some(ANSWER_TOOL),
+        relevance_gate: (rules.relevance_gate
+            && !rules.force_call
+            && rules.answer_mode == AnswerMode::Tool)
+            .then_some(ANSWER_TOOL),
     };
     let mut sampler = Sampler::new(SamplerConfig::default(), backend.vocab().len());
     let start = Instant::now();

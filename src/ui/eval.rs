@@ -10,7 +10,6 @@ use std::sync::Arc;
 
 use anyhow::Context;
 
-use crate::agent::AnswerMode;
 use crate::agent::Event;
 use crate::decode::envelope::Envelope;
 use crate::decode::{Decoding, Grammars, Session};
@@ -35,8 +34,7 @@ pub struct BfclArgs {
     pub limit: Option<usize>,
     pub out: PathBuf,
     pub envelope: Option<Envelope>,
-    pub answer_mode: AnswerMode,
-    pub relevance_gate: bool,
+    pub rules: eval::TurnRules,
 }
 
 impl DecodingChoice {
@@ -81,8 +79,7 @@ pub fn bfcl(args: &BfclArgs) -> anyhow::Result<()> {
                 &grammars,
                 envelope,
                 mode,
-                args.answer_mode,
-                args.relevance_gate,
+                args.rules,
                 case,
             )?;
             writeln!(file, "{}", serde_json::to_string(&r)?)?;
@@ -93,13 +90,18 @@ pub fn bfcl(args: &BfclArgs) -> anyhow::Result<()> {
     eprintln!();
     let summaries = eval::summarize(&results);
     println!(
-        "model {} | envelope {envelope:?} | answer mode {:?}{} | {} cases per mode\n",
+        "model {} | envelope {envelope:?} | {} | {} cases per mode\n",
         resolved.path.display(),
-        args.answer_mode,
-        if args.relevance_gate {
-            " | relevance gate"
-        } else {
-            ""
+        match args.rules {
+            eval::TurnRules {
+                force_call: true, ..
+            } => "call forced".to_string(),
+            eval::TurnRules {
+                answer_mode,
+                relevance_gate: true,
+                ..
+            } => format!("answer mode {answer_mode:?} | relevance gate"),
+            eval::TurnRules { answer_mode, .. } => format!("answer mode {answer_mode:?}"),
         },
         cases.len()
     );
