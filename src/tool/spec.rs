@@ -22,6 +22,12 @@ pub struct ToolSpec {
     pub description: String,
     /// JSON schema of the `arguments` object.
     pub parameters: Value,
+    /// Called alone: a turn that calls it calls nothing else (the grammar offers it as
+    /// the first call only, and then closes the list). The answer tool is: it ends the
+    /// run, so a call written beside it would never run, and an answer written before a
+    /// call's result is a guess.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub alone: bool,
 }
 
 impl ToolSpec {
@@ -56,7 +62,16 @@ impl ToolSpec {
             name,
             description: description.into(),
             parameters,
+            alone: false,
         })
+    }
+
+    /// This tool, called alone (see `alone`).
+    pub fn called_alone(self) -> ToolSpec {
+        ToolSpec {
+            alone: true,
+            ..self
+        }
     }
 
     /// The schema of one call as the grammar enforces it: `{"name": <this name>,
@@ -149,22 +164,33 @@ const MAX_CHARS: u64 = 160;
 fn bound_values(schema: &mut Value) {
     match schema {
         Value::Object(map) => {
-            if map.get("type").and_then(Value::as_str) == Some("array")
-                && !map.contains_key("maxItems")
-            {
+            // `type` is a name or a list of names.
+            let types: Vec<String> = match map.get("type") {
+                Some(Value::String(t)) => vec![t.clone()],
+                Some(Value::Array(ts)) => ts
+                    .iter()
+                    .filter_map(Value::as_str)
+                    .map(String::from)
+                    .collect(),
+                _ => Vec::new(),
+            };
+            let has = |t: &str| types.iter().any(|x| x == t);
+            if has("array") && !map.contains_key("maxItems") {
                 map.insert("maxItems".into(), json!(MAX_ITEMS));
             }
-            if map.get("type").and_then(Value::as_str) == Some("string")
+            if has("string")
                 && !["maxLength", "enum", "const", "pattern", "format"]
                     .iter()
                     .any(|k| map.contains_key(*k))
             {
                 map.insert("maxLength".into(), json!(MAX_CHARS));
             }
-            let bound = match map.get("type").and_then(Value::as_str) {
-                Some("integer") => Some((json!(-SAFE_INT), json!(SAFE_INT))),
-                Some("number") => Some((json!(-SAFE_NUMBER), json!(SAFE_NUMBER))),
-                _ => None,
+            let bound = if has("number") {
+                Some((json!(-SAFE_NUMBER), json!(SAFE_NUMBER)))
+            } else if has("integer") {
+                Some((json!(-SAFE_INT), json!(SAFE_INT)))
+            } else {
+                None
             };
             if let Some((lo, hi)) = bound {
                 if !map.contains_key("minimum") && !map.contains_key("exclusiveMinimum") {
@@ -194,6 +220,32 @@ fn close_objects(schema: &mut Value) {
                 || map.contains_key("properties");
             if is_object && !map.contains_key("additionalProperties") {
                 map.insert("additionalProperties".into(), Value::Bool(false));
+                // A required name the schema never declares (BFCL has such objects) is
+                // declared, so closing the object does not make it unsatisfiable: as any
+                // scalar, since under an open `{}` a small model nested objects under the
+                // same name until the token limit.
+                let required: Vec<String> = map
+                    .get("required")
+                    .and_then(Value::as_array)
+                    .map(|r| {
+                        r.iter()
+                            .filter_map(Value::as_str)
+                            .map(String::from)
+                            .collect()
+                    })
+                    .unwrap_or_default();
+                if !required.is_empty() {
+                    let properties = map
+                        .entry("properties")
+                        .or_insert_with(|| Value::Object(Default::default()));
+                    if let Value::Object(props) = properties {
+                        for name in required {
+                            props.entry(name).or_insert_with(
+                                || json!({"type": ["string", "number", "boolean"]}),
+                            );
+                        }
+                    }
+                }
             }
             for (k, v) in map.iter_mut() {
                 // Enum and const values are data, not schemas.
@@ -284,6 +336,44 @@ mod tests {
         assert!(s.parameters["properties"]["qos"]["properties"]["depth"]
             .get("maximum")
             .is_none());
+        // A list of types is bounded for each type it names.
+        let s = ToolSpec::new(
+            "t",
+            "",
+            json!({"type": "object", "properties": {"v": {"type": ["string", "number", "null"]}}}),
+        )
+        .unwrap();
+        let v = &s.call_schema()["properties"]["arguments"]["properties"]["v"];
+        assert_eq!(v["maxLength"], json!(MAX_CHARS));
+        assert_eq!(v["maximum"], json!(SAFE_NUMBER));
+    }
+
+    #[test]
+    fn closing_an_object_declares_the_names_it_requires() {
+        let s = ToolSpec::new(
+            "waste",
+            "",
+            json!({
+                "type": "object",
+                "properties": {
+                    "population": {"type": "object", "properties": {}, "required": ["adults", "children"]}
+                },
+                "required": ["population"]
+            }),
+        )
+        .unwrap();
+        let population = &s.parameters["properties"]["population"];
+        assert_eq!(population["additionalProperties"], json!(false));
+        assert_eq!(
+            population["properties"]["adults"],
+            json!({"type": ["string", "number", "boolean"]})
+        );
+        assert!(s
+            .validate(&json!({"population": {"adults": 2, "children": 1}}))
+            .is_ok());
+        assert!(s
+            .validate(&json!({"population": {"adults": 2, "children": 1, "pets": 3}}))
+            .is_err());
     }
 
     #[test]
