@@ -162,7 +162,10 @@ fn random_schemas_always_decode_to_valid_calls_on_the_smollm2_vocabulary() {
     let mut rng = Rng::new(2026);
     let cases = 300;
     for case in 0..cases {
-        let specs = random_tools(&mut rng);
+        let mut specs = random_tools(&mut rng);
+        if rng.below(3) == 0 {
+            specs.push(ferrosa::agent::answer_spec());
+        }
         let parallel = rng.below(2) == 0;
         for env in [Envelope::Smollm2, Envelope::Json] {
             let lark = env.grammar(&specs, ToolChoice::Required, parallel);
@@ -186,7 +189,7 @@ fn random_schemas_always_decode_to_valid_calls_on_the_smollm2_vocabulary() {
                     v["tool_calls"].as_array().cloned().unwrap_or_default()
                 }
             };
-            if !parallel {
+            if !parallel || calls.iter().any(|c| c["name"] == "reply") {
                 assert_eq!(calls.len(), 1, "{text}");
             }
             check_calls(&calls, &specs, &text);
@@ -232,6 +235,120 @@ fn smollm2_uniform() -> (Uniform, Grammars) {
     let backend = Uniform::from_gguf(&g).unwrap();
     let grammars = Grammars::new(backend.vocab(), backend.tokenizer()).unwrap();
     (backend, grammars)
+}
+
+/// An object that requires names it never declares (as some BFCL functions do) still
+/// gives a grammar once closed, alone or beside the answer tool, and what it decodes
+/// validates.
+#[test]
+fn required_but_undeclared_properties_still_give_a_grammar() {
+    let (mut backend, grammars) = smollm2_uniform();
+    let spec = ToolSpec::new(
+        "waste",
+        "Waste of a household.",
+        json!({"type": "object", "properties": {
+            "population": {"type": "object", "properties": {}, "required": ["adults", "children"]}
+        }, "required": ["population"]}),
+    )
+    .unwrap();
+    for specs in [
+        vec![spec.clone()],
+        vec![spec, ferrosa::agent::answer_spec()],
+    ] {
+        for seed in 0..8 {
+            let lark = Envelope::Smollm2.grammar(&specs, ToolChoice::Required, false);
+            let (text, finish) = uniform_turn(&mut backend, &grammars, &lark, seed);
+            assert_eq!(finish, Finish::EndOfGeneration, "{text}");
+            let turn = Envelope::Smollm2
+                .parse(&text, &specs)
+                .unwrap_or_else(|e| panic!("{e}: {text}"));
+            assert_eq!(turn.calls.len(), 1, "{text}");
+        }
+    }
+}
+
+/// The answer tool is called alone: the first call of a list, and then the list closes;
+/// after another call it is not offered at all. Every envelope, calls written as each
+/// envelope writes them.
+#[test]
+fn a_tool_called_alone_is_the_only_call_of_its_turn() {
+    let specs = vec![
+        ToolSpec::new(
+            "system_time",
+            "Current time.",
+            json!({"type": "object", "properties": {}}),
+        )
+        .unwrap(),
+        ferrosa::agent::answer_spec(),
+    ];
+    let time = r#"{"name": "system_time", "arguments": {}}"#;
+    let reply = r#"{"name": "reply", "arguments": {"text": "It is noon"}}"#;
+    let (smol, smol_grammars) = smollm2_uniform();
+    let qwen = Uniform::bytes_with_specials(&["<|im_end|>"], &["<tool_call>", "</tool_call>"]);
+    let qwen_grammars = Grammars::new(qwen.vocab(), qwen.tokenizer()).unwrap();
+    let qwen_block = |call: &str| format!("<tool_call>\n{call}\n</tool_call>");
+    let cases: [(Envelope, &Uniform, &Grammars, Vec<String>, Vec<String>); 3] = [
+        (
+            Envelope::Smollm2,
+            &smol,
+            &smol_grammars,
+            vec![
+                format!("<tool_call>[\n{reply}\n]</tool_call>"),
+                format!("<tool_call>[\n{time},\n{time}\n]</tool_call>"),
+            ],
+            vec![
+                format!("<tool_call>[\n{reply},\n"),
+                format!("<tool_call>[\n{time},\n{{\"name\": \"reply"),
+            ],
+        ),
+        (
+            Envelope::Json,
+            &smol,
+            &smol_grammars,
+            vec![
+                format!("{{\"tool_calls\": [{reply}]}}"),
+                format!("{{\"tool_calls\": [{time}, {time}]}}"),
+            ],
+            vec![
+                format!("{{\"tool_calls\": [{reply}, "),
+                format!("{{\"tool_calls\": [{time}, {{\"name\": \"reply"),
+            ],
+        ),
+        (
+            Envelope::Qwen,
+            &qwen,
+            &qwen_grammars,
+            vec![
+                qwen_block(reply),
+                format!("{}\n{}", qwen_block(time), qwen_block(time)),
+            ],
+            vec![
+                format!("{}\n<tool_call>", qwen_block(reply)),
+                format!("{}\n<tool_call>\n{{\"name\": \"reply", qwen_block(time)),
+            ],
+        ),
+    ];
+    for (env, backend, grammars, allowed, refused) in cases {
+        let lark = env.grammar(&specs, ToolChoice::Required, true);
+        for text in &allowed {
+            let mut c = grammars.compile(&lark).unwrap();
+            let toks = backend.tokenize(text, true).unwrap();
+            assert!(c.allows(&toks), "{env:?} refuses {text}");
+            for &t in &toks {
+                c.advance(t).unwrap();
+            }
+            assert!(
+                c.is_stopped() || c.is_accepting(),
+                "{env:?} does not end at {text}"
+            );
+            assert!(env.parse(text, &specs).is_ok(), "{env:?}: {text}");
+        }
+        for text in &refused {
+            let mut c = grammars.compile(&lark).unwrap();
+            let toks = backend.tokenize(text, true).unwrap();
+            assert!(!c.allows(&toks), "{env:?} allows {text}");
+        }
+    }
 }
 
 #[test]

@@ -189,6 +189,7 @@ pub fn answer_spec() -> ToolSpec {
         json!({"type": "object", "properties": {"text": {"type": "string", "maxLength": ANSWER_CHARS, "pattern": "^[^{}<>]*[^{}<>:\\s]$"}}, "required": ["text"]}),
     )
     .expect("static spec is valid")
+    .called_alone()
 }
 
 /// Tokens `text` takes in a prompt (a guess from its length if it cannot be tokenized).

@@ -146,18 +146,37 @@ impl Envelope {
             (ToolChoice::Decline, _) => "decline",
             (ToolChoice::None, _) => "none",
         };
-        let mut one = Envelope::call_any_of(specs);
-        one["x-guidance"] = Envelope::separators();
+        // Tools called alone are a list of one call of their own; when every tool is one,
+        // the list is simply one call long.
+        let (alone, others): (Vec<ToolSpec>, Vec<ToolSpec>) =
+            specs.iter().cloned().partition(|s| s.alone);
+        let (alone, specs, parallel) = if others.is_empty() {
+            (Vec::new(), alone, false)
+        } else {
+            (alone, others, parallel)
+        };
+        let one_of = |specs: &[ToolSpec]| {
+            let mut v = Envelope::call_any_of(specs);
+            v["x-guidance"] = Envelope::separators();
+            v.to_string()
+        };
         let (template, calls) = match self {
-            Envelope::Smollm2 => (SMOLLM2, one),
-            Envelope::Qwen => (QWEN, one),
+            Envelope::Smollm2 => (SMOLLM2, one_of(&specs)),
+            Envelope::Qwen => (QWEN, one_of(&specs)),
             Envelope::Json => {
-                let array = json!({
-                    "type": "array",
-                    "items": Envelope::call_any_of(specs),
-                    "minItems": if choice == ToolChoice::Decline { 0 } else { 1 },
-                    "maxItems": if parallel { MAX_PARALLEL } else { 1 },
-                });
+                let list = |specs: &[ToolSpec], min: usize, max: usize| {
+                    json!({
+                        "type": "array",
+                        "items": Envelope::call_any_of(specs),
+                        "minItems": min,
+                        "maxItems": max,
+                    })
+                };
+                let min = usize::from(choice != ToolChoice::Decline);
+                let mut array = list(&specs, min, if parallel { MAX_PARALLEL } else { 1 });
+                if !alone.is_empty() {
+                    array = json!({"anyOf": [list(&alone, 1, 1), array]});
+                }
                 let wrapper = json!({
                     "type": "object",
                     "properties": {"tool_calls": array},
@@ -165,16 +184,33 @@ impl Envelope {
                     "additionalProperties": false,
                     "x-guidance": Envelope::separators(),
                 });
-                (JSON, wrapper)
+                (JSON, wrapper.to_string())
             }
         };
-        let calls = calls.to_string();
+        // The JSON envelope has them in its schema; the others as a rule of their own.
+        let alone_rules = match self {
+            _ if alone.is_empty() => String::new(),
+            Envelope::Smollm2 => format!("alone_call: %json {}", one_of(&alone)),
+            Envelope::Qwen => format!(
+                "alone_call: <tool_call> \"\\n\" alone_json \"\\n\" </tool_call>\n\
+                 alone_json: %json {}",
+                one_of(&alone)
+            ),
+            Envelope::Json => String::new(),
+        };
+        let alone_choice = if alone_rules.is_empty() {
+            ""
+        } else {
+            "| alone_call"
+        };
         template
             .replace("@START@", start)
             .replace("@CALLS@", &calls)
             .replace("@CALL@", &calls)
             .replace("@MORE@", if parallel { "more_calls" } else { "" })
             .replace("@MAX_MORE@", &(MAX_PARALLEL - 1).to_string())
+            .replace("@ALONE@", alone_choice)
+            .replace("@ALONE_RULES@", &alone_rules)
     }
 
     /// How one tool is listed in the system prompt (one line of JSON).

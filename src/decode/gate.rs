@@ -39,7 +39,7 @@ pub(super) struct Gated {
 }
 
 /// Run `req` (a constrained turn) through the gate, `fallback` being the tool that
-/// answers without acting. `None` when the gate does not apply (the turn may answer in
+/// answers without acting (called alone, so the grammar keeps it out of later calls). `None` when the gate does not apply (the turn may answer in
 /// prose, there is one tool or no request, the fallback is not allowed, or the grammar
 /// spells names otherwise than the envelope): the caller decodes as usual. `on_text`
 /// gets the text a call at a time (the end of a call is rewritten before it is shown);
@@ -90,10 +90,6 @@ pub(super) fn gated_turn(
         }
         names_tokens.push(toks);
     }
-    let quoted_names: Vec<Vec<u8>> = names
-        .iter()
-        .map(|n| format!("{n}\"").into_bytes())
-        .collect();
     let mut messages = req.messages.to_vec();
     messages[last_user].content = CONTENT_FREE.into();
     let baseline = TurnRequest {
@@ -165,8 +161,6 @@ pub(super) fn gated_turn(
             seq: session.tokens().to_vec(),
             call_start: full.len(),
             earlier: &calls,
-            names: &quoted_names,
-            fallback: &quoted_names[fallback],
             inner: &mut *backend,
         };
         let (finish, s) = generate(
@@ -388,8 +382,7 @@ impl JsonDepth {
     }
 }
 
-/// The backend as the calls after the first see it: a later call may not be the fallback
-/// (a reply after a call cuts the list short), and a call that would repeat an earlier
+/// The backend as the calls after the first see it: a call that would repeat an earlier
 /// one word for word cannot make its arguments' values the same again (a repeat is
 /// dropped when the turn is parsed, so it would be a wasted call). While the call being
 /// written matches an earlier one, the tokens that would write the same value at the
@@ -403,10 +396,6 @@ struct NoRepeats<'a> {
     call_start: usize,
     /// The calls written before it.
     earlier: &'a [Vec<u8>],
-    /// Every tool's name as a call spells it, closing quote included.
-    names: &'a [Vec<u8>],
-    /// The fallback's, which a later call may not take.
-    fallback: &'a [u8],
 }
 
 /// Pushed below every ordinary logit, far above the grammar's -inf.
@@ -424,11 +413,6 @@ impl NoRepeats<'_> {
             return Vec::new();
         };
         let cur = &written[open..];
-        if let Some(typed) = cur.strip_prefix(b"{\"name\": \"") {
-            if !typed.contains(&b'"') {
-                return self.not_the_fallback(typed);
-            }
-        }
         let at_value = cur.ends_with(b"\": ")
             && !cur.ends_with(b"\"name\": ")
             && !cur.ends_with(b"\"arguments\": ");
@@ -457,31 +441,6 @@ impl NoRepeats<'_> {
             }
         }
         banned
-    }
-}
-
-impl NoRepeats<'_> {
-    /// Inside a later call's name, `typed` written so far: the tokens that could only go
-    /// on to the fallback's name (a list of calls that ends in a reply is a reply cut short).
-    fn not_the_fallback(&self, typed: &[u8]) -> Vec<TokenId> {
-        let Some(rest) = self.fallback.strip_prefix(typed) else {
-            return Vec::new();
-        };
-        let fits =
-            |p: &[u8], rest: &[u8]| !p.is_empty() && (rest.starts_with(p) || p.starts_with(rest));
-        let others: Vec<&[u8]> = self
-            .names
-            .iter()
-            .filter(|n| n.as_slice() != self.fallback)
-            .filter_map(|n| n.strip_prefix(typed))
-            .collect();
-        let vocab = self.inner.vocab();
-        (0..vocab.len() as TokenId)
-            .filter(|&t| {
-                let p = vocab.piece(t);
-                fits(p, rest) && !others.iter().any(|o| fits(p, o))
-            })
-            .collect()
     }
 }
 
