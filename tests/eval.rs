@@ -17,6 +17,22 @@ fn bfcl_dir() -> PathBuf {
     d
 }
 
+/// `ferrosa eval bfcl FILES ARGS --out OUT` with the project's models; its stdout, once it
+/// has succeeded.
+fn eval_bfcl(files: &[PathBuf], args: &[&str], out: &std::path::Path) -> String {
+    let o = Command::new(env!("CARGO_BIN_EXE_ferrosa"))
+        .args(["eval", "bfcl"])
+        .args(files)
+        .args(args)
+        .arg("--out")
+        .arg(out)
+        .env("FERROSA_MODELS_DIR", models_dir())
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    String::from_utf8_lossy(&o.stdout).into_owned()
+}
+
 /// Questions per BFCL category in CI: enough to see a category move, few enough for CI's
 /// time (20 per category doubled this test binary's time here; on the CI machine, which
 /// ran it 4× slower, that came too near the limit). The full runs are documented.
@@ -34,24 +50,13 @@ fn bfcl_slice_runs_scores_and_reports() {
         "irrelevance",
     ]
     .map(|c| d.join(format!("BFCL_v4_{c}.json")));
-    let o = Command::new(env!("CARGO_BIN_EXE_ferrosa"))
-        .arg("eval")
-        .arg("bfcl")
-        .args(&files)
-        // The relevance gate: the harness's best decoding, and the path the other tests
-        // do not take (plain turns are decoded all over the suite).
-        .args([
-            "--relevance-gate",
-            "--limit",
-            &BFCL_SLICE.to_string(),
-            "--out",
-        ])
-        .arg(out.path())
-        .env("FERROSA_MODELS_DIR", models_dir())
-        .output()
-        .unwrap();
-    let stdout = String::from_utf8_lossy(&o.stdout);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    // The relevance gate: the harness's best decoding, and the path the other tests do
+    // not take (plain turns are decoded all over the suite).
+    let stdout = eval_bfcl(
+        &files,
+        &["--relevance-gate", "--limit", &BFCL_SLICE.to_string()],
+        out.path(),
+    );
     eprintln!("{stdout}");
     for c in [
         "simple_python",
@@ -89,17 +94,11 @@ fn bfcl_slice_runs_scores_and_reports() {
 fn bfcl_forced_calls_start_after_skip_and_always_call() {
     let d = bfcl_dir();
     let out = tempfile::tempdir().unwrap();
-    let o = Command::new(env!("CARGO_BIN_EXE_ferrosa"))
-        .arg("eval")
-        .arg("bfcl")
-        .args(["simple_python", "irrelevance"].map(|c| d.join(format!("BFCL_v4_{c}.json"))))
-        .args(["--force-call", "--skip", "10", "--limit", "2", "--out"])
-        .arg(out.path())
-        .env("FERROSA_MODELS_DIR", models_dir())
-        .output()
-        .unwrap();
-    let stdout = String::from_utf8_lossy(&o.stdout);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let stdout = eval_bfcl(
+        &["simple_python", "irrelevance"].map(|c| d.join(format!("BFCL_v4_{c}.json"))),
+        &["--force-call", "--skip", "10", "--limit", "2"],
+        out.path(),
+    );
     assert!(stdout.contains("call forced"), "{stdout}");
     let cases = std::fs::read_to_string(out.path().join("bfcl_cases.jsonl")).unwrap();
     let ids: Vec<String> = cases

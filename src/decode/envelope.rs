@@ -123,8 +123,8 @@ impl Envelope {
         }
     }
 
-    fn call_any_of(specs: &[ToolSpec]) -> Value {
-        let branches: Vec<Value> = specs.iter().map(ToolSpec::call_schema).collect();
+    fn call_any_of(specs: &[&ToolSpec]) -> Value {
+        let branches: Vec<Value> = specs.iter().map(|s| s.call_schema()).collect();
         json!({ "anyOf": branches })
     }
 
@@ -148,14 +148,13 @@ impl Envelope {
         };
         // Tools called alone are a list of one call of their own; when every tool is one,
         // the list is simply one call long.
-        let (alone, others): (Vec<ToolSpec>, Vec<ToolSpec>) =
-            specs.iter().cloned().partition(|s| s.alone);
+        let (alone, others): (Vec<&ToolSpec>, Vec<&ToolSpec>) = specs.iter().partition(|s| s.alone);
         let (alone, specs, parallel) = if others.is_empty() {
             (Vec::new(), alone, false)
         } else {
             (alone, others, parallel)
         };
-        let one_of = |specs: &[ToolSpec]| {
+        let one_of = |specs: &[&ToolSpec]| {
             let mut v = Envelope::call_any_of(specs);
             v["x-guidance"] = Envelope::separators();
             v.to_string()
@@ -164,7 +163,7 @@ impl Envelope {
             Envelope::Smollm2 => (SMOLLM2, one_of(&specs)),
             Envelope::Qwen => (QWEN, one_of(&specs)),
             Envelope::Json => {
-                let list = |specs: &[ToolSpec], min: usize, max: usize| {
+                let list = |specs: &[&ToolSpec], min: usize, max: usize| {
                     json!({
                         "type": "array",
                         "items": Envelope::call_any_of(specs),
