@@ -236,13 +236,14 @@ enum EvalCommand {
         /// How the model may decline to call: the `answer` pseudo-function, or prose.
         #[arg(long, value_enum, default_value_t = AnswerMode::Tool)]
         answer_mode: AnswerMode,
-        /// Call the likeliest function only when the question made it likelier than a
-        /// content-free question does; otherwise answer (tool answer mode only).
+        /// Decide the function and the number of calls by what the question changed
+        /// against a content-free question, answering when it raised no function (tool
+        /// answer mode, or with --force-call, which never answers).
         #[arg(long)]
         relevance_gate: bool,
         /// Offer only the question's functions and require a call: the model cannot
         /// answer (BFCL's "forced" setting; irrelevance then always fails).
-        #[arg(long, conflicts_with_all = ["relevance_gate", "answer_mode"])]
+        #[arg(long, conflicts_with = "answer_mode")]
         force_call: bool,
         #[arg(long, value_enum, default_value_t = BackendKind::Llama)]
         backend: BackendKind,

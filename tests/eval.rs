@@ -89,17 +89,25 @@ fn bfcl_slice_runs_scores_and_reports() {
 
 /// `--force-call` (BFCL's "forced" setting, the one the llama-server bar quotes beside
 /// may-answer): every turn is a call to one of the question's functions, so an
-/// irrelevance question cannot pass; `--skip` starts past the questions passed over.
+/// irrelevance question cannot pass, also with the relevance gate picking the function
+/// (it has no answer to fall back on); `--skip` starts past the questions passed over.
 #[test]
 fn bfcl_forced_calls_start_after_skip_and_always_call() {
     let d = bfcl_dir();
     let out = tempfile::tempdir().unwrap();
     let stdout = eval_bfcl(
         &["simple_python", "irrelevance"].map(|c| d.join(format!("BFCL_v4_{c}.json"))),
-        &["--force-call", "--skip", "10", "--limit", "2"],
+        &[
+            "--force-call",
+            "--relevance-gate",
+            "--skip",
+            "10",
+            "--limit",
+            "2",
+        ],
         out.path(),
     );
-    assert!(stdout.contains("call forced"), "{stdout}");
+    assert!(stdout.contains("call forced | relevance gate"), "{stdout}");
     let cases = std::fs::read_to_string(out.path().join("bfcl_cases.jsonl")).unwrap();
     let ids: Vec<String> = cases
         .lines()

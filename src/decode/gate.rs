@@ -6,9 +6,11 @@
 //! a content-free one ("N/A") in its place (contextual calibration), at the two places a
 //! turn decides something:
 //!
-//! - **which tool**: the likeliest tool is called only when the request made it likelier,
-//!   `log P(name | request) > log P(name | content-free)` over the name's tokens;
-//!   otherwise the turn takes the fallback (the tool that answers in words);
+//! - **which tool**: the fallback (the tool that answers in words) when it is the
+//!   likeliest name; otherwise the tool whose name the request raised most,
+//!   `log P(name | request) - log P(name | content-free)` over the name's tokens, when it
+//!   raised it at all, and the fallback when it raised none. Without a fallback among the
+//!   allowed tools (a call is forced) the most raised tool is called;
 //! - **one more call**: after each call of a list, another follows when the request
 //!   raised the odds of the list going on over closing it, against the same calls
 //!   written after the content-free request.
@@ -39,11 +41,12 @@ pub(super) struct Gated {
 }
 
 /// Run `req` (a constrained turn) through the gate, `fallback` being the tool that
-/// answers without acting (called alone, so the grammar keeps it out of later calls). `None` when the gate does not apply (the turn may answer in
-/// prose, there is one tool or no request, the fallback is not allowed, or the grammar
-/// spells names otherwise than the envelope): the caller decodes as usual. `on_text`
-/// gets the text a call at a time (the end of a call is rewritten before it is shown);
-/// it may break to stop the turn.
+/// answers without acting (called alone, so the grammar keeps it out of later calls);
+/// when it is not among the allowed tools every turn calls one of them. `None` when the
+/// gate does not apply (the turn may answer in prose, there are fewer than two tools or
+/// no request, or the grammar spells names otherwise than the envelope): the caller
+/// decodes as usual. `on_text` gets the text a call at a time (the end of a call is
+/// rewritten before it is shown); it may break to stop the turn.
 pub(super) fn gated_turn(
     backend: &mut dyn Backend,
     session: &mut Session,
@@ -63,10 +66,12 @@ pub(super) fn gated_turn(
         .collect();
     let last_user = req.messages.iter().rposition(|m| m.role == Role::User);
     let fallback = names.iter().position(|n| *n == fallback);
-    let (Some(last_user), Some(fallback)) = (last_user, fallback) else {
+    let Some(last_user) = last_user else {
         return Ok(None);
     };
-    if req.choice != ToolChoice::Required || names.len() < 2 {
+    // One tool and one call, or only the fallback: nothing to decide.
+    let nothing_to_decide = names.len() < 2 && (!req.parallel || fallback.is_some());
+    if req.choice != ToolChoice::Required || nothing_to_decide {
         return Ok(None);
     }
     let mut constraint = grammars.compile(lark)?;
@@ -112,7 +117,9 @@ pub(super) fn gated_turn(
         &written,
         &names_tokens,
     )?;
-    let chosen = gated_choice(&scores.real, &scores.base, fallback).unwrap_or(fallback);
+    let Some(chosen) = gated_choice(&scores.real, &scores.base, fallback) else {
+        return Ok(None);
+    };
     tracing::debug!(target: "ferrosa::gate", chosen = names[chosen], ?scores);
     for &tok in &names_tokens[chosen] {
         constraint.advance(tok)?;
@@ -138,7 +145,7 @@ pub(super) fn gated_turn(
     let separators = req
         .envelope
         .list_separators()
-        .filter(|_| req.parallel && names[chosen] != names[fallback]);
+        .filter(|_| req.parallel && Some(chosen) != fallback);
     let call_depth = JsonDepth::over(&text).depth.saturating_sub(1);
     let mut decide = separators.is_some();
     let finish = loop {
@@ -519,20 +526,39 @@ pub fn continuation_logprobs(
     Ok(scores)
 }
 
-/// The candidate to take: the likeliest one, as plain decoding would take it, unless it
-/// is a tool the request did not make likelier than the content-free baseline did; then
-/// `fallback` (the way to answer without a tool). `None` with no candidates.
-pub fn gated_choice(with_request: &[f64], baseline: &[f64], fallback: usize) -> Option<usize> {
-    let best = (0..with_request.len()).fold(None, |best: Option<usize>, i| match best {
-        Some(b) if with_request[b] >= with_request[i] => best,
-        _ => Some(i),
-    })?;
-    let raised = with_request[best] - baseline[best] > 0.0;
-    Some(if best == fallback || raised {
-        best
-    } else {
-        fallback
-    })
+/// The candidate to take. `fallback` (the way to answer without a tool) when it is the
+/// likeliest; otherwise the tool the request raised most over the content-free
+/// baseline, if the request raised it at all, else `fallback`. Without a fallback, the
+/// most raised tool. `None` with no tools.
+///
+/// Plain decoding would take the likeliest tool; the most raised one is the
+/// calibrated choice. On BFCL multiple with SmolLM2-135M the expected function is the
+/// likeliest in 41 of questions 51-110 and the most raised in 48; gated, the turn
+/// names it in 40 of the first 50 questions against 36 when the likeliest tool was
+/// judged instead.
+pub fn gated_choice(
+    with_request: &[f64],
+    baseline: &[f64],
+    fallback: Option<usize>,
+) -> Option<usize> {
+    let argmax = |score: &dyn Fn(usize) -> f64, skip: Option<usize>| {
+        (0..with_request.len())
+            .filter(|&i| Some(i) != skip)
+            .fold(None, |best: Option<usize>, i| match best {
+                Some(b) if score(b) >= score(i) => best,
+                _ => Some(i),
+            })
+    };
+    let likeliest = argmax(&|i| with_request[i], None)?;
+    if Some(likeliest) == fallback {
+        return fallback;
+    }
+    let shift = |i: usize| with_request[i] - baseline[i];
+    let raised = argmax(&shift, fallback)?;
+    match fallback {
+        Some(f) if shift(raised) <= 0.0 => Some(f),
+        _ => Some(raised),
+    }
 }
 
 fn log_softmax(logits: &[f32]) -> Vec<f32> {
@@ -547,19 +573,33 @@ mod tests {
     use super::*;
 
     #[test]
-    fn a_tool_the_request_did_not_make_likelier_gives_way_to_the_fallback() {
+    fn the_most_raised_tool_is_called_unless_none_was_raised() {
         // Candidate 0 is the likeliest and the request raised it: taken.
-        assert_eq!(gated_choice(&[-1.0, -3.0], &[-2.0, -3.0], 1), Some(0));
+        assert_eq!(gated_choice(&[-1.0, -3.0], &[-2.0, -3.0], Some(1)), Some(0));
         // Likeliest, but likelier still without the request: the fallback.
-        assert_eq!(gated_choice(&[-1.0, -3.0], &[-0.5, -3.0], 1), Some(1));
-        // Among tools the likeliest is judged, not the one raised most.
+        assert_eq!(gated_choice(&[-1.0, -3.0], &[-0.5, -3.0], Some(1)), Some(1));
+        // Among tools the one raised most is taken, not the likeliest.
         assert_eq!(
-            gated_choice(&[-1.0, -2.0, -5.0], &[-1.5, -9.0, -5.0], 2),
-            Some(0)
+            gated_choice(&[-1.0, -2.0, -5.0], &[-1.5, -9.0, -5.0], Some(2)),
+            Some(1)
+        );
+        // A tool raised while the likeliest one was lowered still answers the request.
+        assert_eq!(
+            gated_choice(&[-1.0, -4.0, -5.0], &[-0.5, -6.0, -5.0], Some(2)),
+            Some(1)
+        );
+        // No tool raised: the fallback.
+        assert_eq!(
+            gated_choice(&[-1.0, -4.0, -5.0], &[-0.5, -3.0, -9.0], Some(2)),
+            Some(2)
         );
         // The fallback itself likeliest: taken whatever the baseline says.
-        assert_eq!(gated_choice(&[-4.0, -1.0], &[-9.0, -0.1], 1), Some(1));
-        assert_eq!(gated_choice(&[], &[], 0), None);
+        assert_eq!(gated_choice(&[-4.0, -1.0], &[-9.0, -0.1], Some(1)), Some(1));
+        // No fallback: the most raised tool, even when no tool was raised.
+        assert_eq!(gated_choice(&[-1.0, -3.0], &[-0.5, -1.0], None), Some(0));
+        assert_eq!(gated_choice(&[-1.0, -3.0], &[-2.0, -8.0], None), Some(1));
+        assert_eq!(gated_choice(&[], &[], None), None);
+        assert_eq!(gated_choice(&[-1.0], &[-1.0], Some(0)), Some(0));
     }
 
     #[test]

@@ -26,9 +26,10 @@ pub struct TurnRequest<'a> {
     pub parallel: bool,
     pub decoding: Decoding,
     pub max_tokens: usize,
-    /// The relevance gate (see `decode::gate`): the tool to call instead of the likeliest one
-    /// when the request did not make that one likelier than a content-free request did.
-    /// Applies to constrained turns that must call, when this tool is among those allowed.
+    /// The relevance gate (see `decode::gate`): the tool to call when the request made no
+    /// tool likelier than a content-free request did. Applies to constrained turns that
+    /// must call; when this tool is not among those allowed, the gate still picks the
+    /// tool and the number of calls.
     pub relevance_gate: Option<&'a str>,
 }
 

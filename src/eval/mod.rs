@@ -53,7 +53,9 @@ pub struct TurnRules {
     /// The case's functions only and a call required: the model cannot answer (BFCL's
     /// "forced" setting; `answer_mode` is then unused).
     pub force_call: bool,
-    /// Decide the turn with the relevance gate (`AnswerMode::Tool` only).
+    /// Decide the turn with the relevance gate (`AnswerMode::Tool`, or with
+    /// `force_call`, where it picks the function and the list's length but never
+    /// answers).
     pub relevance_gate: bool,
 }
 
@@ -103,9 +105,9 @@ pub fn run_case(
         decoding,
         // Room for the longest answer text (240 characters can be 240 digit tokens).
         max_tokens: 320,
+        // Under a forced call the answer tool is not offered, so the gate has no fallback.
         relevance_gate: (rules.relevance_gate
-            && !rules.force_call
-            && rules.answer_mode == AnswerMode::Tool)
+            && (rules.force_call || rules.answer_mode == AnswerMode::Tool))
             .then_some(ANSWER_TOOL),
     };
     let mut sampler = Sampler::new(SamplerConfig::default(), backend.vocab().len());

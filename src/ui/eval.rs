@@ -94,8 +94,17 @@ pub fn bfcl(args: &BfclArgs) -> anyhow::Result<()> {
         resolved.path.display(),
         match args.rules {
             eval::TurnRules {
-                force_call: true, ..
-            } => "call forced".to_string(),
+                force_call: true,
+                relevance_gate,
+                ..
+            } => format!(
+                "call forced{}",
+                if relevance_gate {
+                    " | relevance gate"
+                } else {
+                    ""
+                }
+            ),
             eval::TurnRules {
                 answer_mode,
                 relevance_gate: true,
