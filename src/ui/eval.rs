@@ -89,29 +89,18 @@ pub fn bfcl(args: &BfclArgs) -> anyhow::Result<()> {
     }
     eprintln!();
     let summaries = eval::summarize(&results);
+    let rules = args.rules;
+    let mut setting = if rules.force_call {
+        "call forced".to_string()
+    } else {
+        format!("answer mode {:?}", rules.answer_mode)
+    };
+    if rules.relevance_gate {
+        setting.push_str(" | relevance gate");
+    }
     println!(
-        "model {} | envelope {envelope:?} | {} | {} cases per mode\n",
+        "model {} | envelope {envelope:?} | {setting} | {} cases per mode\n",
         resolved.path.display(),
-        match args.rules {
-            eval::TurnRules {
-                force_call: true,
-                relevance_gate,
-                ..
-            } => format!(
-                "call forced{}",
-                if relevance_gate {
-                    " | relevance gate"
-                } else {
-                    ""
-                }
-            ),
-            eval::TurnRules {
-                answer_mode,
-                relevance_gate: true,
-                ..
-            } => format!("answer mode {answer_mode:?} | relevance gate"),
-            eval::TurnRules { answer_mode, .. } => format!("answer mode {answer_mode:?}"),
-        },
         cases.len()
     );
     print!("{}", eval::markdown(&summaries));
