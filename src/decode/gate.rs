@@ -11,9 +11,16 @@
 //!   `log P(name | request) - log P(name | content-free)` over the name's tokens, when it
 //!   raised it at all, and the fallback when it raised none. Without a fallback among the
 //!   allowed tools (a call is forced) the most raised tool is called;
-//! - **one more call**: after each call of a list, another follows when the request
+//! - **one more call**: after each call of a list, another is proposed when the request
 //!   raised the odds of the list going on over closing it, against the same calls
-//!   written after the content-free request.
+//!   written after the content-free request. The proposed call is written before it is
+//!   shown and kept only when it earns its place (`verify`: a new value the request
+//!   spells, none it does not); otherwise the list closes before it.
+//!
+//! When the turn may answer instead and may make a list, its first call is checked the
+//! same way: one whose values the request mostly never spelled is written once more with
+//! the copy bias all but forcing (when copying is on), and if it still fails, the turn
+//! answers.
 //!
 //! Everything else is decoded as usual, under the same grammar. On BFCL with
 //! SmolLM2-135M (first 40 simple and irrelevance questions) the likeliest name's
@@ -22,13 +29,15 @@
 
 use std::ops::ControlFlow;
 
-use super::turn::{with_tools, TurnRequest};
+use super::copy::Copying;
+use super::turn::{with_tools, CopyFrom, TurnRequest};
+use super::verify::{Novelty, Request};
 use super::{
     generate, Constraint, DecodeError, Finish, GenerationStats, Grammars, Sampler, Session,
 };
 use crate::backend::{Backend, BackendError, Detokenizer, Role, TokenId};
 use crate::decode::envelope::ToolChoice;
-use crate::tool::ToolCall;
+use crate::tool::{ToolCall, ToolSpec};
 
 /// What stands in for the request in the baseline prompt.
 pub const CONTENT_FREE: &str = "N/A";
@@ -125,11 +134,18 @@ pub(super) fn gated_turn(
         constraint.advance(tok)?;
     }
     written.extend_from_slice(&names_tokens[chosen]);
-    let opening = written.len();
-    let opening_text = detokenize(backend, &written);
+    let mut opening = written.len();
+    let mut opening_text = detokenize(backend, &written);
     let mut text = opening_text.clone();
-    let mut stopped = on_text(&text).is_break();
     let mut last_segment = 0;
+    let separators = req
+        .envelope
+        .list_separators()
+        .filter(|_| req.parallel && Some(chosen) != fallback);
+    // A first call that brings values the request never spelled was not asked for: the
+    // turn answers instead (after one strict retry). It is shown only once it has passed.
+    let mut check_first = separators.is_some() && fallback.is_some();
+    let mut stopped = !check_first && on_text(&text).is_break();
     // The calls written so far, and where the one being written starts in `text`.
     let mut calls: Vec<Vec<u8>> = Vec::new();
     let mut call_start = opening_text.rfind('{').unwrap_or(0);
@@ -142,12 +158,22 @@ pub(super) fn gated_turn(
     };
 
     // The calls, one at a time when the list may go on.
-    let separators = req
-        .envelope
-        .list_separators()
-        .filter(|_| req.parallel && Some(chosen) != fallback);
     let call_depth = JsonDepth::over(&text).depth.saturating_sub(1);
+    let index = req.copy.map(|c| c.index(&vocab));
+    // A first call turned down is written once more with copying all but forced, before
+    // the turn gives up on it and answers.
+    let strict = req.copy.map(|c| {
+        CopyFrom {
+            bonus: c.bonus.max(STRICT_COPY_BONUS),
+            ..c
+        }
+        .index(&vocab)
+    });
+    let mut retrying = false;
     let mut decide = separators.is_some();
+    let specs = req.allowed.unwrap_or(req.specs);
+    let request = Request::new(&req.messages[last_user].content);
+    let mut proposed: Option<Proposal> = None;
     let finish = loop {
         if stopped {
             break Finish::Stopped;
@@ -164,11 +190,25 @@ pub(super) fn gated_turn(
         let mut detok = Detokenizer::new(false);
         let mut piece = String::new();
         let mut cut = None;
+        let mut copying;
+        let current = if retrying { &strict } else { &index };
+        let inner: &mut dyn Backend = match current {
+            Some(index) => {
+                copying = Copying::new(
+                    &mut *backend,
+                    index,
+                    session.tokens().to_vec(),
+                    prompt.len(),
+                );
+                &mut copying
+            }
+            None => &mut *backend,
+        };
         let mut guarded = NoRepeats {
             seq: session.tokens().to_vec(),
             call_start: full.len(),
             earlier: &calls,
-            inner: &mut *backend,
+            inner,
         };
         let (finish, s) = generate(
             &mut guarded,
@@ -199,6 +239,25 @@ pub(super) fn gated_turn(
         add_stats(&mut stats, &s);
         last_segment = s.generated_tokens;
         let Some(cut) = cut else {
+            if let Some(p) = proposed.take() {
+                // The proposed call never closed (the turn's budget ran out).
+                let close_text = p.close_text;
+                let Some(replayed) = p.turn_down(&mut written, &mut text, grammars, lark)? else {
+                    return Ok(None);
+                };
+                constraint = replayed;
+                stopped = on_text(close_text).is_break();
+                decide = false;
+                last_segment = 0;
+                if constraint.is_stopped() {
+                    break Finish::EndOfGeneration;
+                }
+                continue;
+            }
+            if std::mem::take(&mut check_first) {
+                // The first call never closed: its opening was held back.
+                let _ = on_text(&text);
+            }
             let shown = if decide { 0 } else { segment.len() };
             detok.finish(&mut segment);
             let _ = on_text(&segment[shown..]);
@@ -210,7 +269,58 @@ pub(super) fn gated_turn(
         // brace that closed the call often shares a token with what follows it).
         last_segment = 0;
         segment.truncate(cut);
-        stopped = on_text(&segment).is_break();
+        if std::mem::take(&mut check_first) {
+            let call = format!("{}{segment}", &text[call_start..]);
+            let novelty = novelty_of(&request, &call, &[], specs);
+            tracing::debug!(target: "ferrosa::gate", ?novelty, retrying, %call, "first call");
+            let unasked = novelty.ungrounded > 0 && novelty.ungrounded >= novelty.grounded;
+            if unasked && strict.is_some() && !retrying {
+                retrying = true;
+                check_first = true;
+                let Some(replayed) = replay(grammars, lark, &written)? else {
+                    return Ok(None);
+                };
+                constraint = replayed;
+                continue;
+            }
+            retrying = false;
+            if unasked {
+                let fallback = fallback.unwrap_or(chosen);
+                written.truncate(opening - names_tokens[chosen].len());
+                written.extend_from_slice(&names_tokens[fallback]);
+                let Some(replayed) = replay(grammars, lark, &written)? else {
+                    return Ok(None);
+                };
+                constraint = replayed;
+                opening = written.len();
+                opening_text = detokenize(backend, &written);
+                text = opening_text.clone();
+                stopped = on_text(&text).is_break();
+                decide = false;
+                continue;
+            }
+            stopped = on_text(&text).is_break();
+        }
+        if let Some(p) = proposed.take() {
+            let call = format!("{}{segment}", &text[call_start..]);
+            let novelty = novelty_of(&request, &call, &calls, specs);
+            tracing::debug!(target: "ferrosa::gate", ?novelty, %call, "proposed call");
+            if !novelty.earns_its_place() {
+                let close_text = p.close_text;
+                let Some(replayed) = p.turn_down(&mut written, &mut text, grammars, lark)? else {
+                    return Ok(None);
+                };
+                constraint = replayed;
+                stopped = on_text(close_text).is_break();
+                decide = false;
+                if constraint.is_stopped() {
+                    break Finish::EndOfGeneration;
+                }
+                continue;
+            }
+            stopped = on_text(p.more_text).is_break();
+        }
+        stopped |= on_text(&segment).is_break();
         text.push_str(&segment);
         calls.push(text.as_bytes()[call_start..].to_vec());
         let (more, close) = separators.unwrap_or_default();
@@ -241,15 +351,29 @@ pub(super) fn gated_turn(
             continue;
         }
         let scores = Scores::of(backend, session, (&base_prompt, prompt), &written, &options)?;
-        let go_on = scores.real[0] - scores.real[1] > scores.base[0] - scores.base[1];
-        tracing::debug!(target: "ferrosa::gate", go_on, ?scores);
+        let margin = (scores.real[0] - scores.real[1]) - (scores.base[0] - scores.base[1]);
+        let go_on = margin > 0.0;
+        tracing::debug!(target: "ferrosa::gate", go_on, margin, ?scores);
         let next = &options[usize::from(!go_on)];
+        if go_on {
+            // The next call is written before it is shown, and kept only if it brings
+            // values the request asked for.
+            proposed = Some(Proposal {
+                written: written.clone(),
+                close: options[1].clone(),
+                text_len: text.len(),
+                more_text: more,
+                close_text: close,
+            });
+        }
         for &tok in next {
             constraint.advance(tok)?;
         }
         written.extend_from_slice(next);
         let sep = if go_on { more } else { close };
-        stopped |= on_text(sep).is_break();
+        if !go_on {
+            stopped |= on_text(sep).is_break();
+        }
         text.push_str(sep);
         call_start = text.len();
         if constraint.is_stopped() {
@@ -263,6 +387,58 @@ pub(super) fn gated_turn(
         finish,
         stats,
     }))
+}
+
+/// Logit bonus of the copy bias when a turned-down first call is written again: above the
+/// gap between a 135M model's first and second choices at nearly every step, so a
+/// value the request spells is written wherever the grammar allows one.
+const STRICT_COPY_BONUS: f32 = 12.0;
+
+/// The state to return to when a proposed call is turned down: the list closes after
+/// the calls before it.
+struct Proposal {
+    written: Vec<TokenId>,
+    close: Vec<TokenId>,
+    text_len: usize,
+    more_text: &'static str,
+    close_text: &'static str,
+}
+
+impl Proposal {
+    /// Drop the proposed call: `written` and `text` end with the list closed after the
+    /// calls before it. The grammar's state there, if those tokens replay.
+    fn turn_down(
+        self,
+        written: &mut Vec<TokenId>,
+        text: &mut String,
+        grammars: &Grammars,
+        lark: &str,
+    ) -> Result<Option<Constraint>, DecodeError> {
+        *written = self.written;
+        written.extend_from_slice(&self.close);
+        text.truncate(self.text_len);
+        text.push_str(self.close_text);
+        replay(grammars, lark, written)
+    }
+}
+
+/// What `call` (JSON text) brings over the earlier calls of the same tool.
+fn novelty_of(request: &Request, call: &str, earlier: &[Vec<u8>], specs: &[ToolSpec]) -> Novelty {
+    let parse = |bytes: &[u8]| serde_json::from_slice::<serde_json::Value>(bytes).ok();
+    let Some(call) = parse(call.as_bytes()) else {
+        return Novelty::default();
+    };
+    let schema = specs
+        .iter()
+        .find(|s| call["name"] == s.name.as_str())
+        .map(|s| &s.parameters);
+    let same_tool: Vec<serde_json::Value> = earlier
+        .iter()
+        .filter_map(|e| parse(e))
+        .filter(|e| e["name"] == call["name"])
+        .map(|e| e["arguments"].clone())
+        .collect();
+    request.novelty(&call["arguments"], &same_tool, schema)
 }
 
 /// A candidate set scored after the same written text, with the request and without.

@@ -9,17 +9,21 @@
 //! - `sample`: greedy / temperature, top-k, top-p sampling with a seeded generator
 //! - `trie`: llguidance's token environment built from a backend's vocabulary
 //! - `constraint`: per-model grammar factory and per-turn constraint (mask, commit, forced tokens)
+//! - `copy`: the copy bias: argument values lean towards spans of the request
 //! - `envelope`: tool-call formats per model family: grammar, prompt text, parser
 //! - `turn`: one assistant turn with tools: prompt, constrained generation, parse
 //! - `gate`: the relevance gate: which tool, and whether another call follows, decided
 //!   by what the request changed in the model's likelihoods
+//! - `verify`: whether a proposed extra call brings values the request asked for
 
 pub mod constraint;
+pub mod copy;
 pub mod envelope;
 pub mod gate;
 pub mod sample;
 pub mod trie;
 pub mod turn;
+pub mod verify;
 
 use std::ops::ControlFlow;
 use std::time::{Duration, Instant};

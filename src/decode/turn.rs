@@ -6,6 +6,7 @@
 
 use std::ops::ControlFlow;
 
+use super::copy::{CopyIndex, Copying};
 use super::envelope::{Envelope, EnvelopeError, ToolChoice, Turn};
 use super::gate;
 use super::{generate, DecodeError, Decoding, Finish, GenerationStats, Grammars, Sampler, Session};
@@ -31,6 +32,25 @@ pub struct TurnRequest<'a> {
     /// must call; when this tool is not among those allowed, the gate still picks the
     /// tool and the number of calls.
     pub relevance_gate: Option<&'a str>,
+    /// Lean argument values towards spans of these texts (see `decode::copy`);
+    /// constrained turns only.
+    pub copy: Option<CopyFrom<'a>>,
+}
+
+/// Where argument values are copied from, and how hard.
+#[derive(Debug, Clone, Copy)]
+pub struct CopyFrom<'a> {
+    pub sources: &'a [&'a str],
+    /// Added to the logit of each token that goes on copying.
+    pub bonus: f32,
+    /// Calls of this tool (the one that answers in words) are left alone.
+    pub exempt: Option<&'a str>,
+}
+
+impl CopyFrom<'_> {
+    pub fn index(&self, vocab: &crate::backend::Vocab) -> CopyIndex {
+        CopyIndex::new(vocab, self.sources, self.bonus, self.exempt)
+    }
 }
 
 #[derive(Debug)]
@@ -101,6 +121,19 @@ pub fn assistant_turn(
         None => None,
     };
     let vocab = backend.vocab().clone();
+    let index = req
+        .copy
+        .filter(|_| constraint.is_some())
+        .map(|c| c.index(&vocab));
+    let mut copying;
+    let backend: &mut dyn Backend = match &index {
+        Some(index) => {
+            let seq = session.tokens().to_vec();
+            copying = Copying::new(backend, index, seq, prompt.len());
+            &mut copying
+        }
+        None => backend,
+    };
     let mut detok = Detokenizer::new(false);
     let mut text = String::new();
     let mut piece = String::with_capacity(32);
