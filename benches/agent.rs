@@ -112,6 +112,7 @@ fn main() {
         decoding: Decoding::Constrained,
         answer_mode: AnswerMode::Tool,
         robot: Robot::Sim,
+        copy_bias: 0.0,
     };
     header::print(
         "ferrosa agent benchmark",

@@ -201,6 +201,7 @@ fn generation(mut model: Box<dyn Backend>, grammars: &Grammars) {
                 decoding: Decoding::Constrained,
                 max_tokens: 128,
                 relevance_gate: None,
+                copy: None,
             };
             let rendered = model
                 .chat_template()

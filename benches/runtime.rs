@@ -281,6 +281,7 @@ impl Child {
             decoding: Decoding::Constrained,
             max_tokens: 64,
             relevance_gate: None,
+            copy: None,
         };
         let text = self
             .model

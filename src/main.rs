@@ -161,6 +161,10 @@ struct AgentOpts {
     /// process), ros2 (the ROS 2 graph already running on this machine).
     #[arg(long, value_enum, default_value_t = ui::agent::Robot::None)]
     robot: ui::agent::Robot,
+    /// Logit bonus for argument values that copy what the operator said or a tool
+    /// returned (0: off).
+    #[arg(long, default_value_t = 0.0)]
+    copy_bias: f32,
 }
 
 impl AgentOpts {
@@ -183,6 +187,7 @@ impl AgentOpts {
             decoding: self.decoding,
             answer_mode: self.answer_mode,
             robot: self.robot,
+            copy_bias: self.copy_bias,
         }
     }
 }
@@ -208,6 +213,10 @@ enum EvalCommand {
         out: PathBuf,
         #[arg(long, default_value_t = 6)]
         max_steps: usize,
+        /// Logit bonus for argument values that copy the request or a tool's result
+        /// (0: off).
+        #[arg(long, default_value_t = 0.0)]
+        copy_bias: f32,
         #[arg(long, value_enum, default_value_t = BackendKind::Llama)]
         backend: BackendKind,
         #[arg(short, long)]
@@ -245,6 +254,9 @@ enum EvalCommand {
         /// answer (BFCL's "forced" setting; irrelevance then always fails).
         #[arg(long, conflicts_with = "answer_mode")]
         force_call: bool,
+        /// Logit bonus for argument values that copy a span of the question (0: off).
+        #[arg(long, default_value_t = 0.0)]
+        copy_bias: f32,
         #[arg(long, value_enum, default_value_t = BackendKind::Llama)]
         backend: BackendKind,
         #[arg(short, long)]
@@ -352,6 +364,7 @@ fn main() -> ExitCode {
                     limit,
                     out,
                     max_steps,
+                    copy_bias,
                     backend,
                     threads,
                 },
@@ -374,6 +387,7 @@ fn main() -> ExitCode {
                 decoding: Decoding::Constrained,
                 answer_mode: AnswerMode::Tool,
                 robot: ui::agent::Robot::Sim,
+                copy_bias,
             },
             suite,
             decoding,
@@ -394,6 +408,7 @@ fn main() -> ExitCode {
                     answer_mode,
                     relevance_gate,
                     force_call,
+                    copy_bias,
                     backend,
                     threads,
                 },
@@ -415,6 +430,7 @@ fn main() -> ExitCode {
                 answer_mode,
                 force_call,
                 relevance_gate,
+                copy_bias,
             },
         }),
         Command::Models { command } => match command {

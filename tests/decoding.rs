@@ -479,6 +479,7 @@ fn real_model_makes_only_valid_calls_when_constrained() {
                 // could make to these tools and keeps the test short.
                 max_tokens: if decoding == Decoding::Free { 64 } else { 160 },
                 relevance_gate: None,
+                copy: None,
             };
             let r = greedy_turn(model.as_mut(), &mut session, &grammars, &req);
             let ok = matches!(&r.turn, Ok(t) if !t.calls.is_empty());
@@ -501,6 +502,19 @@ fn real_model_makes_only_valid_calls_when_constrained() {
         100.0 * forced as f64 / emitted.max(1) as f64
     );
     assert_eq!(valid[0], 50);
+}
+
+/// BFCL's parallel_0 function: one tool a request asks for twice.
+fn spotify_play() -> ToolSpec {
+    ToolSpec::new(
+        "spotify.play",
+        "Play specific tracks from a given artist for a specific time duration.",
+        json!({"type": "object", "properties": {
+            "artist": {"type": "string", "description": "The artist whose songs you want to play."},
+            "duration": {"type": "integer", "description": "The duration for which the songs should be played, in minutes."}},
+            "required": ["artist", "duration"]}),
+    )
+    .unwrap()
 }
 
 /// The relevance gate on the real model: over operator requests (28 robot tools and a
@@ -530,6 +544,7 @@ fn relevance_gate_keeps_calls_valid_and_declines_unrelated_questions() {
             decoding: Decoding::Constrained,
             max_tokens: 160,
             relevance_gate: Some(ferrosa::agent::ANSWER_TOOL),
+            copy: None,
         };
         let r = greedy_turn(model.as_mut(), &mut session, &grammars, &req);
         match (&r.turn, r.finish) {
@@ -569,18 +584,7 @@ fn relevance_gate_keeps_calls_valid_and_declines_unrelated_questions() {
             "{q:?}: {calls:?}"
         );
     }
-    let music = [
-        ToolSpec::new(
-            "spotify.play",
-            "Play specific tracks from a given artist for a specific time duration.",
-            json!({"type": "object", "properties": {
-                "artist": {"type": "string", "description": "The artist whose songs you want to play."},
-                "duration": {"type": "integer", "description": "The duration for which the songs should be played, in minutes."}},
-                "required": ["artist", "duration"]}),
-        )
-        .unwrap(),
-        ferrosa::agent::answer_spec(),
-    ];
+    let music = [spotify_play(), ferrosa::agent::answer_spec()];
     let calls = turn(
         &music,
         "Play songs from the artists Taylor Swift and Maroon 5, with a play time of 20 minutes and 15 minutes respectively, on Spotify.",
@@ -588,4 +592,92 @@ fn relevance_gate_keeps_calls_valid_and_declines_unrelated_questions() {
     .expect("two short calls within 160 tokens");
     assert_eq!(calls.len(), 2, "{calls:?}");
     assert!(calls.iter().all(|c| c.name == "spotify.play"), "{calls:?}");
+}
+
+/// Copy bias on the real model, gated: values come from the request as written (a name
+/// of two words, a number with digit groups), a request for two plays gets exactly the
+/// two it named, and a question no tool touches still takes the fallback.
+#[test]
+fn copy_bias_writes_the_values_the_request_spelled() {
+    let mut model = load("smollm2-135m", BackendKind::Llama, 8192);
+    let grammars = Grammars::new(model.vocab(), model.tokenizer()).unwrap();
+    let mut session = Session::new();
+    let tool = |name: &str, description: &str, parameters: Value| {
+        ToolSpec::new(name, description, parameters).unwrap()
+    };
+    let specs = [
+        spotify_play(),
+        tool(
+            "mortgage.monthly_payment",
+            "Calculate the monthly payment of a fixed-rate mortgage.",
+            json!({"type": "object", "properties": {
+                "loan_amount": {"type": "integer", "description": "The amount borrowed."},
+                "interest_rate": {"type": "number", "description": "Annual interest rate, in percent."},
+                "years": {"type": "integer", "description": "Length of the loan in years."}},
+                "required": ["loan_amount", "interest_rate", "years"]}),
+        ),
+        ferrosa::agent::answer_spec(),
+    ];
+    let mut turn = |q: &str| {
+        let messages = [
+            ChatMessage::new(Role::System, "You are a helpful assistant with tools."),
+            ChatMessage::new(Role::User, q),
+        ];
+        let req = TurnRequest {
+            messages: &messages,
+            specs: &specs,
+            allowed: None,
+            envelope: Envelope::Smollm2,
+            choice: ToolChoice::Required,
+            parallel: true,
+            decoding: Decoding::Constrained,
+            max_tokens: 200,
+            relevance_gate: Some(ferrosa::agent::ANSWER_TOOL),
+            copy: Some(ferrosa::decode::turn::CopyFrom {
+                sources: &[q],
+                bonus: 3.0,
+                exempt: Some(ferrosa::agent::ANSWER_TOOL),
+            }),
+        };
+        let r = greedy_turn(model.as_mut(), &mut session, &grammars, &req);
+        assert_eq!(r.finish, Finish::EndOfGeneration, "{q:?}: {}", r.text);
+        let calls = r
+            .turn
+            .unwrap_or_else(|e| panic!("{q:?}: {e} in {}", r.text))
+            .calls;
+        calls
+            .into_iter()
+            .map(|c| (c.name, c.arguments))
+            .collect::<Vec<_>>()
+    };
+    let calls = turn(
+        "Play songs from the artists Taylor Swift and Maroon 5, with a play time of 20 minutes and 15 minutes respectively, on Spotify.",
+    );
+    let mut played: Vec<(String, i64)> = calls
+        .iter()
+        .map(|(name, args)| {
+            assert_eq!(name, "spotify.play", "{calls:?}");
+            (
+                args["artist"].as_str().unwrap().to_string(),
+                args["duration"].as_i64().unwrap(),
+            )
+        })
+        .collect();
+    played.sort();
+    assert_eq!(
+        played,
+        [
+            ("Maroon 5".to_string(), 15),
+            ("Taylor Swift".to_string(), 20)
+        ]
+    );
+
+    let calls = turn("What is the monthly payment on a $400,000 mortgage at 3.5% over 30 years?");
+    assert_eq!(calls.len(), 1, "{calls:?}");
+    assert_eq!(calls[0].0, "mortgage.monthly_payment");
+    assert_eq!(calls[0].1["loan_amount"], 400000, "{calls:?}");
+    assert_eq!(calls[0].1["years"], 30, "{calls:?}");
+
+    let calls = turn("Who painted the Mona Lisa?");
+    assert_eq!(calls[0].0, ferrosa::agent::ANSWER_TOOL, "{calls:?}");
 }

@@ -37,7 +37,7 @@ use serde_json::{json, Value};
 
 use crate::backend::{Backend, ChatMessage, Role};
 use crate::decode::envelope::{to_json_spaced, Envelope, ToolChoice};
-use crate::decode::turn::{assistant_turn, with_tools, TurnRequest};
+use crate::decode::turn::{assistant_turn, with_tools, CopyFrom, TurnRequest};
 use crate::decode::{
     DecodeError, Decoding, Finish as DecodeFinish, Grammars, Sampler, SamplerConfig, Session,
 };
@@ -94,6 +94,9 @@ pub struct AgentConfig {
     pub always_on: Vec<String>,
     /// Characters of a tool's output shown to the model.
     pub output_chars: usize,
+    /// Logit bonus for argument values that copy what the operator said or a tool
+    /// returned this run (see `decode::copy`); 0 turns it off.
+    pub copy_bias: f32,
     pub sampler: SamplerConfig,
 }
 
@@ -111,6 +114,7 @@ impl AgentConfig {
             tool_budget_tokens: 1500,
             always_on: vec![ANSWER_TOOL.to_string()],
             output_chars: 1500,
+            copy_bias: 0.0,
             sampler: SamplerConfig::default(),
         }
     }
@@ -332,6 +336,7 @@ impl Agent {
             decoding: self.config.decoding,
             max_tokens: self.config.max_turn_tokens,
             relevance_gate: None,
+            copy: None,
         }
     }
 
@@ -379,6 +384,14 @@ impl Agent {
         // earlier ones) and what tools returned this run.
         let mut grounding =
             ground::Grounding::new(self.memory.queries().into_iter().chain([query]));
+        // What argument values may be copied from: the same, in the original case.
+        let mut copy_from: Vec<String> = self
+            .memory
+            .queries()
+            .into_iter()
+            .chain([query])
+            .map(str::to_string)
+            .collect();
         let answer_only_specs: Vec<ToolSpec> = offered
             .iter()
             .filter(|s| s.name == ANSWER_TOOL)
@@ -434,7 +447,15 @@ impl Agent {
             messages.extend(history);
             messages.extend(base[1..].iter().cloned());
 
+            let copy_sources: Vec<&str> = copy_from.iter().map(String::as_str).collect();
             let mut req = self.request(&messages, &offered, choice);
+            if self.config.copy_bias > 0.0 {
+                req.copy = Some(CopyFrom {
+                    sources: &copy_sources,
+                    bonus: self.config.copy_bias,
+                    exempt: Some(ANSWER_TOOL),
+                });
+            }
             if answer_only && !answer_only_specs.is_empty() {
                 req.allowed = Some(&answer_only_specs);
             } else if askable.len() < offered.len() {
@@ -648,6 +669,7 @@ impl Agent {
                 }
                 let shown = truncate_output(&to_json_spaced(&output), self.config.output_chars);
                 grounding.add(&shown);
+                copy_from.push(shown.clone());
                 last_observation = shown.clone();
                 let mut m = ChatMessage::new(Role::Tool, shown);
                 m.name = Some(call.name.clone());

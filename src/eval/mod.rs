@@ -19,7 +19,7 @@ use serde::Serialize;
 use crate::agent::{answer_spec, AnswerMode, ANSWER_TOOL};
 use crate::backend::{Backend, ChatMessage, Role};
 use crate::decode::envelope::{Envelope, ToolChoice};
-use crate::decode::turn::{assistant_turn, TurnRequest};
+use crate::decode::turn::{assistant_turn, CopyFrom, TurnRequest};
 use crate::decode::{DecodeError, Decoding, Grammars, Sampler, SamplerConfig, Session};
 use crate::tool::ToolCall;
 use bfcl::Case;
@@ -46,7 +46,7 @@ pub struct CaseResult {
 }
 
 /// How a BFCL turn may end.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub struct TurnRules {
     /// How the model answers instead of calling.
     pub answer_mode: AnswerMode,
@@ -57,6 +57,8 @@ pub struct TurnRules {
     /// `force_call`, where it picks the function and the list's length but never
     /// answers).
     pub relevance_gate: bool,
+    /// The copy bias's logit bonus for argument values that copy the question (0: off).
+    pub copy_bias: f32,
 }
 
 /// Run one case: one assistant turn with the case's functions, where the model may call
@@ -109,9 +111,23 @@ pub fn run_case(
         relevance_gate: (rules.relevance_gate
             && (rules.force_call || rules.answer_mode == AnswerMode::Tool))
             .then_some(ANSWER_TOOL),
+        copy: None,
+    };
+    let start = Instant::now();
+    let questions: Vec<&str> = messages
+        .iter()
+        .filter(|m| m.role == Role::User)
+        .map(|m| m.content.as_str())
+        .collect();
+    let req = TurnRequest {
+        copy: (rules.copy_bias > 0.0).then_some(CopyFrom {
+            sources: &questions,
+            bonus: rules.copy_bias,
+            exempt: Some(ANSWER_TOOL),
+        }),
+        ..req
     };
     let mut sampler = Sampler::new(SamplerConfig::default(), backend.vocab().len());
-    let start = Instant::now();
     let r = match assistant_turn(backend, session, grammars, &mut sampler, &req, |_| {
         ControlFlow::Continue(())
     }) {

@@ -36,6 +36,7 @@ pub struct AgentArgs {
     pub decoding: Decoding,
     pub answer_mode: AnswerMode,
     pub robot: Robot,
+    pub copy_bias: f32,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -189,6 +190,7 @@ pub fn build_with(
     config.max_steps = args.max_steps;
     config.decoding = args.decoding;
     config.answer_mode = args.answer_mode;
+    config.copy_bias = args.copy_bias;
     let mut agent = Agent::new(model, registry, policy, prompt.render(), config)?;
     if let Some(dir) = &args.trace_dir {
         let trace = Trace::create(dir)

@@ -98,6 +98,9 @@ pub fn bfcl(args: &BfclArgs) -> anyhow::Result<()> {
     if rules.relevance_gate {
         setting.push_str(" | relevance gate");
     }
+    if rules.copy_bias > 0.0 {
+        setting.push_str(&format!(" | copy bias {}", rules.copy_bias));
+    }
     println!(
         "model {} | envelope {envelope:?} | {setting} | {} cases per mode\n",
         resolved.path.display(),
@@ -220,8 +223,12 @@ pub fn ros(args: &RosArgs) -> anyhow::Result<()> {
         args.out.join("ros_summary.json"),
         serde_json::to_string_pretty(&summaries)?,
     )?;
+    let copy = match args.agent.copy_bias {
+        b if b > 0.0 => format!(" | copy bias {b}"),
+        _ => String::new(),
+    };
     println!(
-        "model {model_name} | suite {} | {} cases per mode\n",
+        "model {model_name} | suite {}{copy} | {} cases per mode\n",
         args.suite.display(),
         cases.len()
     );

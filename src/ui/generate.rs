@@ -70,6 +70,7 @@ pub fn run(args: &GenerateArgs) -> anyhow::Result<()> {
                 decoding: args.decoding,
                 max_tokens: args.max_tokens,
                 relevance_gate: None,
+                copy: None,
             };
             let mut sampler = Sampler::new(args.sampler, model.vocab().len());
             let r = assistant_turn(
