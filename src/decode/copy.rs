@@ -545,7 +545,9 @@ fn number_end(text: &[u8], p: usize) -> bool {
 }
 
 /// `text` with the commas inside digit groups removed ("$1,250,000" → "$1250000").
-fn without_digit_grouping(text: &[u8]) -> Vec<u8> {
+/// `text` with the thousands separators of its numbers removed: a comma between a digit
+/// and exactly three digits ("1,250,000" → "1250000"; "5,10" stays a list).
+pub(super) fn without_digit_grouping(text: &[u8]) -> Vec<u8> {
     let mut out = Vec::with_capacity(text.len());
     for (i, &b) in text.iter().enumerate() {
         let grouped = b == b','

@@ -12,7 +12,7 @@
 //!
 //! Strings are compared as lowercased words (a value must be a run of the request's
 //! words), numbers by value (with digit groups read as one number: "$400,000" is
-//! 400000).
+//! 400000, while "5,10" is two numbers).
 
 use serde_json::Value;
 
@@ -49,7 +49,8 @@ fn words(text: &str) -> Vec<String> {
 impl Request {
     pub fn new(text: &str) -> Request {
         let mut numbers = Vec::new();
-        let bytes = text.as_bytes();
+        let plain = super::copy::without_digit_grouping(text.as_bytes());
+        let bytes = plain.as_slice();
         let mut i = 0;
         while i < bytes.len() {
             let starts = bytes[i].is_ascii_digit()
@@ -67,7 +68,7 @@ impl Request {
                     digits.push(b as char);
                 } else if b == b'.' && next_digit && !digits.contains('.') {
                     digits.push('.');
-                } else if b != b',' || !next_digit {
+                } else {
                     break;
                 }
                 j += 1;
@@ -197,8 +198,9 @@ mod tests {
 
     #[test]
     fn numbers_and_words_of_a_request() {
-        let r =
-            Request::new("Tax on $30.45 in Chicago, $1,250,000 in Portland, Oregon; -3 and 5m.");
+        let r = Request::new(
+            "Tax on $30.45 in Chicago, $1,250,000 in Portland, Oregon; -3 and 5m; 10,11.",
+        );
         for (v, want) in [
             (json!(30.45), true),
             (json!(1250000), true),
@@ -206,6 +208,8 @@ mod tests {
             (json!(3), true),
             (json!(5), true),
             (json!(1250), false),
+            (json!(11), true),
+            (json!(1011), false),
             (json!(30), false),
             (json!("portland oregon"), true),
             (json!("Portland, Oregon"), true),
