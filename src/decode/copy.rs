@@ -138,28 +138,25 @@ impl CopyIndex {
         }
     }
 
-    /// The tokens that would make an array loop after the turn has written `written`.
-    fn looping(&self, written: &[u8]) -> &[TokenId] {
-        match Scan::over(written).looping() {
+    /// The tokens to favour after the turn has written `written` (into `out`); returns
+    /// the tokens that would make an array loop there. One scan of the text serves both.
+    fn favoured(&self, written: &[u8], out: &mut Vec<TokenId>) -> &[TokenId] {
+        out.clear();
+        let scan = Scan::over(written);
+        let looping: &[TokenId] = match scan.looping() {
             Some(Loop::Number | Loop::Closed) => &self.commas,
             Some(Loop::String) => &self.quote_commas,
             None => &[],
-        }
-    }
-
-    /// The tokens to favour after the turn has written `written`.
-    fn favoured(&self, written: &[u8], out: &mut Vec<TokenId>) {
-        out.clear();
-        let scan = Scan::over(written);
+        };
         let Some(cx) = scan.context() else {
-            return;
+            return looping;
         };
         if self
             .exempt
             .as_deref()
             .is_some_and(|e| cx.tool == e.as_bytes())
         {
-            return;
+            return looping;
         }
         for (s, text) in self.sources.iter().enumerate() {
             let mut ends = false;
@@ -220,6 +217,7 @@ impl CopyIndex {
         }
         out.sort_unstable();
         out.dedup();
+        looping
     }
 }
 
@@ -232,6 +230,8 @@ pub struct Copying<'a> {
     pub seq: Vec<TokenId>,
     /// Where the turn's own text starts in `seq`.
     pub turn_start: usize,
+    /// Added to each favoured token's logit (the index's own bonus unless raised).
+    pub bonus: f32,
     favoured: Vec<TokenId>,
     written: Vec<u8>,
 }
@@ -248,6 +248,7 @@ impl<'a> Copying<'a> {
             index,
             seq,
             turn_start,
+            bonus: index.bonus,
             favoured: Vec::with_capacity(256),
             written: Vec::with_capacity(1024),
         }
@@ -281,9 +282,8 @@ impl Backend for Copying<'_> {
         for &t in &self.seq[self.turn_start.min(self.seq.len())..] {
             self.written.extend_from_slice(vocab.piece(t));
         }
-        self.index.favoured(&self.written, &mut self.favoured);
-        let bonus = self.index.bonus;
-        let looping = self.index.looping(&self.written);
+        let looping = self.index.favoured(&self.written, &mut self.favoured);
+        let bonus = self.bonus;
         let logits = self.inner.forward(keep, tokens)?;
         for &t in &self.favoured {
             if let Some(l) = logits.get_mut(t as usize) {

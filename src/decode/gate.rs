@@ -30,7 +30,7 @@
 use std::ops::ControlFlow;
 
 use super::copy::Copying;
-use super::turn::{with_tools, CopyFrom, TurnRequest};
+use super::turn::{with_tools, TurnRequest};
 use super::verify::{Novelty, Request};
 use super::{
     generate, Constraint, DecodeError, Finish, GenerationStats, Grammars, Sampler, Session,
@@ -162,13 +162,6 @@ pub(super) fn gated_turn(
     let index = req.copy.map(|c| c.index(&vocab));
     // A first call turned down is written once more with copying all but forced, before
     // the turn gives up on it and answers.
-    let strict = req.copy.map(|c| {
-        CopyFrom {
-            bonus: c.bonus.max(STRICT_COPY_BONUS),
-            ..c
-        }
-        .index(&vocab)
-    });
     let mut retrying = false;
     let mut decide = separators.is_some();
     let specs = req.allowed.unwrap_or(req.specs);
@@ -191,8 +184,7 @@ pub(super) fn gated_turn(
         let mut piece = String::new();
         let mut cut = None;
         let mut copying;
-        let current = if retrying { &strict } else { &index };
-        let inner: &mut dyn Backend = match current {
+        let inner: &mut dyn Backend = match &index {
             Some(index) => {
                 copying = Copying::new(
                     &mut *backend,
@@ -200,6 +192,9 @@ pub(super) fn gated_turn(
                     session.tokens().to_vec(),
                     prompt.len(),
                 );
+                if retrying {
+                    copying.bonus = copying.bonus.max(STRICT_COPY_BONUS);
+                }
                 &mut copying
             }
             None => &mut *backend,
@@ -238,9 +233,16 @@ pub(super) fn gated_turn(
         )?;
         add_stats(&mut stats, &s);
         last_segment = s.generated_tokens;
-        let Some(cut) = cut else {
-            if let Some(p) = proposed.take() {
-                // The proposed call never closed (the turn's budget ran out).
+        if let Some(p) = proposed.take() {
+            // A proposed call is kept when it closed (the turn's budget may run out
+            // first) and earns its place.
+            let earns = cut.is_some_and(|cut| {
+                let call = format!("{}{}", &text[call_start..], &segment[..cut]);
+                let novelty = novelty_of(&request, &call, &calls, specs);
+                tracing::debug!(target: "ferrosa::gate", ?novelty, %call, "proposed call");
+                novelty.earns_its_place()
+            });
+            if !earns {
                 let close_text = p.close_text;
                 let Some(replayed) = p.turn_down(&mut written, &mut text, grammars, lark)? else {
                     return Ok(None);
@@ -254,6 +256,9 @@ pub(super) fn gated_turn(
                 }
                 continue;
             }
+            stopped = on_text(p.more_text).is_break();
+        }
+        let Some(cut) = cut else {
             if std::mem::take(&mut check_first) {
                 // The first call never closed: its opening was held back.
                 let _ = on_text(&text);
@@ -274,7 +279,7 @@ pub(super) fn gated_turn(
             let novelty = novelty_of(&request, &call, &[], specs);
             tracing::debug!(target: "ferrosa::gate", ?novelty, retrying, %call, "first call");
             let unasked = novelty.ungrounded > 0 && novelty.ungrounded >= novelty.grounded;
-            if unasked && strict.is_some() && !retrying {
+            if unasked && index.is_some() && !retrying {
                 retrying = true;
                 check_first = true;
                 let Some(replayed) = replay(grammars, lark, &written)? else {
@@ -300,25 +305,6 @@ pub(super) fn gated_turn(
                 continue;
             }
             stopped = on_text(&text).is_break();
-        }
-        if let Some(p) = proposed.take() {
-            let call = format!("{}{segment}", &text[call_start..]);
-            let novelty = novelty_of(&request, &call, &calls, specs);
-            tracing::debug!(target: "ferrosa::gate", ?novelty, %call, "proposed call");
-            if !novelty.earns_its_place() {
-                let close_text = p.close_text;
-                let Some(replayed) = p.turn_down(&mut written, &mut text, grammars, lark)? else {
-                    return Ok(None);
-                };
-                constraint = replayed;
-                stopped = on_text(close_text).is_break();
-                decide = false;
-                if constraint.is_stopped() {
-                    break Finish::EndOfGeneration;
-                }
-                continue;
-            }
-            stopped = on_text(p.more_text).is_break();
         }
         stopped |= on_text(&segment).is_break();
         text.push_str(&segment);

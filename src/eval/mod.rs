@@ -97,6 +97,11 @@ pub fn run_case(
         AnswerMode::Prose => ToolChoice::Auto,
         AnswerMode::Decline => ToolChoice::Decline,
     };
+    let questions: Vec<&str> = messages
+        .iter()
+        .filter(|m| m.role == Role::User)
+        .map(|m| m.content.as_str())
+        .collect();
     let req = TurnRequest {
         messages: &messages,
         specs: &specs,
@@ -111,23 +116,14 @@ pub fn run_case(
         relevance_gate: (rules.relevance_gate
             && (rules.force_call || rules.answer_mode == AnswerMode::Tool))
             .then_some(ANSWER_TOOL),
-        copy: None,
-    };
-    let start = Instant::now();
-    let questions: Vec<&str> = messages
-        .iter()
-        .filter(|m| m.role == Role::User)
-        .map(|m| m.content.as_str())
-        .collect();
-    let req = TurnRequest {
         copy: (rules.copy_bias > 0.0).then_some(CopyFrom {
             sources: &questions,
             bonus: rules.copy_bias,
             exempt: Some(ANSWER_TOOL),
         }),
-        ..req
     };
     let mut sampler = Sampler::new(SamplerConfig::default(), backend.vocab().len());
+    let start = Instant::now();
     let r = match assistant_turn(backend, session, grammars, &mut sampler, &req, |_| {
         ControlFlow::Continue(())
     }) {
