@@ -72,6 +72,10 @@ impl CopyIndex {
         for s in sources.iter().filter(|s| !s.is_empty()) {
             let bytes = s.as_bytes().to_vec();
             let plain = without_digit_grouping(&bytes);
+            let digits = number_words_as_digits(&plain);
+            if digits != plain {
+                texts.push(digits);
+            }
             if plain != bytes {
                 texts.push(plain);
             }
@@ -115,7 +119,7 @@ impl CopyIndex {
             }
             let numeric = core
                 .iter()
-                .all(|b| b.is_ascii_digit() || *b == b'.' || *b == b'-');
+                .all(|b| b.is_ascii_digit() || matches!(b, b'.' | b'-' | b'+' | b'e' | b'E'));
             for &(s, pos) in spans.get(core).map_or(&[][..], Vec::as_slice) {
                 at[s][pos].push(Entry {
                     token: id,
@@ -517,7 +521,7 @@ fn alnum(b: u8) -> bool {
 
 /// A copied value may start at `p`: the start of a word (or of a number after `$`), or
 /// of a path or negative number (`/turtle1/pose`, `-7`) after a space or an opening.
-fn word_start(text: &[u8], p: usize) -> bool {
+pub(super) fn word_start(text: &[u8], p: usize) -> bool {
     let Some(&b) = text.get(p) else {
         return false;
     };
@@ -530,34 +534,71 @@ fn word_start(text: &[u8], p: usize) -> bool {
 }
 
 /// A copied string may end at `p`.
-fn word_end(text: &[u8], p: usize) -> bool {
+pub(super) fn word_end(text: &[u8], p: usize) -> bool {
     p > 0 && (p == text.len() || !alnum(text[p]))
 }
 
-/// A copied number may end at `p`: no digit follows, nor a separator and a digit.
-fn number_end(text: &[u8], p: usize) -> bool {
+/// A copied number may end at `p`: no digit follows, nor a decimal point and a digit, nor
+/// an exponent ("1e-9"), nor a digit group ("5,10" ends after the 5; "400,000" does not).
+pub(super) fn number_end(text: &[u8], p: usize) -> bool {
+    let digit_at = |i: usize| text.get(i).is_some_and(u8::is_ascii_digit);
     match text.get(p) {
         None => true,
         Some(b) if b.is_ascii_digit() => false,
-        Some(b'.' | b',') => !text.get(p + 1).is_some_and(u8::is_ascii_digit),
+        Some(b'.') => !digit_at(p + 1),
+        Some(b'e' | b'E') if p > 0 && text[p - 1].is_ascii_digit() => {
+            !(digit_at(p + 1) || (matches!(text.get(p + 1), Some(b'-' | b'+')) && digit_at(p + 2)))
+        }
+        Some(b',') => !digit_group_at(text, p),
         Some(_) => true,
     }
 }
 
-/// `text` with the commas inside digit groups removed ("$1,250,000" → "$1250000").
+/// The comma at `p` separates digit groups: a digit before it and exactly three after.
+fn digit_group_at(text: &[u8], p: usize) -> bool {
+    text[p] == b','
+        && p > 0
+        && text[p - 1].is_ascii_digit()
+        && text
+            .get(p + 1..p + 4)
+            .is_some_and(|g| g.iter().all(u8::is_ascii_digit))
+        && !text.get(p + 4).is_some_and(u8::is_ascii_digit)
+}
+
+/// `text` with the numbers it spells as words written in digits ("initial velocity is
+/// zero" → "initial velocity is 0").
+fn number_words_as_digits(text: &[u8]) -> Vec<u8> {
+    let mut out = Vec::with_capacity(text.len());
+    let mut i = 0;
+    while i < text.len() {
+        let end = i + text[i..]
+            .iter()
+            .position(|b| !b.is_ascii_alphabetic())
+            .unwrap_or(text.len() - i);
+        if end == i {
+            out.push(text[i]);
+            i += 1;
+            continue;
+        }
+        let word = String::from_utf8_lossy(&text[i..end]).to_ascii_lowercase();
+        let alone = i == 0 || !alnum(text[i - 1]);
+        match super::verify::number_word(&word)
+            .filter(|_| alone && !text.get(end).is_some_and(|&b| alnum(b)))
+        {
+            Some(n) => out.extend_from_slice(format!("{n}").as_bytes()),
+            None => out.extend_from_slice(&text[i..end]),
+        }
+        i = end;
+    }
+    out
+}
+
 /// `text` with the thousands separators of its numbers removed: a comma between a digit
 /// and exactly three digits ("1,250,000" → "1250000"; "5,10" stays a list).
 pub(super) fn without_digit_grouping(text: &[u8]) -> Vec<u8> {
     let mut out = Vec::with_capacity(text.len());
     for (i, &b) in text.iter().enumerate() {
-        let grouped = b == b','
-            && i > 0
-            && text[i - 1].is_ascii_digit()
-            && text
-                .get(i + 1..i + 4)
-                .is_some_and(|g| g.iter().all(u8::is_ascii_digit))
-            && !text.get(i + 4).is_some_and(u8::is_ascii_digit);
-        if !grouped {
+        if !digit_group_at(text, i) {
             out.push(b);
         }
     }
@@ -627,6 +668,14 @@ mod tests {
     }
 
     #[test]
+    fn number_words_are_also_digits() {
+        assert_eq!(
+            number_words_as_digits(b"Three hours, velocity zero; someone, 2twelve"),
+            b"3 hours, velocity 0; someone, 2twelve"
+        );
+    }
+
+    #[test]
     fn digit_groups_and_word_edges() {
         assert_eq!(
             without_digit_grouping(b"$1,250,000 and 3,4"),
@@ -637,6 +686,10 @@ mod tests {
         assert!(word_start(b"b = -7", 4) && !word_start(b"3-7", 1));
         assert!(word_end(b"New York, NY", 8) && !word_end(b"New York", 5));
         assert!(!number_end(b"400,000", 3) && number_end(b"5, 10", 1) && number_end(b"5.", 1));
+        // A list written without spaces: each number ends at its comma.
+        assert!(number_end(b"5,10 and 15", 1) && number_end(b"1,5 and 10", 1));
+        assert!(!number_end(b"2.5", 1) && !number_end(b"1,250,000", 1));
+        assert!(!number_end(b"1e-9 C", 1) && !number_end(b"2E5", 1) && number_end(b"2 eggs", 1));
     }
 
     fn vocab(pieces: &[&str]) -> Vocab {

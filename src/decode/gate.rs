@@ -15,7 +15,9 @@
 //!   raised the odds of the list going on over closing it, against the same calls
 //!   written after the content-free request. The proposed call is written before it is
 //!   shown and kept only when it earns its place (`verify`: a new value the request
-//!   spells, none it does not); otherwise the list closes before it.
+//!   spells, none it does not). One that wrote a value the request never spelled is
+//!   written once more with the copy bias all but forcing (when copying is on);
+//!   otherwise, or if it fails again, the list closes before it.
 //!
 //! When the turn may answer instead and may make a list, its first call is checked the
 //! same way: one whose values the request mostly never spelled is written once more with
@@ -166,6 +168,11 @@ pub(super) fn gated_turn(
     let mut decide = separators.is_some();
     let specs = req.allowed.unwrap_or(req.specs);
     let request = Request::new(&req.messages[last_user].content);
+    let request_texts = {
+        let text = req.messages[last_user].content.as_bytes();
+        let plain = super::copy::without_digit_grouping(text);
+        [text.to_vec(), plain]
+    };
     let mut proposed: Option<Proposal> = None;
     let finish = loop {
         if stopped {
@@ -203,6 +210,7 @@ pub(super) fn gated_turn(
             seq: session.tokens().to_vec(),
             call_start: full.len(),
             earlier: &calls,
+            request: &request_texts,
             inner,
         };
         let (finish, s) = generate(
@@ -233,15 +241,32 @@ pub(super) fn gated_turn(
         )?;
         add_stats(&mut stats, &s);
         last_segment = s.generated_tokens;
-        if let Some(p) = proposed.take() {
+        if let Some(mut p) = proposed.take() {
             // A proposed call is kept when it closed (the turn's budget may run out
             // first) and earns its place.
-            let earns = cut.is_some_and(|cut| {
+            let novelty = cut.map(|cut| {
                 let call = format!("{}{}", &text[call_start..], &segment[..cut]);
                 let novelty = novelty_of(&request, &call, &calls, specs);
-                tracing::debug!(target: "ferrosa::gate", ?novelty, %call, "proposed call");
-                novelty.earns_its_place()
+                tracing::debug!(target: "ferrosa::gate", ?novelty, retrying, %call, "proposed call");
+                novelty
             });
+            let earns = novelty.is_some_and(|n| n.earns_its_place());
+            // One that wrote a value the request never spelled is written once more
+            // with copying all but forced, as a first call is.
+            let unasked = novelty.is_some_and(|n| n.ungrounded > 0);
+            retrying = false;
+            if !earns && unasked && index.is_some() && !p.retried {
+                p.retried = true;
+                retrying = true;
+                written = p.written.clone();
+                written.extend_from_slice(&p.more);
+                let Some(replayed) = replay(grammars, lark, &written)? else {
+                    return Ok(None);
+                };
+                constraint = replayed;
+                proposed = Some(p);
+                continue;
+            }
             if !earns {
                 let close_text = p.close_text;
                 let Some(replayed) = p.turn_down(&mut written, &mut text, grammars, lark)? else {
@@ -346,6 +371,8 @@ pub(super) fn gated_turn(
             // values the request asked for.
             proposed = Some(Proposal {
                 written: written.clone(),
+                more: options[0].clone(),
+                retried: false,
                 close: options[1].clone(),
                 text_len: text.len(),
                 more_text: more,
@@ -384,6 +411,9 @@ const STRICT_COPY_BONUS: f32 = 12.0;
 /// the calls before it.
 struct Proposal {
     written: Vec<TokenId>,
+    /// The tokens that go on to it, and whether it has been written a second time.
+    more: Vec<TokenId>,
+    retried: bool,
     close: Vec<TokenId>,
     text_len: usize,
     more_text: &'static str,
@@ -555,8 +585,11 @@ impl JsonDepth {
 /// one word for word cannot make its arguments' values the same again (a repeat is
 /// dropped when the turn is parsed, so it would be a wasted call). While the call being
 /// written matches an earlier one, the tokens that would write the same value at the
-/// start of a string or number value are pushed far down (not removed: if the grammar
-/// allows nothing else, the model still may).
+/// start of that call's last string or number argument are pushed far down (not
+/// removed: if the grammar allows nothing else, the model still may). Earlier values
+/// are the model's to keep or change: a list of calls mostly shares its first
+/// arguments and varies the later ones ("for 10, 20 and 30 years"), and forcing the
+/// first value to differ wrote a loan of $15 for "terms of 15, 20 and 30 years".
 struct NoRepeats<'a> {
     inner: &'a mut dyn Backend,
     /// Every token of the context, as the cache holds it.
@@ -565,6 +598,8 @@ struct NoRepeats<'a> {
     call_start: usize,
     /// The calls written before it.
     earlier: &'a [Vec<u8>],
+    /// The request, as written and with its digit groups joined.
+    request: &'a [Vec<u8>],
 }
 
 /// Pushed below every ordinary logit, far above the grammar's -inf.
@@ -578,39 +613,133 @@ impl NoRepeats<'_> {
             .iter()
             .flat_map(|&t| vocab.piece(t).to_vec())
             .collect();
-        let Some(open) = written.iter().position(|&b| b == b'{') else {
-            return Vec::new();
+        repeating_after(vocab, self.earlier, self.request, &written)
+    }
+}
+
+/// The tokens that would go on repeating one of `earlier` after `written` (the call's
+/// text so far): while the call matches an earlier one up to a string or number value
+/// of that call's last plain argument, the tokens that would finish the value as it was,
+/// and those that would only go on towards it: a token that starts another value the
+/// request spells ("1" towards 15 when the earlier call had 10) is left alone.
+fn repeating_after(
+    vocab: &crate::backend::Vocab,
+    earlier: &[Vec<u8>],
+    request: &[Vec<u8>],
+    written: &[u8],
+) -> Vec<TokenId> {
+    let Some(open) = written.iter().position(|&b| b == b'{') else {
+        return Vec::new();
+    };
+    let cur = &written[open..];
+    let Some((key, partial)) = value_being_written(cur) else {
+        return Vec::new();
+    };
+    let mut banned = Vec::new();
+    for e in earlier {
+        let Some(rest) = e.strip_prefix(cur) else {
+            continue;
         };
-        let cur = &written[open..];
-        let at_value = cur.ends_with(b"\": ")
-            && !cur.ends_with(b"\"name\": ")
-            && !cur.ends_with(b"\"arguments\": ");
-        let in_string = cur.ends_with(b"\": \"") && !cur.ends_with(b"\"name\": \"");
-        if !at_value && !in_string {
-            return Vec::new();
+        if last_plain_argument(e) != Some(key) {
+            continue;
         }
-        let mut banned = Vec::new();
-        for e in self.earlier {
-            let Some(rest) = e.strip_prefix(cur) else {
+        // How many bytes of `rest` finish the value (a string's closing quote included).
+        let string =
+            partial.first() == Some(&b'"') || (partial.is_empty() && rest.first() == Some(&b'"'));
+        let end = if string {
+            let from = usize::from(partial.is_empty());
+            let mut escaped = false;
+            let close = rest.iter().enumerate().skip(from).find_map(|(i, &b)| {
+                let found = b == b'"' && !escaped;
+                escaped = b == b'\\' && !escaped;
+                found.then_some(i + 1)
+            });
+            let Some(close) = close else { continue };
+            close
+        } else {
+            rest.iter()
+                .position(|b| !(b.is_ascii_digit() || b"-+.eE".contains(b)))
+                .unwrap_or(rest.len())
+        };
+        // The value as it was, and as written so far (quotes left out).
+        let strip = |v: &[u8]| -> Vec<u8> { v.iter().copied().filter(|&b| b != b'"').collect() };
+        let before = strip(&rest[..end]);
+        let before = [strip(partial), before].concat();
+        for t in 0..vocab.len() as TokenId {
+            let p = vocab.piece(t);
+            if p.is_empty() || !rest.starts_with(p) {
                 continue;
-            };
-            // At a value's start the opening quote itself may be written (the value
-            // differs after it); a token that goes further repeats.
-            let skip = match rest.first() {
-                Some(b'"') if at_value => 1,
-                Some(b'0'..=b'9' | b'-') if at_value => 0,
-                Some(_) if in_string => 0,
-                _ => continue,
-            };
-            for t in 0..vocab.len() as TokenId {
-                let p = vocab.piece(t);
-                if p.len() > skip && rest.starts_with(p) {
-                    banned.push(t);
-                }
+            }
+            let so_far = [strip(partial), strip(p)].concat();
+            if p.len() >= end || !spells_another(request, &so_far, &before, string) {
+                banned.push(t);
             }
         }
-        banned
     }
+    banned
+}
+
+/// Does one of `texts` spell, from a word start, a value that begins with `so_far` and is
+/// not `before`?
+fn spells_another(texts: &[Vec<u8>], so_far: &[u8], before: &[u8], string: bool) -> bool {
+    use super::copy::{number_end, word_end, word_start};
+    let ends = |t: &[u8], at: usize| {
+        if string {
+            word_end(t, at)
+        } else {
+            number_end(t, at)
+        }
+    };
+    texts.iter().any(|t| {
+        (0..t.len()).any(|q| {
+            word_start(t, q)
+                && t[q..].starts_with(so_far)
+                && !(t[q..].starts_with(before) && ends(t, q + before.len()))
+        })
+    })
+}
+
+/// The argument `cur` (a call's text) is writing a value of, and the part written: the
+/// text after its last `"key": `, when that is empty, a number's start or an open string.
+fn value_being_written(cur: &[u8]) -> Option<(&[u8], &[u8])> {
+    let sep = cur.windows(3).rposition(|w| w == b"\": ")?;
+    let head = &cur[..sep];
+    let key = &head[head.iter().rposition(|&b| b == b'"')? + 1..];
+    if key == b"name" || key == b"arguments" {
+        return None;
+    }
+    let partial = &cur[sep + 3..];
+    let open_string = partial.first() == Some(&b'"') && {
+        let mut escaped = false;
+        !partial[1..].iter().any(|&b| {
+            let closes = b == b'"' && !escaped;
+            escaped = b == b'\\' && !escaped;
+            closes
+        })
+    };
+    let number = partial
+        .iter()
+        .all(|b| b.is_ascii_digit() || b"-+.eE".contains(b));
+    (open_string || number).then_some((key, partial))
+}
+
+/// The last argument of `call` (a call's JSON text) whose value is a string or number.
+fn last_plain_argument(call: &[u8]) -> Option<&[u8]> {
+    let v: serde_json::Value = serde_json::from_slice(call).ok()?;
+    let key = v["arguments"]
+        .as_object()?
+        .iter()
+        .rev()
+        .find(|(_, v)| v.is_string() || v.is_number())?
+        .0
+        .clone();
+    // The key as the call spells it (keys are plain names; the JSON text holds them
+    // unescaped).
+    let quoted = format!("\"{key}\": ");
+    let at = call
+        .windows(quoted.len())
+        .rposition(|w| w == quoted.as_bytes())?;
+    Some(&call[at + 1..at + 1 + key.len()])
 }
 
 impl Backend for NoRepeats<'_> {
@@ -733,6 +862,70 @@ fn log_softmax(logits: &[f32]) -> Vec<f32> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_repeat_is_refused_at_the_last_plain_argument_only() {
+        let call = br#"{"name": "pay", "arguments": {"loan": 400000, "term": 15, "bank": "Wells Fargo", "fixed": true}}"#;
+        assert_eq!(last_plain_argument(call), Some(&b"bank"[..]));
+        let head = br#"{"name": "pay", "arguments": {"loan": "#;
+        assert_eq!(value_being_written(head), Some((&b"loan"[..], &b""[..])));
+        let partial = br#"{"name": "f", "arguments": {"city": "New Y"#;
+        assert_eq!(
+            value_being_written(partial),
+            Some((&b"city"[..], &b"\"New Y"[..]))
+        );
+        assert_eq!(
+            value_being_written(br#"{"name": "f", "arguments": {"#),
+            None
+        );
+        assert_eq!(value_being_written(br#"{"name": ""#), None);
+        assert_eq!(
+            value_being_written(br#"{"name": "f", "arguments": {"a": "x", "#),
+            None
+        );
+        let pieces = [
+            "4", "1", "15", "5", "\"", "\"Wells", " Fargo", " Fargo\"", "\"W", "}",
+        ];
+        let vocab = crate::backend::Vocab::new(
+            pieces.iter().map(|p| p.as_bytes().to_vec()).collect(),
+            vec![crate::backend::vocab::TokenKind::Normal; pieces.len()],
+            Vec::new(),
+            None,
+            false,
+        );
+        let earlier = [call.to_vec()];
+        let request = [b"Pay 400000 over 15 or 20 years at Wells Fargo or Wells Bank".to_vec()];
+        let banned = |written: &[u8]| -> Vec<&str> {
+            repeating_after(&vocab, &earlier, &request, written)
+                .into_iter()
+                .map(|t| pieces[t as usize])
+                .collect()
+        };
+        // The loan and the term may be the same again.
+        assert!(banned(head).is_empty());
+        let term = br#"{"name": "pay", "arguments": {"loan": 400000, "term": 1"#;
+        assert!(banned(term).is_empty());
+        // The bank may not: neither all at once nor piece by piece, but a token that
+        // starts another bank the request names is left alone.
+        let bank = br#"{"name": "pay", "arguments": {"loan": 400000, "term": 15, "bank": "#;
+        assert!(banned(bank).is_empty());
+        let bank = br#"{"name": "pay", "arguments": {"loan": 400000, "term": 15, "bank": "Wells"#;
+        assert_eq!(banned(bank), [" Fargo", " Fargo\""]);
+        // Once the call differs, nothing is refused.
+        let other = br#"{"name": "pay", "arguments": {"loan": 5, "term": 15, "bank": "Wells"#;
+        assert!(banned(other).is_empty());
+        // A number: "1" may start 10 as well as the 15 of the earlier call; "15" may not.
+        let short = br#"{"name": "f", "arguments": {"n": 15}}"#;
+        let earlier = [short.to_vec()];
+        let request = [b"factorials of 5,10 and 15".to_vec()];
+        let at = |w: &[u8]| repeating_after(&vocab, &earlier, &request, w);
+        assert_eq!(at(br#"{"name": "f", "arguments": {"n": "#), [2]);
+        assert_eq!(at(br#"{"name": "f", "arguments": {"n": 1"#), [3]);
+        // Without another value to go to, the way towards the old one is refused too.
+        let request = [b"factorial of 15".to_vec()];
+        let at = |w: &[u8]| repeating_after(&vocab, &earlier, &request, w);
+        assert_eq!(at(br#"{"name": "f", "arguments": {"n": "#), [1, 2]);
+    }
 
     #[test]
     fn the_most_raised_tool_is_called_unless_none_was_raised() {

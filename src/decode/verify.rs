@@ -12,7 +12,7 @@
 //!
 //! Strings are compared as lowercased words (a value must be a run of the request's
 //! words), numbers by value (with digit groups read as one number: "$400,000" is
-//! 400000, while "5,10" is two numbers).
+//! 400000, while "5,10" is two numbers; "three" and "a dozen" are numbers too).
 
 use serde_json::Value;
 
@@ -46,6 +46,47 @@ fn words(text: &str) -> Vec<String> {
         .collect()
 }
 
+/// The value of a number written as a word ("three hours", "a family of four").
+pub(super) fn number_word(w: &str) -> Option<f64> {
+    const SMALL: [&str; 20] = [
+        "zero",
+        "one",
+        "two",
+        "three",
+        "four",
+        "five",
+        "six",
+        "seven",
+        "eight",
+        "nine",
+        "ten",
+        "eleven",
+        "twelve",
+        "thirteen",
+        "fourteen",
+        "fifteen",
+        "sixteen",
+        "seventeen",
+        "eighteen",
+        "nineteen",
+    ];
+    const TENS: [&str; 8] = [
+        "twenty", "thirty", "forty", "fifty", "sixty", "seventy", "eighty", "ninety",
+    ];
+    if let Some(n) = SMALL.iter().position(|&x| x == w) {
+        return Some(n as f64);
+    }
+    if let Some(n) = TENS.iter().position(|&x| x == w) {
+        return Some(20.0 + 10.0 * n as f64);
+    }
+    match w {
+        "dozen" => Some(12.0),
+        "hundred" => Some(100.0),
+        "thousand" => Some(1000.0),
+        _ => None,
+    }
+}
+
 impl Request {
     pub fn new(text: &str) -> Request {
         let mut numbers = Vec::new();
@@ -66,8 +107,19 @@ impl Request {
                 let next_digit = bytes.get(j + 1).is_some_and(u8::is_ascii_digit);
                 if b.is_ascii_digit() {
                     digits.push(b as char);
-                } else if b == b'.' && next_digit && !digits.contains('.') {
+                } else if b == b'.' && next_digit && !digits.contains(['.', 'e']) {
                     digits.push('.');
+                } else if matches!(b, b'e' | b'E') && !digits.contains('e') && {
+                    let sign = matches!(bytes.get(j + 1), Some(b'-' | b'+'));
+                    bytes
+                        .get(j + 1 + usize::from(sign))
+                        .is_some_and(u8::is_ascii_digit)
+                } {
+                    digits.push('e');
+                    if let Some(&sign @ (b'-' | b'+')) = bytes.get(j + 1) {
+                        digits.push(sign as char);
+                        j += 1;
+                    }
                 } else {
                     break;
                 }
@@ -80,10 +132,9 @@ impl Request {
             }
             i = j.max(i + 1);
         }
-        Request {
-            words: words(text),
-            numbers,
-        }
+        let words = words(text);
+        numbers.extend(words.iter().filter_map(|w| number_word(w)));
+        Request { words, numbers }
     }
 
     /// Does the request spell `v` (a string's words in a row, or a number's value)?
@@ -199,7 +250,7 @@ mod tests {
     #[test]
     fn numbers_and_words_of_a_request() {
         let r = Request::new(
-            "Tax on $30.45 in Chicago, $1,250,000 in Portland, Oregon; -3 and 5m; 10,11.",
+            "Tax on $30.45 in Chicago, $1,250,000 in Portland, Oregon; -3 and 5m; 10,11; 2e-9 C.",
         );
         for (v, want) in [
             (json!(30.45), true),
@@ -210,6 +261,8 @@ mod tests {
             (json!(1250), false),
             (json!(11), true),
             (json!(1011), false),
+            (json!(2e-9), true),
+            (json!(2), false),
             (json!(30), false),
             (json!("portland oregon"), true),
             (json!("Portland, Oregon"), true),
@@ -219,6 +272,15 @@ mod tests {
             (json!(""), false),
         ] {
             assert_eq!(r.spells(&v), Some(want), "{v}");
+        }
+        let words = Request::new("the next three hours for a family of four, twenty in all");
+        for (v, want) in [
+            (json!(3), true),
+            (json!(4), true),
+            (json!(20), true),
+            (json!(2), false),
+        ] {
+            assert_eq!(words.spells(&v), Some(want), "{v}");
         }
         assert_eq!(r.spells(&json!(true)), None);
     }
