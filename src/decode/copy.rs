@@ -117,9 +117,7 @@ impl CopyIndex {
             if core.is_empty() || core.iter().any(|&b| b == b'"' || b == b'\\') {
                 continue;
             }
-            let numeric = core
-                .iter()
-                .all(|b| b.is_ascii_digit() || matches!(b, b'.' | b'-' | b'+' | b'e' | b'E'));
+            let numeric = core.iter().all(|&b| number_byte(b));
             for &(s, pos) in spans.get(core).map_or(&[][..], Vec::as_slice) {
                 at[s][pos].push(Entry {
                     token: id,
@@ -403,7 +401,7 @@ impl<'a> Scan<'a> {
                 }
                 return;
             }
-            if b.is_ascii_digit() || matches!(b, b'.' | b'-' | b'+' | b'e' | b'E') {
+            if number_byte(b) {
                 return;
             }
             self.open = None;
@@ -531,6 +529,11 @@ pub(super) fn word_start(text: &[u8], p: usize) -> bool {
     }
     matches!(b, b'/' | b'~' | b'-')
         && before.is_none_or(|c| c.is_ascii_whitespace() || b"\"'([{,:=".contains(&c))
+}
+
+/// A byte a JSON number may hold.
+pub(super) fn number_byte(b: u8) -> bool {
+    b.is_ascii_digit() || matches!(b, b'.' | b'-' | b'+' | b'e' | b'E')
 }
 
 /// A copied string may end at `p`.

@@ -209,7 +209,7 @@ pub(super) fn gated_turn(
         let mut guarded = NoRepeats {
             seq: session.tokens().to_vec(),
             call_start: full.len(),
-            earlier: &calls,
+            earlier: Earlier::all(&calls),
             request: &request_texts,
             inner,
         };
@@ -553,9 +553,15 @@ struct JsonDepth {
 
 impl JsonDepth {
     fn over(text: &str) -> JsonDepth {
+        JsonDepth::over_bytes(text.as_bytes())
+    }
+
+    /// The same over bytes: a multi-byte character's bytes are never a quote, a
+    /// backslash or a bracket, so pushing them one by one changes nothing.
+    fn over_bytes(bytes: &[u8]) -> JsonDepth {
         let mut d = JsonDepth::default();
-        for ch in text.chars() {
-            d.push(ch);
+        for &b in bytes {
+            d.push(char::from(b));
         }
         d
     }
@@ -597,7 +603,7 @@ struct NoRepeats<'a> {
     /// Where the call being written starts in `seq`.
     call_start: usize,
     /// The calls written before it.
-    earlier: &'a [Vec<u8>],
+    earlier: Vec<Earlier<'a>>,
     /// The request, as written and with its digit groups joined.
     request: &'a [Vec<u8>],
 }
@@ -613,7 +619,26 @@ impl NoRepeats<'_> {
             .iter()
             .flat_map(|&t| vocab.piece(t).to_vec())
             .collect();
-        repeating_after(vocab, self.earlier, self.request, &written)
+        repeating_after(vocab, &self.earlier, self.request, &written)
+    }
+}
+
+/// A call written before the one being written, and the key of its last string or
+/// number argument (read once, not at every token).
+struct Earlier<'a> {
+    call: &'a [u8],
+    last_key: Option<&'a [u8]>,
+}
+
+impl Earlier<'_> {
+    fn all(calls: &[Vec<u8>]) -> Vec<Earlier<'_>> {
+        calls
+            .iter()
+            .map(|c| Earlier {
+                call: c,
+                last_key: last_plain_argument(c),
+            })
+            .collect()
     }
 }
 
@@ -624,7 +649,7 @@ impl NoRepeats<'_> {
 /// request spells ("1" towards 15 when the earlier call had 10) is left alone.
 fn repeating_after(
     vocab: &crate::backend::Vocab,
-    earlier: &[Vec<u8>],
+    earlier: &[Earlier],
     request: &[Vec<u8>],
     written: &[u8],
 ) -> Vec<TokenId> {
@@ -637,40 +662,39 @@ fn repeating_after(
     };
     let mut banned = Vec::new();
     for e in earlier {
-        let Some(rest) = e.strip_prefix(cur) else {
+        let Some(rest) = e.call.strip_prefix(cur) else {
             continue;
         };
-        if last_plain_argument(e) != Some(key) {
+        if e.last_key != Some(key) {
             continue;
         }
         // How many bytes of `rest` finish the value (a string's closing quote included).
         let string =
             partial.first() == Some(&b'"') || (partial.is_empty() && rest.first() == Some(&b'"'));
         let end = if string {
-            let from = usize::from(partial.is_empty());
-            let mut escaped = false;
-            let close = rest.iter().enumerate().skip(from).find_map(|(i, &b)| {
-                let found = b == b'"' && !escaped;
-                escaped = b == b'\\' && !escaped;
-                found.then_some(i + 1)
+            let mut json = JsonDepth::over_bytes(partial);
+            let close = rest.iter().position(|&b| {
+                let was_open = json.in_string;
+                json.push(char::from(b));
+                was_open && !json.in_string
             });
             let Some(close) = close else { continue };
-            close
+            close + 1
         } else {
             rest.iter()
-                .position(|b| !(b.is_ascii_digit() || b"-+.eE".contains(b)))
+                .position(|&b| !super::copy::number_byte(b))
                 .unwrap_or(rest.len())
         };
         // The value as it was, and as written so far (quotes left out).
         let strip = |v: &[u8]| -> Vec<u8> { v.iter().copied().filter(|&b| b != b'"').collect() };
-        let before = strip(&rest[..end]);
-        let before = [strip(partial), before].concat();
+        let written_so_far = strip(partial);
+        let before = [written_so_far.as_slice(), &strip(&rest[..end])].concat();
         for t in 0..vocab.len() as TokenId {
             let p = vocab.piece(t);
             if p.is_empty() || !rest.starts_with(p) {
                 continue;
             }
-            let so_far = [strip(partial), strip(p)].concat();
+            let so_far = [written_so_far.as_slice(), &strip(p)].concat();
             if p.len() >= end || !spells_another(request, &so_far, &before, string) {
                 banned.push(t);
             }
@@ -709,17 +733,8 @@ fn value_being_written(cur: &[u8]) -> Option<(&[u8], &[u8])> {
         return None;
     }
     let partial = &cur[sep + 3..];
-    let open_string = partial.first() == Some(&b'"') && {
-        let mut escaped = false;
-        !partial[1..].iter().any(|&b| {
-            let closes = b == b'"' && !escaped;
-            escaped = b == b'\\' && !escaped;
-            closes
-        })
-    };
-    let number = partial
-        .iter()
-        .all(|b| b.is_ascii_digit() || b"-+.eE".contains(b));
+    let open_string = partial.first() == Some(&b'"') && JsonDepth::over_bytes(partial).in_string;
+    let number = partial.iter().all(|&b| super::copy::number_byte(b));
     (open_string || number).then_some((key, partial))
 }
 
@@ -893,7 +908,8 @@ mod tests {
             None,
             false,
         );
-        let earlier = [call.to_vec()];
+        let calls = [call.to_vec()];
+        let earlier = Earlier::all(&calls);
         let request = [b"Pay 400000 over 15 or 20 years at Wells Fargo or Wells Bank".to_vec()];
         let banned = |written: &[u8]| -> Vec<&str> {
             repeating_after(&vocab, &earlier, &request, written)
@@ -916,7 +932,8 @@ mod tests {
         assert!(banned(other).is_empty());
         // A number: "1" may start 10 as well as the 15 of the earlier call; "15" may not.
         let short = br#"{"name": "f", "arguments": {"n": 15}}"#;
-        let earlier = [short.to_vec()];
+        let calls = [short.to_vec()];
+        let earlier = Earlier::all(&calls);
         let request = [b"factorials of 5,10 and 15".to_vec()];
         let at = |w: &[u8]| repeating_after(&vocab, &earlier, &request, w);
         assert_eq!(at(br#"{"name": "f", "arguments": {"n": "#), [2]);
