@@ -618,38 +618,7 @@ fn copy_bias_writes_the_values_the_request_spelled() {
         ),
         ferrosa::agent::answer_spec(),
     ];
-    let mut turn = |q: &str| {
-        let messages = [
-            ChatMessage::new(Role::System, "You are a helpful assistant with tools."),
-            ChatMessage::new(Role::User, q),
-        ];
-        let req = TurnRequest {
-            messages: &messages,
-            specs: &specs,
-            allowed: None,
-            envelope: Envelope::Smollm2,
-            choice: ToolChoice::Required,
-            parallel: true,
-            decoding: Decoding::Constrained,
-            max_tokens: 200,
-            relevance_gate: Some(ferrosa::agent::ANSWER_TOOL),
-            copy: Some(ferrosa::decode::turn::CopyFrom {
-                sources: &[q],
-                bonus: 3.0,
-                exempt: Some(ferrosa::agent::ANSWER_TOOL),
-            }),
-        };
-        let r = greedy_turn(model.as_mut(), &mut session, &grammars, &req);
-        assert_eq!(r.finish, Finish::EndOfGeneration, "{q:?}: {}", r.text);
-        let calls = r
-            .turn
-            .unwrap_or_else(|e| panic!("{q:?}: {e} in {}", r.text))
-            .calls;
-        calls
-            .into_iter()
-            .map(|c| (c.name, c.arguments))
-            .collect::<Vec<_>>()
-    };
+    let mut turn = |q: &str| gated_copy_turn(model.as_mut(), &mut session, &grammars, &specs, q);
     let calls = turn(
         "Play songs from the artists Taylor Swift and Maroon 5, with a play time of 20 minutes and 15 minutes respectively, on Spotify.",
     );
@@ -680,4 +649,75 @@ fn copy_bias_writes_the_values_the_request_spelled() {
 
     let calls = turn("Who painted the Mona Lisa?");
     assert_eq!(calls[0].0, ferrosa::agent::ANSWER_TOOL, "{calls:?}");
+}
+
+/// One gated turn with the copy bias (3) over `specs`, decoded greedily: its calls.
+fn gated_copy_turn(
+    model: &mut dyn ferrosa::backend::Backend,
+    session: &mut Session,
+    grammars: &Grammars,
+    specs: &[ToolSpec],
+    q: &str,
+) -> Vec<(String, Value)> {
+    let messages = [
+        ChatMessage::new(Role::System, "You are a helpful assistant with tools."),
+        ChatMessage::new(Role::User, q),
+    ];
+    let req = TurnRequest {
+        messages: &messages,
+        specs,
+        allowed: None,
+        envelope: Envelope::Smollm2,
+        choice: ToolChoice::Required,
+        parallel: true,
+        decoding: Decoding::Constrained,
+        max_tokens: 200,
+        relevance_gate: Some(ferrosa::agent::ANSWER_TOOL),
+        copy: Some(ferrosa::decode::turn::CopyFrom {
+            sources: &[q],
+            bonus: 3.0,
+            exempt: Some(ferrosa::agent::ANSWER_TOOL),
+        }),
+    };
+    let r = greedy_turn(model, session, grammars, &req);
+    assert_eq!(r.finish, Finish::EndOfGeneration, "{q:?}: {}", r.text);
+    let calls = r
+        .turn
+        .unwrap_or_else(|e| panic!("{q:?}: {e} in {}", r.text))
+        .calls;
+    calls.into_iter().map(|c| (c.name, c.arguments)).collect()
+}
+
+/// A list of calls, gated with the copy bias on the real model: every value of "5,10 and
+/// 15" gets its call (the 5 ends at its comma, and a repeat of 10 is refused without
+/// refusing the "1" that starts 15).
+#[test]
+fn a_list_varies_the_value_the_request_lists() {
+    let mut model = load("smollm2-135m", BackendKind::Llama, 8192);
+    let grammars = Grammars::new(model.vocab(), model.tokenizer()).unwrap();
+    let mut session = Session::new();
+    let factorial = ToolSpec::new(
+        "math.factorial",
+        "Calculate the factorial of a given positive integer.",
+        json!({"type": "object", "properties": {
+            "number": {"type": "integer", "description": "The number for which factorial needs to be calculated."}},
+            "required": ["number"]}),
+    )
+    .unwrap();
+    let specs = [factorial, ferrosa::agent::answer_spec()];
+    let calls = gated_copy_turn(
+        model.as_mut(),
+        &mut session,
+        &grammars,
+        &specs,
+        "Find the factorial of 5,10 and 15.",
+    );
+    let numbers: Vec<i64> = calls
+        .iter()
+        .map(|(name, args)| {
+            assert_eq!(name, "math.factorial", "{calls:?}");
+            args["number"].as_i64().unwrap()
+        })
+        .collect();
+    assert_eq!(numbers, [5, 10, 15], "{calls:?}");
 }
