@@ -257,6 +257,10 @@ enum EvalCommand {
         /// Logit bonus for argument values that copy a span of the question (0: off).
         #[arg(long, default_value_t = 0.0)]
         copy_bias: f32,
+        /// Drop optional string and number arguments the question does not spell, unless
+        /// they are the default the function declares (what the agent does to strings).
+        #[arg(long)]
+        ground: bool,
         #[arg(long, value_enum, default_value_t = BackendKind::Llama)]
         backend: BackendKind,
         #[arg(short, long)]
@@ -409,6 +413,7 @@ fn main() -> ExitCode {
                     relevance_gate,
                     force_call,
                     copy_bias,
+                    ground,
                     backend,
                     threads,
                 },
@@ -431,6 +436,7 @@ fn main() -> ExitCode {
                 force_call,
                 relevance_gate,
                 copy_bias,
+                ground,
             },
         }),
         Command::Models { command } => match command {

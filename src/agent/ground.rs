@@ -1,16 +1,20 @@
-//! Grounding of optional arguments: a small model fills optional string arguments it was
-//! never asked for (a listing's `namespace` set to the tool's own name, a filter copied
-//! from a description's example), and a filter nobody asked for hides the answer. Before
-//! a call runs, an optional free-text argument is kept only when its words occur in what
-//! the operator said or what a tool returned this run; otherwise it is dropped, which is
-//! always valid (it is optional) and means "no filter" / "the default".
+//! Grounding of optional arguments: a small model fills optional arguments it was never
+//! asked for (a listing's `namespace` set to the tool's own name, a filter copied from a
+//! description's example, a gravity of 9.81 where the tool's default is -9.81), and a
+//! filter nobody asked for hides the answer. Before a call runs, an optional free-text
+//! argument is kept only when its words occur in what the operator said or what a tool
+//! returned this run, or in the default its schema declares; otherwise it is dropped,
+//! which is always valid (it is optional) and means "no filter" / "the default".
+//! `with_numbers` holds optional numbers to the same rule: their value must be spelled
+//! (by value, as the call verifier reads numbers) or be the declared default.
 //!
-//! Required arguments, enums, numbers and booleans are never touched: the grammar already
+//! Required arguments, enums, booleans and arrays are never touched: the grammar already
 //! bounds them, and a required value must be the model's own guess.
 
 use serde_json::Value;
 
-use crate::tool::{ToolCall, ToolSpec};
+use crate::decode::verify::Request;
+use crate::tool::{default, ToolCall, ToolSpec};
 
 /// Words of at least this many characters must be grounded; shorter ones ("/", "x") are
 /// left alone.
@@ -21,6 +25,8 @@ const MIN_WORD: usize = 3;
 #[derive(Debug, Clone, Default)]
 pub struct Grounding {
     text: String,
+    /// Each piece of text added, read for numbers; `None` while numbers are left alone.
+    numbers: Option<Vec<Request>>,
 }
 
 impl Grounding {
@@ -33,14 +39,49 @@ impl Grounding {
         g
     }
 
+    /// Hold optional numbers to the rule too (from here on, and for the text already
+    /// added).
+    pub fn with_numbers(mut self) -> Grounding {
+        self.numbers = Some(
+            self.text
+                .split('\n')
+                .filter(|t| !t.is_empty())
+                .map(Request::new)
+                .collect(),
+        );
+        self
+    }
+
     /// Add text a tool returned.
     pub fn add(&mut self, text: &str) {
         self.text.push('\n');
         self.text.push_str(&text.to_lowercase());
+        if let Some(n) = &mut self.numbers {
+            n.push(Request::new(text));
+        }
     }
 
-    /// Drop the optional string arguments of `call` never mentioned here; returns the
-    /// names of the dropped arguments.
+    /// Is `value` of the optional property `prop` spelled here or by its default?
+    fn grounds(&self, prop: &Value, value: &Value) -> bool {
+        let default = || default::declared(prop);
+        match value {
+            Value::String(v) if is_free_text(prop) => {
+                grounded(v, &self.text) || default().is_some_and(|d| d.spells_words(v))
+            }
+            Value::Number(_) if is_number(prop) => match &self.numbers {
+                None => true,
+                Some(said) => {
+                    said.iter().any(|r| r.spells(value) == Some(true))
+                        || default().is_some_and(|d| d.is(value))
+                }
+            },
+            _ => true,
+        }
+    }
+
+    /// Drop the optional string (and, `with_numbers`, number) arguments of `call` never
+    /// mentioned here nor declared as their default; returns the names of the dropped
+    /// arguments.
     pub fn drop_ungrounded(&self, call: &mut ToolCall, spec: &ToolSpec) -> Vec<String> {
         let required: Vec<&str> = spec.parameters["required"]
             .as_array()
@@ -53,9 +94,7 @@ impl Grounding {
         let dropped: Vec<String> = args
             .iter()
             .filter(|(name, value)| {
-                !required.contains(&name.as_str())
-                    && is_free_text(&props[name.as_str()])
-                    && value.as_str().is_some_and(|v| !grounded(v, &self.text))
+                !required.contains(&name.as_str()) && !self.grounds(&props[name.as_str()], value)
             })
             .map(|(name, _)| name.clone())
             .collect();
@@ -74,6 +113,15 @@ fn is_free_text(prop: &Value) -> bool {
             .as_array()
             .is_some_and(|t| t.iter().any(|x| x == "string"));
     is_string && prop.get("enum").is_none() && prop.get("const").is_none()
+}
+
+/// A number property (integer or number, alone or beside null), without an enum.
+fn is_number(prop: &Value) -> bool {
+    let numeric = |t: &Value| t == "integer" || t == "number";
+    let ty = &prop["type"];
+    (numeric(ty) || ty.as_array().is_some_and(|t| t.iter().any(numeric)))
+        && prop.get("enum").is_none()
+        && prop.get("const").is_none()
 }
 
 /// Values without a word this short or shorter ("/", ".*") are left alone; longer ones
@@ -161,5 +209,46 @@ mod tests {
             Grounding::new(["anything"]).drop_ungrounded(&mut c, &spec()),
             ["pattern"]
         );
+    }
+
+    #[test]
+    fn optional_numbers_must_be_spelled_or_the_default_when_held_to_it() {
+        let spec = ToolSpec::new(
+            "final_speed",
+            "Speed of a falling object.",
+            json!({"type": "object", "properties": {
+                "time": {"type": "integer"},
+                "gravity": {"type": "number", "description": "Default is -9.81 m/s^2."},
+                "initial": {"type": "integer", "description": "Initial speed, default 0."},
+                "drag": {"type": "number"},
+                "unit": {"type": "string", "description": "Defaults to 'm/s'."}
+            }, "required": ["time"]}),
+        )
+        .unwrap();
+        let call = |args: Value| ToolCall {
+            name: "final_speed".into(),
+            arguments: args,
+        };
+        let said = "How fast after falling for 5 seconds, with a drag of 0.3?";
+        // Strings only, as the agent runs it: the numbers stay.
+        let mut c = call(json!({"time": 7, "gravity": 9.81, "unit": "feet"}));
+        assert_eq!(
+            Grounding::new([said]).drop_ungrounded(&mut c, &spec),
+            ["unit"]
+        );
+        assert_eq!(c.arguments, json!({"time": 7, "gravity": 9.81}));
+        // Held to it: 9.81 is neither said nor the default (-9.81); the required time is
+        // the model's own guess; 0.3 is said, 0 and "m/s" are the defaults.
+        let g = Grounding::new([said]).with_numbers();
+        let mut c =
+            call(json!({"time": 7, "gravity": 9.81, "drag": 0.3, "initial": 0, "unit": "m/s"}));
+        assert_eq!(g.drop_ungrounded(&mut c, &spec), ["gravity"]);
+        let mut c = call(json!({"time": 5, "gravity": -9.81, "drag": 2}));
+        assert_eq!(g.drop_ungrounded(&mut c, &spec), ["drag"]);
+        // Numbers a tool returned later ground too.
+        let mut g = g;
+        g.add("{\"drag\": 2}");
+        let mut c = call(json!({"time": 5, "drag": 2}));
+        assert!(g.drop_ungrounded(&mut c, &spec).is_empty());
     }
 }

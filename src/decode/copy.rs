@@ -10,6 +10,10 @@
 //! unit, an enum member, a converted date) is still written when the model prefers it by
 //! more than the bonus.
 //!
+//! A required parameter the request says nothing of must still be written, and its
+//! declared default (`tool::default`: "Default is true.") is the schema's own guess for
+//! it; that default is one more source, for that parameter alone.
+//!
 //! The same wrapper keeps an argument's array from looping: a 135M model that has
 //! written an item equal to the one before it goes on repeating it until the token
 //! limit, so once an item equals the one before it, the tokens that would go on to
@@ -23,6 +27,7 @@
 use std::collections::HashMap;
 
 use crate::backend::{Backend, BackendError, ChatTemplate, TokenId, Tokenize, Vocab};
+use crate::tool::{default, ToolSpec};
 
 /// Longest piece of a source a single token is looked up for (longer tokens are rare
 /// and would only copy runs of spaces or digits).
@@ -47,6 +52,11 @@ struct Entry {
 #[derive(Debug)]
 pub struct CopyIndex {
     sources: Vec<Vec<u8>>,
+    /// Per source: the one tool parameter it is for (a declared default), or any.
+    scope: Vec<Option<(Vec<u8>, Vec<u8>)>>,
+    /// Declared defaults that are JSON literals (`true`, `false`): the parameter, and
+    /// the tokens that start the literal (with or without a space before it).
+    literals: Vec<(Vec<u8>, Vec<u8>, Vec<TokenId>)>,
     /// Per source, per byte position: the tokens that spell the source from there.
     at: Vec<Vec<Vec<Entry>>>,
     /// Tokens that close a string value (start with `"`).
@@ -67,8 +77,32 @@ impl CopyIndex {
     /// Index `sources` against `vocab`. Each source is also indexed with the thousands
     /// separators of its numbers removed ("400,000" → "400000"), since JSON numbers have
     /// none.
-    pub fn new(vocab: &Vocab, sources: &[&str], bonus: f32, exempt: Option<&str>) -> CopyIndex {
+    /// Each of `defaults` is offered to its own parameter only.
+    pub fn new(
+        vocab: &Vocab,
+        sources: &[&str],
+        defaults: &[Scoped],
+        bonus: f32,
+        exempt: Option<&str>,
+    ) -> CopyIndex {
         let mut texts: Vec<Vec<u8>> = Vec::new();
+        let mut scope = Vec::new();
+        let mut literals = Vec::new();
+        for d in defaults {
+            let place = (d.tool.as_bytes().to_vec(), d.key.as_bytes().to_vec());
+            if d.literal {
+                let starts: Vec<TokenId> = (0..vocab.len() as TokenId)
+                    .filter(|&t| {
+                        let piece = vocab.piece(t).trim_ascii_start();
+                        !piece.is_empty() && d.text.as_bytes().starts_with(piece)
+                    })
+                    .collect();
+                literals.push((place.0, place.1, starts));
+            } else if !d.text.is_empty() {
+                texts.push(d.text.as_bytes().to_vec());
+                scope.push(Some(place));
+            }
+        }
         for s in sources.iter().filter(|s| !s.is_empty()) {
             let bytes = s.as_bytes().to_vec();
             let plain = without_digit_grouping(&bytes);
@@ -81,6 +115,7 @@ impl CopyIndex {
             }
             texts.push(bytes);
         }
+        scope.resize(texts.len(), None);
         let mut spans: HashMap<&[u8], Vec<(usize, usize)>> = HashMap::new();
         for (s, text) in texts.iter().enumerate() {
             for pos in 0..text.len() {
@@ -130,6 +165,8 @@ impl CopyIndex {
         }
         CopyIndex {
             sources: texts,
+            scope,
+            literals,
             at,
             string_enders,
             number_enders,
@@ -160,7 +197,19 @@ impl CopyIndex {
         {
             return looping;
         }
+        if cx.value == Value::Start {
+            for (tool, key, starts) in &self.literals {
+                if cx.tool == tool.as_slice() && cx.key == key.as_slice() {
+                    out.extend_from_slice(starts);
+                }
+            }
+        }
         for (s, text) in self.sources.iter().enumerate() {
+            if let Some((tool, key)) = &self.scope[s] {
+                if cx.tool != tool.as_slice() || cx.key != key.as_slice() {
+                    continue;
+                }
+            }
             let mut ends = false;
             let starts = (0..text.len()).filter(|&p| word_start(text, p));
             match cx.value {
@@ -221,6 +270,48 @@ impl CopyIndex {
         out.dedup();
         looping
     }
+}
+
+/// A source for one tool parameter only: the default its schema declares, as written
+/// there.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Scoped {
+    pub tool: String,
+    pub key: String,
+    pub text: String,
+    /// A JSON literal (`true`, `false`), not a string's or number's text.
+    pub literal: bool,
+}
+
+/// The declared defaults of the required top-level parameters of `specs` (see
+/// `tool::default`). A required value must be written even when the request says nothing
+/// of it, and then the default is the schema's own guess; an optional one the request
+/// says nothing of is best left out, and offering its default against what the request
+/// does say ("by train", where the default is 'bus') only loses it.
+pub fn defaults(specs: &[ToolSpec]) -> Vec<Scoped> {
+    let mut out = Vec::new();
+    for spec in specs {
+        let Some(props) = spec.parameters["properties"].as_object() else {
+            continue;
+        };
+        let required = spec.parameters["required"].as_array();
+        let is_required = |k: &str| required.is_some_and(|r| r.iter().any(|x| x == k));
+        for (key, prop) in props.iter().filter(|(k, _)| is_required(k)) {
+            let Some(d) = default::declared(prop) else {
+                continue;
+            };
+            let (Some(value), Some(text)) = (d.value, d.spelled) else {
+                continue;
+            };
+            out.push(Scoped {
+                tool: spec.name.clone(),
+                key: key.clone(),
+                literal: value.is_boolean(),
+                text,
+            });
+        }
+    }
+    out
 }
 
 /// Wraps the backend for one generation: every forward pass's logits get the copy bonus
@@ -331,6 +422,9 @@ enum Value<'a> {
 struct Context<'a> {
     /// The call's tool name (empty if not yet known).
     tool: &'a [u8],
+    /// The key of the innermost object the value is in (an array item's is the
+    /// array's).
+    key: &'a [u8],
     value: Value<'a>,
 }
 
@@ -506,8 +600,18 @@ impl<'a> Scan<'a> {
             (None, Frame::Array { .. }) if matches!(self.last, b'[' | b',') => Value::Start,
             _ => return None,
         };
+        let key = self
+            .stack
+            .iter()
+            .rev()
+            .find_map(|f| match f {
+                Frame::Object { key, .. } => Some(key.map_or(&[][..], |(a, b)| &self.text[a..b])),
+                Frame::Array { .. } => None,
+            })
+            .unwrap_or_default();
         Some(Context {
             tool: &self.text[self.tool.0..self.tool.1],
+            key,
             value,
         })
     }
@@ -719,7 +823,13 @@ mod tests {
             "\"", "\"Se", "Se", "attle", "attle\"", "\",", "New", " York", "400", "000", ",", "}",
             "4", "\"San", "rattle",
         ]);
-        let index = CopyIndex::new(&v, &["weather in Seattle for $400,000"], 3.0, Some("reply"));
+        let index = CopyIndex::new(
+            &v,
+            &["weather in Seattle for $400,000"],
+            &[],
+            3.0,
+            Some("reply"),
+        );
         let call = "[{\"name\": \"f\", \"arguments\": {\"city\": ";
         let start = favoured(&index, &v, call);
         assert!(start.contains(&"\"Se".into()) && start.contains(&"400".into()));
@@ -738,5 +848,40 @@ mod tests {
         // The answer pseudo-tool writes its own words.
         let reply = "[{\"name\": \"reply\", \"arguments\": {\"text\": \"Se";
         assert!(favoured(&index, &v, reply).is_empty());
+    }
+
+    #[test]
+    fn a_required_parameters_default_is_offered_to_it_only() {
+        let v = vocab(&[
+            "\"", "\"cm", "cm", "\",", "-", "-9", ".81", "9", " true", "true", " false",
+        ]);
+        let specs = [ToolSpec::new(
+            "f",
+            "",
+            serde_json::json!({"type": "object", "properties": {
+                "unit": {"type": "string", "description": "Default is 'cm'."},
+                "g": {"type": "number", "description": "Default is -9.81 m/s^2."},
+                "fmt": {"type": "boolean", "description": "Default is true."},
+                "n": {"type": "number"},
+                "opt": {"type": "number", "description": "Default is 4."}
+            }, "required": ["unit", "g", "fmt", "n"]}),
+        )
+        .unwrap()];
+        let d = defaults(&specs);
+        assert_eq!(d.len(), 3);
+        let index = CopyIndex::new(&v, &["no numbers here"], &d, 3.0, None);
+        let call = |key: &str| format!("[{{\"name\": \"f\", \"arguments\": {{\"{key}\": ");
+        assert_eq!(favoured(&index, &v, &call("unit")), ["\"cm"]);
+        assert_eq!(favoured(&index, &v, &format!("{}\"", call("unit"))), ["cm"]);
+        // As in the request, the digits after a minus sign are a word start too.
+        assert_eq!(favoured(&index, &v, &call("g")), ["-", "-9", "9"]);
+        assert_eq!(favoured(&index, &v, &format!("{}-9", call("g"))), [".81"]);
+        assert_eq!(favoured(&index, &v, &call("fmt")), [" true", "true"]);
+        // Another parameter, or the same name in another tool, gets none of them.
+        assert!(favoured(&index, &v, &call("n")).is_empty());
+        // An optional parameter's default is not offered.
+        assert!(favoured(&index, &v, &call("opt")).is_empty());
+        let other = "[{\"name\": \"h\", \"arguments\": {\"unit\": ";
+        assert!(favoured(&index, &v, other).is_empty());
     }
 }

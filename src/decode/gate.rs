@@ -161,7 +161,7 @@ pub(super) fn gated_turn(
 
     // The calls, one at a time when the list may go on.
     let call_depth = JsonDepth::over(&text).depth.saturating_sub(1);
-    let index = req.copy.map(|c| c.index(&vocab));
+    let index = req.copy.map(|c| c.index(&vocab, req.specs));
     // A first call turned down is written once more with copying all but forced, before
     // the turn gives up on it and answers.
     let mut retrying = false;

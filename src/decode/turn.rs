@@ -48,8 +48,11 @@ pub struct CopyFrom<'a> {
 }
 
 impl CopyFrom<'_> {
-    pub fn index(&self, vocab: &crate::backend::Vocab) -> CopyIndex {
-        CopyIndex::new(vocab, self.sources, self.bonus, self.exempt)
+    /// The index for a turn offering `specs`: the sources, and each required
+    /// parameter's declared default for that parameter alone.
+    pub fn index(&self, vocab: &crate::backend::Vocab, specs: &[ToolSpec]) -> CopyIndex {
+        let defaults = super::copy::defaults(specs);
+        CopyIndex::new(vocab, self.sources, &defaults, self.bonus, self.exempt)
     }
 }
 
@@ -124,7 +127,7 @@ pub fn assistant_turn(
     let index = req
         .copy
         .filter(|_| constraint.is_some())
-        .map(|c| c.index(&vocab));
+        .map(|c| c.index(&vocab, req.specs));
     let mut copying;
     let backend: &mut dyn Backend = match &index {
         Some(index) => {

@@ -168,8 +168,8 @@ impl Request {
     }
 
     /// What `call`'s arguments bring that none of `earlier` had.
-    /// Values the schema enumerates (units, modes) come from the schema, not the
-    /// request, and count for nothing.
+    /// Values the schema enumerates (units, modes) or declares as a parameter's default
+    /// come from the schema, not the request, and count for nothing.
     pub fn novelty(&self, call: &Value, earlier: &[Value], schema: Option<&Value>) -> Novelty {
         let mut leaves = Vec::new();
         flatten(call, &mut String::new(), &mut leaves);
@@ -182,10 +182,14 @@ impl Request {
             // A value an earlier call already used, wherever, adds nothing: a call that
             // only swaps the first one's values around was not asked for.
             let kept = before.iter().any(|(_, b)| same(b, v));
-            let listed = schema
-                .and_then(|s| schema_at(s, &path))
-                .is_some_and(|s| s.get("enum").is_some() || s.get("const").is_some());
-            if kept || listed {
+            let prop = schema.and_then(|s| schema_at(s, &path));
+            let listed = prop.is_some_and(|s| s.get("enum").is_some() || s.get("const").is_some());
+            // The parameter's declared default is what the call means when the request
+            // says nothing, so it tells nothing either.
+            let default = prop
+                .and_then(crate::tool::default::declared)
+                .is_some_and(|d| d.is(v));
+            if kept || listed || default {
                 continue;
             }
             match self.spells(v) {
@@ -369,5 +373,25 @@ mod tests {
                 ungrounded: 2
             }
         );
+    }
+
+    #[test]
+    fn declared_defaults_count_for_nothing() {
+        let r = Request::new("Prime factors of 450");
+        let schema = json!({"type": "object", "properties": {
+            "number": {"type": "integer"},
+            "formatted": {"type": "boolean", "description": "Default is true."},
+            "limit": {"type": "integer", "description": "At most this many; default 100."}
+        }});
+        let call = json!({"number": 450, "formatted": true, "limit": 100});
+        assert_eq!(
+            r.novelty(&call, &[], Some(&schema)),
+            Novelty {
+                grounded: 1,
+                ungrounded: 0
+            }
+        );
+        let call = json!({"number": 450, "limit": 10});
+        assert_eq!(r.novelty(&call, &[], Some(&schema)).ungrounded, 1);
     }
 }

@@ -16,6 +16,7 @@ use std::time::Instant;
 
 use serde::Serialize;
 
+use crate::agent::ground::Grounding;
 use crate::agent::{answer_spec, AnswerMode, ANSWER_TOOL};
 use crate::backend::{Backend, ChatMessage, Role};
 use crate::decode::envelope::{Envelope, ToolChoice};
@@ -59,6 +60,10 @@ pub struct TurnRules {
     pub relevance_gate: bool,
     /// The copy bias's logit bonus for argument values that copy the question (0: off).
     pub copy_bias: f32,
+    /// Drop optional string and number arguments that neither the question spells nor
+    /// their schema declares as the default, as the agent does before a call runs
+    /// (`agent::ground`; the agent holds strings only to it).
+    pub ground: bool,
 }
 
 /// Run one case: one assistant turn with the case's functions, where the model may call
@@ -154,12 +159,20 @@ pub fn run_case(
     } && !matches!(&r.turn, Ok(t) if t.calls.iter().all(|c| c.name == ANSWER_TOOL));
     let (calls, valid_call, verdict) = match &r.turn {
         Ok(turn) => {
-            let calls: Vec<ToolCall> = turn
+            let mut calls: Vec<ToolCall> = turn
                 .calls
                 .iter()
                 .filter(|c| c.name != ANSWER_TOOL)
                 .cloned()
                 .collect();
+            if rules.ground {
+                let grounding = Grounding::new(questions.iter().copied()).with_numbers();
+                for c in &mut calls {
+                    if let Some(spec) = case.functions.iter().find(|s| s.name == c.name) {
+                        grounding.drop_ungrounded(c, spec);
+                    }
+                }
+            }
             let v = score::check(case, &calls);
             let valid = !calls.is_empty();
             (calls, valid, v)

@@ -101,6 +101,9 @@ pub fn bfcl(args: &BfclArgs) -> anyhow::Result<()> {
     if rules.copy_bias > 0.0 {
         setting.push_str(&format!(" | copy bias {}", rules.copy_bias));
     }
+    if rules.ground {
+        setting.push_str(" | optional values grounded");
+    }
     println!(
         "model {} | envelope {envelope:?} | {setting} | {} cases per mode\n",
         resolved.path.display(),
