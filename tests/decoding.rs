@@ -721,3 +721,33 @@ fn a_list_varies_the_value_the_request_lists() {
         .collect();
     assert_eq!(numbers, [5, 10, 15], "{calls:?}");
 }
+
+/// A required flag the request says nothing of, on the real model, gated with the copy
+/// bias: the default its description declares is offered to it, and is written (without
+/// it the model writes `false` here).
+#[test]
+fn a_required_flag_the_request_leaves_unsaid_takes_its_default() {
+    let mut model = load("smollm2-135m", BackendKind::Llama, 8192);
+    let grammars = Grammars::new(model.vocab(), model.tokenizer()).unwrap();
+    let mut session = Session::new();
+    let factors = ToolSpec::new(
+        "get_prime_factors",
+        "Function to retrieve prime factors of a number.",
+        json!({"type": "object", "properties": {
+            "number": {"type": "integer", "description": "Number for which prime factors need to be calculated"},
+            "formatted": {"type": "boolean", "description": "Return formatted string if true, array if false. Default is true."}},
+            "required": ["number", "formatted"]}),
+    )
+    .unwrap();
+    let specs = [factors, ferrosa::agent::answer_spec()];
+    let calls = gated_copy_turn(
+        model.as_mut(),
+        &mut session,
+        &grammars,
+        &specs,
+        "Find the prime factors of 450",
+    );
+    assert_eq!(calls.len(), 1, "{calls:?}");
+    assert_eq!(calls[0].0, "get_prime_factors", "{calls:?}");
+    assert_eq!(calls[0].1, json!({"number": 450, "formatted": true}));
+}
