@@ -688,14 +688,21 @@ fn gated_copy_turn(
     calls.into_iter().map(|c| (c.name, c.arguments)).collect()
 }
 
+/// One question to `spec` (and the answer tool), on a freshly loaded model: the calls
+/// of its gated copy turn.
+fn gated_copy_calls(spec: ToolSpec, q: &str) -> Vec<(String, Value)> {
+    let mut model = load("smollm2-135m", BackendKind::Llama, 8192);
+    let grammars = Grammars::new(model.vocab(), model.tokenizer()).unwrap();
+    let mut session = Session::new();
+    let specs = [spec, ferrosa::agent::answer_spec()];
+    gated_copy_turn(model.as_mut(), &mut session, &grammars, &specs, q)
+}
+
 /// A list of calls, gated with the copy bias on the real model: every value of "5,10 and
 /// 15" gets its call (the 5 ends at its comma, and a repeat of 10 is refused without
 /// refusing the "1" that starts 15).
 #[test]
 fn a_list_varies_the_value_the_request_lists() {
-    let mut model = load("smollm2-135m", BackendKind::Llama, 8192);
-    let grammars = Grammars::new(model.vocab(), model.tokenizer()).unwrap();
-    let mut session = Session::new();
     let factorial = ToolSpec::new(
         "math.factorial",
         "Calculate the factorial of a given positive integer.",
@@ -704,14 +711,7 @@ fn a_list_varies_the_value_the_request_lists() {
             "required": ["number"]}),
     )
     .unwrap();
-    let specs = [factorial, ferrosa::agent::answer_spec()];
-    let calls = gated_copy_turn(
-        model.as_mut(),
-        &mut session,
-        &grammars,
-        &specs,
-        "Find the factorial of 5,10 and 15.",
-    );
+    let calls = gated_copy_calls(factorial, "Find the factorial of 5,10 and 15.");
     let numbers: Vec<i64> = calls
         .iter()
         .map(|(name, args)| {
@@ -727,9 +727,6 @@ fn a_list_varies_the_value_the_request_lists() {
 /// it the model writes `false` here).
 #[test]
 fn a_required_flag_the_request_leaves_unsaid_takes_its_default() {
-    let mut model = load("smollm2-135m", BackendKind::Llama, 8192);
-    let grammars = Grammars::new(model.vocab(), model.tokenizer()).unwrap();
-    let mut session = Session::new();
     let factors = ToolSpec::new(
         "get_prime_factors",
         "Function to retrieve prime factors of a number.",
@@ -739,14 +736,7 @@ fn a_required_flag_the_request_leaves_unsaid_takes_its_default() {
             "required": ["number", "formatted"]}),
     )
     .unwrap();
-    let specs = [factors, ferrosa::agent::answer_spec()];
-    let calls = gated_copy_turn(
-        model.as_mut(),
-        &mut session,
-        &grammars,
-        &specs,
-        "Find the prime factors of 450",
-    );
+    let calls = gated_copy_calls(factors, "Find the prime factors of 450");
     assert_eq!(calls.len(), 1, "{calls:?}");
     assert_eq!(calls[0].0, "get_prime_factors", "{calls:?}");
     assert_eq!(calls[0].1, json!({"number": 450, "formatted": true}));

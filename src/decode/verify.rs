@@ -39,7 +39,8 @@ impl Novelty {
     }
 }
 
-fn words(text: &str) -> Vec<String> {
+/// Lowercased runs of letters and digits.
+pub(crate) fn words(text: &str) -> Vec<String> {
     text.split(|c: char| !c.is_alphanumeric())
         .filter(|w| !w.is_empty())
         .map(str::to_lowercase)

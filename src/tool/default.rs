@@ -8,6 +8,8 @@
 
 use serde_json::Value;
 
+use crate::decode::verify::words;
+
 /// A parameter's declared default.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Declared {
@@ -163,14 +165,6 @@ impl Declared {
             _ => false,
         }
     }
-}
-
-fn words(text: &str) -> Vec<String> {
-    text.to_lowercase()
-        .split(|c: char| !c.is_alphanumeric())
-        .filter(|w| !w.is_empty())
-        .map(str::to_string)
-        .collect()
 }
 
 #[cfg(test)]
