@@ -65,10 +65,10 @@ impl Grounding {
     fn grounds(&self, prop: &Value, value: &Value) -> bool {
         let default = || default::declared(prop);
         match value {
-            Value::String(v) if is_free_text(prop) => {
+            Value::String(v) if is_open(prop, &["string"]) => {
                 grounded(v, &self.text) || default().is_some_and(|d| d.spells_words(v))
             }
-            Value::Number(_) if is_number(prop) => match &self.numbers {
+            Value::Number(_) if is_open(prop, &["integer", "number"]) => match &self.numbers {
                 None => true,
                 Some(said) => {
                     said.iter().any(|r| r.spells(value) == Some(true))
@@ -105,21 +105,12 @@ impl Grounding {
     }
 }
 
-/// A string property without an enum (or const) of its own.
-fn is_free_text(prop: &Value) -> bool {
+/// A property of one of `types` (alone, or beside others such as null) without an enum
+/// or const of its own: a value the model writes freely.
+fn is_open(prop: &Value, types: &[&str]) -> bool {
+    let of = |t: &Value| t.as_str().is_some_and(|t| types.contains(&t));
     let ty = &prop["type"];
-    let is_string = ty == "string"
-        || ty
-            .as_array()
-            .is_some_and(|t| t.iter().any(|x| x == "string"));
-    is_string && prop.get("enum").is_none() && prop.get("const").is_none()
-}
-
-/// A number property (integer or number, alone or beside null), without an enum.
-fn is_number(prop: &Value) -> bool {
-    let numeric = |t: &Value| t == "integer" || t == "number";
-    let ty = &prop["type"];
-    (numeric(ty) || ty.as_array().is_some_and(|t| t.iter().any(numeric)))
+    (of(ty) || ty.as_array().is_some_and(|t| t.iter().any(of)))
         && prop.get("enum").is_none()
         && prop.get("const").is_none()
 }
