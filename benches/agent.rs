@@ -25,6 +25,9 @@ mod header;
 use std::path::PathBuf;
 use std::sync::Arc;
 
+#[path = "../tests/support/netns.rs"]
+mod netns;
+
 use ferrosa::agent::{AnswerMode, RunResult};
 use ferrosa::decode::Decoding;
 use ferrosa::tool::{Confirm, ToolCall};
@@ -86,7 +89,7 @@ fn mib_now() -> f64 {
 }
 
 fn main() {
-    if std::env::var_os(ferrosa::ros::ros2::IN_LOOPBACK_NETNS).is_none() {
+    if !netns::inside() {
         rerun_in_loopback_netns();
         return;
     }
@@ -286,7 +289,7 @@ fn main() {
 /// Run this bench again inside a network namespace with only loopback, under a limit.
 fn rerun_in_loopback_netns() {
     let exe = std::env::current_exe().expect("the bench binary");
-    let status = ferrosa::ros::ros2::loopback_netns(&exe, std::env::args_os().skip(1), LIMIT_S)
+    let status = netns::loopback_netns(&exe, std::env::args_os().skip(1), LIMIT_S)
         .status()
         .expect("unshare (util-linux) and ip (iproute2) are needed: run as root after .ci/setup");
     assert!(

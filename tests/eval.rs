@@ -39,6 +39,7 @@ fn eval_bfcl(files: &[PathBuf], args: &[&str], out: &std::path::Path) -> String 
 const BFCL_SLICE: usize = 10;
 
 #[test]
+#[ignore = "needs the model weights (or a ROS peer): cargo test --release -- --include-ignored"]
 fn bfcl_slice_runs_scores_and_reports() {
     let d = bfcl_dir();
     let out = tempfile::tempdir().unwrap();
@@ -78,7 +79,7 @@ fn bfcl_slice_runs_scores_and_reports() {
         if v["attempted_call"] == true && !v["text"].as_str().unwrap().is_empty() {
             let parsed = v["reason"]
                 .as_str()
-                .map_or(true, |r| !r.starts_with("unparseable"));
+                .is_none_or(|r| !r.starts_with("unparseable"));
             assert!(
                 parsed || v["generated_tokens"].as_u64() >= Some(320),
                 "{line}"
@@ -92,6 +93,7 @@ fn bfcl_slice_runs_scores_and_reports() {
 /// irrelevance question cannot pass, also with the relevance gate picking the function
 /// (it has no answer to fall back on); `--skip` starts past the questions passed over.
 #[test]
+#[ignore = "needs the model weights (or a ROS peer): cargo test --release -- --include-ignored"]
 fn bfcl_forced_calls_start_after_skip_and_always_call() {
     let d = bfcl_dir();
     let out = tempfile::tempdir().unwrap();
@@ -139,6 +141,7 @@ const CI_CATEGORIES: [&str; 5] = ["listing", "echo", "motion", "notool", "cannot
 /// harness runs, scores each case and reports per category, in a loopback namespace.
 /// The test harness runs other model tests beside it, so the time limit is generous.
 #[test]
+#[ignore = "needs the model weights (or a ROS peer): cargo test --release -- --include-ignored"]
 fn ros_suite_slice_runs_scores_and_reports() {
     if crate::util::rerun_in_loopback_netns("eval::ros_suite_slice_runs_scores_and_reports", 1200) {
         return;
@@ -188,6 +191,7 @@ fn ros_suite_slice_runs_scores_and_reports() {
             v["valid_call"] == true || v["attempted_call"] == false,
             "{line}"
         );
-        assert!(v["pass"] == true || v["reason"].is_string(), "{line}");
+        // A case passes with no reason, or fails with one.
+        assert_eq!(v["pass"] == true, v["reason"].is_null(), "{line}");
     }
 }

@@ -1,11 +1,18 @@
-//! Integration tests: one binary, a module per concern. Tests that need model weights
-//! read them from `models/` (installed by `ferrosa models fetch --all`, which the README's
-//! test command and CI run first) and fail with that instruction when they are missing.
+//! Integration tests: one binary, a module per concern.
+//!
+//! Two tiers. Plain `cargo test --release` runs what needs neither model weights nor a
+//! network namespace: synthetic vocabularies and scripted logits drive the real template,
+//! grammar, decode loop, strategies, agent and policy. The tests marked `#[ignore]` need
+//! the fetched weights (`ferrosa models fetch --all`), a ROS peer, or root for a
+//! loopback-only network namespace; the README's test command and CI run them too
+//! (`cargo test --release -- --include-ignored`, after `.ci/setup`).
 
+mod support;
 mod util;
 
 mod agent;
 mod alloc;
+mod arrows;
 
 #[global_allocator]
 static COUNTING: alloc::Counting = alloc::Counting;

@@ -31,6 +31,7 @@ pub async fn wait_for_sim(graph: &Ros2Graph, limit: Duration) -> Duration {
 }
 
 #[test]
+#[ignore = "needs the model weights (or a ROS peer): cargo test --release -- --include-ignored"]
 fn sim_graph_echo_publish_services_parameters() {
     if rerun_in_loopback_netns("ros::sim_graph_echo_publish_services_parameters", 120) {
         return;
@@ -100,6 +101,7 @@ fn sim_graph_echo_publish_services_parameters() {
 }
 
 #[test]
+#[ignore = "needs the model weights (or a ROS peer): cargo test --release -- --include-ignored"]
 fn sim_rotate_absolute_action_succeeds_and_cancels() {
     if rerun_in_loopback_netns("ros::sim_rotate_absolute_action_succeeds_and_cancels", 120) {
         return;
@@ -127,7 +129,7 @@ fn sim_rotate_absolute_action_succeeds_and_cancels() {
             .send_goal(
                 action,
                 ty,
-                json!({"theta": 1.5708}),
+                json!({"theta": std::f64::consts::FRAC_PI_2}),
                 Duration::from_secs(10),
             )
             .await
@@ -139,7 +141,10 @@ fn sim_rotate_absolute_action_succeeds_and_cancels() {
         );
         assert_eq!(done.status, GoalStatus::Succeeded, "{done:?}");
         let delta = done.result.as_ref().unwrap()["delta"].as_f64().unwrap();
-        assert!((delta + 1.5708).abs() < 0.05, "turned {delta}: {done:?}");
+        assert!(
+            (delta + std::f64::consts::FRAC_PI_2).abs() < 0.05,
+            "turned {delta}: {done:?}"
+        );
         let first = done.feedback.first().expect("feedback while turning");
         let last = done.feedback.last().unwrap();
         let remaining = |s: &ferrosa::ros::Sample| s.message["remaining"].as_f64().unwrap();
@@ -149,14 +154,17 @@ fn sim_rotate_absolute_action_succeeds_and_cancels() {
             done.feedback
         );
         let theta = sim.pose("turtle1").unwrap()["theta"].as_f64().unwrap();
-        assert!((theta - 1.5708).abs() < 0.03, "theta {theta}");
+        assert!(
+            (theta - std::f64::consts::FRAC_PI_2).abs() < 0.03,
+            "theta {theta}"
+        );
 
         // A goal followed for 0.3 s is still running; cancelling it stops the turtle.
         let running = graph
             .send_goal(
                 action,
                 ty,
-                json!({"theta": -1.5708}),
+                json!({"theta": -std::f64::consts::FRAC_PI_2}),
                 Duration::from_millis(300),
             )
             .await
@@ -167,7 +175,7 @@ fn sim_rotate_absolute_action_succeeds_and_cancels() {
             .await
             .unwrap();
         assert_eq!(cancel.return_code, "accepted", "{cancel:?}");
-        assert_eq!(cancel.canceling, [running.goal_id.clone()]);
+        assert_eq!(cancel.canceling, std::slice::from_ref(&running.goal_id));
         tokio::time::sleep(Duration::from_millis(300)).await;
         let stopped = sim.pose("turtle1").unwrap()["theta"].as_f64().unwrap();
         tokio::time::sleep(Duration::from_millis(300)).await;
@@ -210,6 +218,7 @@ fn ask_sim(query: &str, extra: &[&str]) -> serde_json::Value {
 }
 
 #[test]
+#[ignore = "needs the model weights (or a ROS peer): cargo test --release -- --include-ignored"]
 fn ask_sim_lists_nodes_with_the_real_model() {
     if rerun_in_loopback_netns("ros::ask_sim_lists_nodes_with_the_real_model", 240) {
         return;
@@ -230,6 +239,7 @@ fn ask_sim_lists_nodes_with_the_real_model() {
 }
 
 #[test]
+#[ignore = "needs the model weights (or a ROS peer): cargo test --release -- --include-ignored"]
 fn ask_sim_moves_the_turtle_with_the_real_model() {
     if rerun_in_loopback_netns("ros::ask_sim_moves_the_turtle_with_the_real_model", 240) {
         return;
@@ -278,6 +288,7 @@ impl Drop for Peer {
 }
 
 #[test]
+#[ignore = "needs the model weights (or a ROS peer): cargo test --release -- --include-ignored"]
 fn ferrosa_tools_on_an_rclpy_peer() {
     use ferrosa::tool::{Registry, ToolContext};
     if rerun_in_loopback_netns("ros::ferrosa_tools_on_an_rclpy_peer", 120) {
@@ -436,6 +447,7 @@ fn ferrosa_tools_on_an_rclpy_peer() {
 }
 
 #[test]
+#[ignore = "needs the model weights (or a ROS peer): cargo test --release -- --include-ignored"]
 fn rclpy_sees_and_drives_the_sim() {
     if rerun_in_loopback_netns("ros::rclpy_sees_and_drives_the_sim", 120) {
         return;

@@ -1,8 +1,11 @@
 //! The llama.cpp runtime on the real weights: generation, KV prefix reuse, batching,
 //! tokenization round trips, templates, and the errors a bad input must give.
 
-use ferrosa::backend::{BackendError, BackendKind, ChatMessage, Detokenizer, Role};
-use ferrosa::decode::{generate, Finish, Sampler, SamplerConfig, Session};
+use ferrosa::backend::{BackendError, BackendKind, Detokenizer};
+use ferrosa::chat::{ChatMessage, Role};
+use ferrosa::decode::{
+    generate, Finish, JsonScan, NoHook, Sampler, SamplerConfig, Session, Steering,
+};
 
 use crate::util::{greedy, load};
 
@@ -19,6 +22,7 @@ fn text_of(model: &dyn ferrosa::backend::Backend, ids: &[u32]) -> String {
 }
 
 #[test]
+#[ignore = "needs the model weights (or a ROS peer): cargo test --release -- --include-ignored"]
 fn smollm2_answers_in_english() {
     let mut m = load(SMOL, BackendKind::Llama, 2048);
     let prompt = m
@@ -40,6 +44,7 @@ fn smollm2_answers_in_english() {
 }
 
 #[test]
+#[ignore = "needs the model weights (or a ROS peer): cargo test --release -- --include-ignored"]
 fn kv_prefix_reuse_gives_the_same_logits_as_a_fresh_evaluation() {
     let mut m = load(SMOL, BackendKind::Llama, 1024);
     let prefix = m
@@ -66,6 +71,7 @@ fn kv_prefix_reuse_gives_the_same_logits_as_a_fresh_evaluation() {
 }
 
 #[test]
+#[ignore = "needs the model weights (or a ROS peer): cargo test --release -- --include-ignored"]
 fn a_second_turn_evaluates_only_its_new_tokens() {
     let mut m = load(SMOL, BackendKind::Llama, 2048);
     let t = m.chat_template();
@@ -81,9 +87,13 @@ fn a_second_turn_evaluates_only_its_new_tokens() {
         &mut session,
         &p1,
         16,
-        &mut sampler,
-        None,
-        |tok| {
+        Steering {
+            sampler: &mut sampler,
+            constraint: None,
+            hook: &mut NoHook,
+            scan: &mut JsonScan::new(),
+        },
+        |tok, _| {
             answer.push(tok);
             std::ops::ControlFlow::Continue(())
         },
@@ -99,9 +109,19 @@ fn a_second_turn_evaluates_only_its_new_tokens() {
     let p2 = m
         .tokenize(&t.render(&turn2, None, true).unwrap(), true)
         .unwrap();
-    let (_, stats) = generate(m.as_mut(), &mut session, &p2, 4, &mut sampler, None, |_| {
-        std::ops::ControlFlow::Continue(())
-    })
+    let (_, stats) = generate(
+        m.as_mut(),
+        &mut session,
+        &p2,
+        4,
+        Steering {
+            sampler: &mut sampler,
+            constraint: None,
+            hook: &mut NoHook,
+            scan: &mut JsonScan::new(),
+        },
+        |_, _| std::ops::ControlFlow::Continue(()),
+    )
     .unwrap();
     assert!(
         stats.reused_tokens >= p1.len(),
@@ -113,6 +133,7 @@ fn a_second_turn_evaluates_only_its_new_tokens() {
 }
 
 #[test]
+#[ignore = "needs the model weights (or a ROS peer): cargo test --release -- --include-ignored"]
 fn small_batches_and_one_big_batch_agree() {
     let text = "Robots in the field run with no network. ".repeat(12);
     let mut big = load(SMOL, BackendKind::Llama, 1024);
@@ -131,6 +152,7 @@ fn small_batches_and_one_big_batch_agree() {
 }
 
 #[test]
+#[ignore = "needs the model weights (or a ROS peer): cargo test --release -- --include-ignored"]
 fn tokenize_then_detokenize_round_trips_unicode() {
     let m = load(SMOL, BackendKind::Llama, 256);
     for s in [
@@ -159,6 +181,7 @@ fn text_of_all(model: &dyn ferrosa::backend::Backend, ids: &[u32]) -> String {
 }
 
 #[test]
+#[ignore = "needs the model weights (or a ROS peer): cargo test --release -- --include-ignored"]
 fn smollm2_end_tokens_come_from_the_file() {
     let m = load(SMOL, BackendKind::Llama, 256);
     let im_end = m.vocab().find("<|im_end|>").unwrap();
@@ -167,6 +190,7 @@ fn smollm2_end_tokens_come_from_the_file() {
 }
 
 #[test]
+#[ignore = "needs the model weights (or a ROS peer): cargo test --release -- --include-ignored"]
 fn short_answers_stop_at_end_of_turn() {
     let mut m = load(SMOL, BackendKind::Llama, 1024);
     let t = m.chat_template();
@@ -183,15 +207,20 @@ fn short_answers_stop_at_end_of_turn() {
         &mut Session::new(),
         &p,
         200,
-        &mut sampler,
-        None,
-        |_| std::ops::ControlFlow::Continue(()),
+        Steering {
+            sampler: &mut sampler,
+            constraint: None,
+            hook: &mut NoHook,
+            scan: &mut JsonScan::new(),
+        },
+        |_, _| std::ops::ControlFlow::Continue(()),
     )
     .unwrap();
     assert_eq!(finish, Finish::EndOfGeneration);
 }
 
 #[test]
+#[ignore = "needs the model weights (or a ROS peer): cargo test --release -- --include-ignored"]
 fn smollm2_template_golden() {
     let m = load(SMOL, BackendKind::Llama, 256);
     let t = m.chat_template();
@@ -227,6 +256,7 @@ fn smollm2_template_golden() {
 }
 
 #[test]
+#[ignore = "needs the model weights (or a ROS peer): cargo test --release -- --include-ignored"]
 fn a_full_context_is_an_error_not_a_crash() {
     let mut m = load(SMOL, BackendKind::Llama, 32);
     let ids = m.tokenize(&"word ".repeat(64), false).unwrap();
@@ -244,6 +274,7 @@ fn a_full_context_is_an_error_not_a_crash() {
 }
 
 #[test]
+#[ignore = "needs the model weights (or a ROS peer): cargo test --release -- --include-ignored"]
 fn gemma3_base_model_continues_text_with_the_fallback_template() {
     let mut m = load("gemma3-270m", BackendKind::Llama, 512);
     assert_eq!(
@@ -257,6 +288,7 @@ fn gemma3_base_model_continues_text_with_the_fallback_template() {
 }
 
 #[test]
+#[ignore = "needs the model weights (or a ROS peer): cargo test --release -- --include-ignored"]
 fn kv_cache_size_follows_the_file_dimensions() {
     // SmolLM2-135M: 30 layers, 3 KV heads of 64 dimensions, f16 K and V. llama.cpp
     // reports the same 180 MiB for an 8192-token context when it creates the cache.

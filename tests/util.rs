@@ -29,7 +29,7 @@ pub fn load(name: &str, kind: BackendKind, max_context: usize) -> Box<dyn Backen
 
 /// Greedy continuation of `prompt` (tokenized with special tokens), `n` tokens.
 pub fn greedy(model: &mut dyn Backend, prompt: &str, n: usize) -> Vec<u32> {
-    use ferrosa::decode::{generate, Sampler, SamplerConfig, Session};
+    use ferrosa::decode::{generate, JsonScan, NoHook, Sampler, SamplerConfig, Session, Steering};
     let mut ids: Vec<u32> = model.vocab().bos().into_iter().collect();
     ids.extend(model.tokenize(prompt, true).unwrap());
     let mut sampler = Sampler::new(SamplerConfig::default(), model.vocab().len());
@@ -39,9 +39,13 @@ pub fn greedy(model: &mut dyn Backend, prompt: &str, n: usize) -> Vec<u32> {
         &mut Session::new(),
         &ids,
         n,
-        &mut sampler,
-        None,
-        |t| {
+        Steering {
+            sampler: &mut sampler,
+            constraint: None,
+            hook: &mut NoHook,
+            scan: &mut JsonScan::new(),
+        },
+        |t, _| {
             out.push(t);
             std::ops::ControlFlow::Continue(())
         },
@@ -57,13 +61,20 @@ pub fn greedy(model: &mut dyn Backend, prompt: &str, n: usize) -> Vec<u32> {
 /// one (`unshare -n`, `ip link set lo up`, `timeout`) and returns true (the caller
 /// returns); inside, it returns false and the test body runs.
 pub fn rerun_in_loopback_netns(test: &str, limit_s: u32) -> bool {
-    if std::env::var_os(ferrosa::ros::ros2::IN_LOOPBACK_NETNS).is_some() {
+    if crate::support::netns::inside() {
         return false;
     }
     let exe = std::env::current_exe().expect("the test binary");
-    let status = ferrosa::ros::ros2::loopback_netns(
+    // The tests that need a namespace are in the ignored tier: the child must run it.
+    let status = crate::support::netns::loopback_netns(
         &exe,
-        ["--exact", test, "--nocapture", "--test-threads=1"],
+        [
+            "--exact",
+            test,
+            "--nocapture",
+            "--test-threads=1",
+            "--include-ignored",
+        ],
         limit_s,
     )
     .status()

@@ -8,7 +8,7 @@
 //! keeps the cached prefix valid for many turns. Memory stays bounded however long the
 //! chat runs.
 
-use crate::backend::{ChatMessage, Role};
+use crate::chat::{ChatMessage, Role};
 
 #[derive(Debug, Clone, PartialEq)]
 pub struct Exchange {

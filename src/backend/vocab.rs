@@ -63,8 +63,15 @@ const EOG_TEXTS: &[&str] = &[
     "<|file_sep|>",
 ];
 
+/// The token table. Cheap to clone (shared): the decode loop keeps one beside the
+/// backend it drives.
 #[derive(Debug, Clone)]
 pub struct Vocab {
+    table: std::sync::Arc<Table>,
+}
+
+#[derive(Debug)]
+struct Table {
     pieces: Vec<Vec<u8>>,
     kinds: Vec<TokenKind>,
     eog: Vec<TokenId>,
@@ -84,50 +91,69 @@ impl Vocab {
         eog.sort_unstable();
         eog.dedup();
         Vocab {
-            pieces,
-            kinds,
-            eog,
-            bos,
-            add_bos,
+            table: std::sync::Arc::new(Table {
+                pieces,
+                kinds,
+                eog,
+                bos,
+                add_bos,
+            }),
         }
     }
 
+    /// A vocabulary of plain text pieces and nothing else (no end token): for tests of
+    /// what reads token pieces.
+    pub fn from_pieces(pieces: &[&str]) -> Vocab {
+        Vocab::new(
+            pieces.iter().map(|p| p.as_bytes().to_vec()).collect(),
+            vec![TokenKind::Normal; pieces.len()],
+            Vec::new(),
+            None,
+            false,
+        )
+    }
+
     pub fn len(&self) -> usize {
-        self.pieces.len()
+        self.table.pieces.len()
     }
 
     pub fn is_empty(&self) -> bool {
-        self.pieces.is_empty()
+        self.table.pieces.is_empty()
     }
 
     /// The bytes a token stands for; control tokens give their marker text.
     pub fn piece(&self, id: TokenId) -> &[u8] {
-        self.pieces.get(id as usize).map_or(&[], Vec::as_slice)
+        self.table
+            .pieces
+            .get(id as usize)
+            .map_or(&[], Vec::as_slice)
     }
 
     pub fn kind(&self, id: TokenId) -> TokenKind {
-        self.kinds
+        self.table
+            .kinds
             .get(id as usize)
             .copied()
             .unwrap_or(TokenKind::Unknown)
     }
 
     pub fn is_eog(&self, id: TokenId) -> bool {
-        self.eog.binary_search(&id).is_ok()
+        self.table.eog.binary_search(&id).is_ok()
     }
 
     pub fn eog(&self) -> &[TokenId] {
-        &self.eog
+        &self.table.eog
     }
 
     /// The token to prepend to a fresh context, if the model wants one.
     pub fn bos(&self) -> Option<TokenId> {
-        self.bos.filter(|_| self.add_bos)
+        self.table.bos.filter(|_| self.table.add_bos)
     }
 
     /// Id of the token whose text is exactly `text`, if any (linear: not for hot paths).
     pub fn find(&self, text: &str) -> Option<TokenId> {
-        self.pieces
+        self.table
+            .pieces
             .iter()
             .position(|p| p == text.as_bytes())
             .map(|i| i as TokenId)

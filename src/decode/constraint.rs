@@ -32,7 +32,7 @@ pub struct Grammars {
 
 impl Grammars {
     pub fn new(vocab: &Vocab, tokenizer: Arc<dyn Tokenize>) -> Result<Grammars, ConstraintError> {
-        let env = TokenEnv::new(vocab, tokenizer);
+        let env = TokenEnv::shared(vocab, tokenizer);
         let mut factory =
             ParserFactory::new_simple(&env).map_err(|e| ConstraintError::Compile(e.to_string()))?;
         // llguidance writes grammar warnings to stderr by default; ours go to tracing.
@@ -112,14 +112,9 @@ impl Constraint {
         self.take_forced()
     }
 
-    /// Commit a sampled token; returns the tokens the grammar now forces (already
-    /// committed), to be appended without sampling.
-    pub fn commit(&mut self, tok: TokenId) -> Result<&[TokenId], ConstraintError> {
-        self.matcher.consume_token(tok).map_err(|e| self.err(e))?;
-        self.take_forced()
-    }
-
-    fn take_forced(&mut self) -> Result<&[TokenId], ConstraintError> {
+    /// The tokens the grammar forces from here (after tokens committed with `advance`),
+    /// already committed.
+    pub fn take_forced(&mut self) -> Result<&[TokenId], ConstraintError> {
         self.forced.clear();
         if self.fast_forward && !self.matcher.is_stopped() {
             let ff = self.matcher.compute_ff_tokens();
@@ -129,6 +124,13 @@ impl Constraint {
             }
         }
         Ok(&self.forced)
+    }
+
+    /// Commit a sampled token; returns the tokens the grammar now forces (already
+    /// committed), to be appended without sampling.
+    pub fn commit(&mut self, tok: TokenId) -> Result<&[TokenId], ConstraintError> {
+        self.matcher.consume_token(tok).map_err(|e| self.err(e))?;
+        self.take_forced()
     }
 
     /// Nothing but end-of-generation can follow.
@@ -152,6 +154,15 @@ impl Constraint {
     pub fn compute_mask(&mut self) -> Result<SimpleVob, ConstraintError> {
         let _span = tracing::trace_span!("mask").entered();
         self.matcher.compute_mask().map_err(|e| self.err(e))
+    }
+
+    /// Undo the last `n` committed tokens (forced ones included): the grammar state is
+    /// as it was before them.
+    pub fn rollback(&mut self, n: usize) -> Result<(), ConstraintError> {
+        if n == 0 {
+            return Ok(());
+        }
+        self.matcher.rollback(n).map_err(|e| self.err(e))
     }
 
     /// Commit `tok` without taking the forced tokens that follow (to replay a known

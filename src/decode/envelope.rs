@@ -16,7 +16,7 @@ const JSON: &str = include_str!("../../grammars/json.lark");
 pub const MAX_PARALLEL: usize = 4;
 
 /// A tool-call format.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Envelope {
     /// `<tool_call>[{...}, ...]</tool_call>` in plain text (SmolLM2-Instruct family).
     Smollm2,
@@ -27,7 +27,7 @@ pub enum Envelope {
 }
 
 /// Whether the turn may, must or must not call a tool.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum ToolChoice {
     /// Prose, or a call once the envelope's opening marker appears.
     #[default]
@@ -210,6 +210,19 @@ impl Envelope {
             .replace("@MAX_MORE@", &(MAX_PARALLEL - 1).to_string())
             .replace("@ALONE@", alone_choice)
             .replace("@ALONE_RULES@", &alone_rules)
+    }
+
+    /// The first of this envelope's special-token markers in `text`, with where it is:
+    /// they are the only special tokens a message content may hold (Qwen's
+    /// `<tool_call>`; the other envelopes write their markers as plain text).
+    pub fn next_marker(&self, text: &str) -> Option<(usize, &'static str)> {
+        match self {
+            Envelope::Qwen => ["<tool_call>", "</tool_call>"]
+                .into_iter()
+                .filter_map(|m| text.find(m).map(|at| (at, m)))
+                .min_by_key(|&(at, _)| at),
+            Envelope::Smollm2 | Envelope::Json => None,
+        }
     }
 
     /// How one tool is listed in the system prompt (one line of JSON).

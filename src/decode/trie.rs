@@ -18,7 +18,7 @@ pub struct TokenEnv {
 
 impl TokenEnv {
     /// Build once per model (the trie costs ≈ 50 ms at a 49k vocabulary).
-    pub fn new(vocab: &Vocab, tokenizer: Arc<dyn Tokenize>) -> TokEnv {
+    pub fn shared(vocab: &Vocab, tokenizer: Arc<dyn Tokenize>) -> TokEnv {
         let words: Vec<Vec<u8>> = (0..vocab.len() as TokenId)
             .map(|id| {
                 let piece = vocab.piece(id);

@@ -1,16 +1,25 @@
 //! One assistant turn with tools: describe the tools in the system prompt in the
-//! envelope's format, render the conversation with the chat template, generate under the
-//! envelope's grammar (or freely, to compare), and parse the text back into a `Turn`.
+//! envelope's format, render the conversation with the chat template (message contents
+//! tokenized as plain text, so nothing a tool returned can become a role marker),
+//! generate under the envelope's grammar (or freely, to compare), and parse the text
+//! back into a `Turn`.
 //!
-//! This is the decode-level entry point the agent loop and the CLI both call.
+//! `TurnDecoder` is the turn as something a strategy can drive: write tokens it chose
+//! (`force`), decode until a call closes (`run` with `Until::CallClosed`), go back to an
+//! earlier point (`mark`, `rewind`), and show the text only once it is final (`flush`).
+//! `assistant_turn` is the plain case: decode to the end, streaming as it goes.
 
 use std::ops::ControlFlow;
 
-use super::copy::{CopyIndex, Copying};
 use super::envelope::{Envelope, EnvelopeError, ToolChoice, Turn};
-use super::gate;
-use super::{generate, DecodeError, Decoding, Finish, GenerationStats, Grammars, Sampler, Session};
-use crate::backend::{Backend, ChatMessage, Detokenizer, Role};
+use super::generate::{generate, Steering};
+use super::hook::LogitsHook;
+use super::{
+    Constraint, DecodeError, Decoding, Finish, GenerationStats, Grammars, Sampler, Session,
+};
+use crate::backend::{Backend, Part, TokenId};
+use crate::chat::{ChatMessage, Role};
+use crate::json::JsonScan;
 use crate::tool::ToolSpec;
 
 #[derive(Debug, Clone)]
@@ -26,33 +35,22 @@ pub struct TurnRequest<'a> {
     /// Several calls in one turn.
     pub parallel: bool,
     pub decoding: Decoding,
+    /// Tokens the turn may write (a call open at the limit is still closed).
     pub max_tokens: usize,
-    /// The relevance gate (see `decode::gate`): the tool to call when the request made no
-    /// tool likelier than a content-free request did. Applies to constrained turns that
-    /// must call; when this tool is not among those allowed, the gate still picks the
-    /// tool and the number of calls.
-    pub relevance_gate: Option<&'a str>,
-    /// Lean argument values towards spans of these texts (see `decode::copy`);
-    /// constrained turns only.
-    pub copy: Option<CopyFrom<'a>>,
 }
 
-/// Where argument values are copied from, and how hard.
-#[derive(Debug, Clone, Copy)]
-pub struct CopyFrom<'a> {
-    pub sources: &'a [&'a str],
-    /// Added to the logit of each token that goes on copying.
-    pub bonus: f32,
-    /// Calls of this tool (the one that answers in words) are left alone.
-    pub exempt: Option<&'a str>,
-}
+impl TurnRequest<'_> {
+    /// The tools the grammar allows.
+    pub fn allowed_specs(&self) -> &[ToolSpec] {
+        self.allowed.unwrap_or(self.specs)
+    }
 
-impl CopyFrom<'_> {
-    /// The index for a turn offering `specs`: the sources, and each required
-    /// parameter's declared default for that parameter alone.
-    pub fn index(&self, vocab: &crate::backend::Vocab, specs: &[ToolSpec]) -> CopyIndex {
-        let defaults = super::copy::defaults(specs);
-        CopyIndex::new(vocab, self.sources, &defaults, self.bonus, self.exempt)
+    /// The turn's grammar, when decoding is constrained.
+    pub fn grammar(&self) -> Option<String> {
+        (self.decoding == Decoding::Constrained).then(|| {
+            self.envelope
+                .grammar(self.allowed_specs(), self.choice, self.parallel)
+        })
     }
 }
 
@@ -84,80 +82,335 @@ pub fn with_tools(req: &TurnRequest) -> Vec<ChatMessage> {
     messages
 }
 
-/// Run one assistant turn; `on_text` receives the text as it is produced and may break
-/// to stop the turn (cancellation).
+/// The prompt tokens of `messages` ending in the assistant's opening: BOS when the
+/// model wants one, the template's text with its special tokens, and each message's
+/// content as plain text (the envelope's own markers in assistant and system messages
+/// stay markers, as the grammar wrote them).
+pub fn render_prompt(
+    backend: &dyn Backend,
+    messages: &[ChatMessage],
+    envelope: Envelope,
+) -> Result<Vec<TokenId>, DecodeError> {
+    let rendered = backend.chat_template().render_parts(messages, true)?;
+    let mut tokens: Vec<TokenId> = backend.vocab().bos().into_iter().collect();
+    let bos_len = tokens.len();
+    for part in &rendered.parts {
+        match part {
+            Part::Markup(text) => tokens.extend(backend.tokenize(text, true)?),
+            Part::Content { role, text } => match role {
+                Role::Assistant | Role::System => {
+                    // The markers the envelope writes are trusted text; so is nothing else.
+                    let mut rest = text.as_str();
+                    while let Some((at, marker)) = envelope.next_marker(rest) {
+                        tokens.extend(backend.tokenize(&rest[..at], false)?);
+                        tokens.extend(backend.tokenize(marker, true)?);
+                        rest = &rest[at + marker.len()..];
+                    }
+                    tokens.extend(backend.tokenize(rest, false)?);
+                }
+                Role::User | Role::Tool => tokens.extend(backend.tokenize(text, false)?),
+            },
+        }
+    }
+    // A template that writes BOS itself: keep one.
+    if bos_len == 1 && tokens.get(1) == tokens.first() {
+        tokens.remove(1);
+    }
+    tracing::debug!(target: "ferrosa::prompt", "{}", rendered.text());
+    Ok(tokens)
+}
+
+/// Where to stop decoding.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Until {
+    /// The end of the turn (or the budget).
+    End,
+    /// The moment a call closes (its `}` is written).
+    CallClosed,
+}
+
+/// A point of a turn to come back to.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Mark {
+    tokens: usize,
+    bytes: usize,
+}
+
+impl Mark {
+    /// The length of the turn's text at this point.
+    pub fn bytes(&self) -> usize {
+        self.bytes
+    }
+}
+
+/// A turn in progress (see the module header).
+pub struct TurnDecoder {
+    prompt: Vec<TokenId>,
+    constraint: Option<Constraint>,
+    written: Vec<TokenId>,
+    scan: JsonScan,
+    max_tokens: usize,
+    stats: GenerationStats,
+    /// Bytes of the text already handed to the caller.
+    shown: usize,
+    finish: Finish,
+}
+
+impl TurnDecoder {
+    /// Render `req`'s prompt and start its grammar: the tokens the grammar forces first
+    /// (e.g. a required call's opening) are written already.
+    pub fn new(
+        backend: &dyn Backend,
+        grammars: &Grammars,
+        req: &TurnRequest,
+    ) -> Result<TurnDecoder, DecodeError> {
+        let prompt = render_prompt(backend, &with_tools(req), req.envelope)?;
+        let mut constraint = match req.grammar() {
+            Some(lark) => Some(grammars.compile(&lark)?),
+            None => None,
+        };
+        let mut d = TurnDecoder {
+            stats: GenerationStats {
+                prompt_tokens: prompt.len(),
+                ..GenerationStats::default()
+            },
+            prompt,
+            constraint: None,
+            written: Vec::new(),
+            scan: JsonScan::new(),
+            max_tokens: req.max_tokens,
+            shown: 0,
+            finish: Finish::Length,
+        };
+        if let Some(c) = constraint.as_mut() {
+            let forced = c.forced_at_start()?.to_vec();
+            d.stats.forced_at_start = forced.len();
+            d.append(backend, &forced);
+        }
+        d.constraint = constraint;
+        Ok(d)
+    }
+
+    pub fn prompt(&self) -> &[TokenId] {
+        &self.prompt
+    }
+
+    /// The turn's tokens so far.
+    pub fn written(&self) -> &[TokenId] {
+        &self.written
+    }
+
+    /// The turn's text so far, as JSON.
+    pub fn scan(&self) -> &JsonScan {
+        &self.scan
+    }
+
+    pub fn text(&self) -> String {
+        String::from_utf8_lossy(self.scan.text()).into_owned()
+    }
+
+    /// Nothing but end-of-generation may follow.
+    pub fn is_done(&self) -> bool {
+        self.constraint.as_ref().is_some_and(Constraint::is_stopped)
+    }
+
+    fn append(&mut self, backend: &dyn Backend, tokens: &[TokenId]) {
+        let vocab = backend.vocab();
+        for &t in tokens {
+            if vocab.kind(t) != crate::backend::vocab::TokenKind::Control {
+                self.scan.push(vocab.piece(t));
+            }
+        }
+        self.written.extend_from_slice(tokens);
+    }
+
+    /// Does the grammar allow `tokens` from here?
+    pub fn allows(&mut self, tokens: &[TokenId]) -> bool {
+        self.constraint.as_mut().is_none_or(|c| c.allows(tokens))
+    }
+
+    /// Write `tokens` as if the model had (the grammar must allow them: see `allows`),
+    /// and what the grammar forces after them.
+    pub fn force(&mut self, backend: &dyn Backend, tokens: &[TokenId]) -> Result<(), DecodeError> {
+        let mut all = tokens.to_vec();
+        if let Some(c) = self.constraint.as_mut() {
+            for &t in tokens {
+                c.advance(t)?;
+            }
+            all.extend_from_slice(c.take_forced()?);
+        }
+        self.stats.forced_tokens += all.len();
+        self.append(backend, &all);
+        Ok(())
+    }
+
+    pub fn mark(&self) -> Mark {
+        Mark {
+            tokens: self.written.len(),
+            bytes: self.scan.text().len(),
+        }
+    }
+
+    /// Go back to `mark`: the grammar, the tokens and the text are as they were. Text
+    /// already shown (`flush`) cannot be taken back: a caller that rewinds before it
+    /// must write the same text again.
+    pub fn rewind(&mut self, mark: Mark) -> Result<(), DecodeError> {
+        let n = self.written.len().saturating_sub(mark.tokens);
+        if let Some(c) = self.constraint.as_mut() {
+            c.rollback(n)?;
+        }
+        self.written.truncate(mark.tokens);
+        self.scan.truncate(mark.bytes);
+        Ok(())
+    }
+
+    /// Hand the caller the text not yet shown; `false` if it asked to stop.
+    pub fn flush(&mut self, on_text: &mut dyn FnMut(&str) -> ControlFlow<()>) -> bool {
+        self.flush_to(usize::MAX, on_text)
+    }
+
+    /// Hand the caller the text not yet shown up to byte `upto`; `false` if it asked to
+    /// stop.
+    pub fn flush_to(
+        &mut self,
+        upto: usize,
+        on_text: &mut dyn FnMut(&str) -> ControlFlow<()>,
+    ) -> bool {
+        let text = self.scan.text();
+        let end = whole_chars_end(text, self.shown, upto);
+        if end <= self.shown {
+            return true;
+        }
+        let piece = String::from_utf8_lossy(&text[self.shown..end]).into_owned();
+        self.shown = end;
+        on_text(&piece).is_continue()
+    }
+
+    /// Decode from here until `until` or the end of the turn, shifting logits with
+    /// `hook`; with `stream`, text goes to `on_text` as it comes (which may break to
+    /// stop the turn). Returns why it stopped: `Finish::Stopped` when `until` was met
+    /// (or `on_text` broke).
+    #[allow(clippy::too_many_arguments)]
+    pub fn run(
+        &mut self,
+        backend: &mut dyn Backend,
+        session: &mut Session,
+        sampler: &mut Sampler,
+        hook: &mut dyn LogitsHook,
+        until: Until,
+        stream: bool,
+        on_text: &mut dyn FnMut(&str) -> ControlFlow<()>,
+    ) -> Result<Finish, DecodeError> {
+        let budget = self.max_tokens.saturating_sub(self.written.len());
+        let mut full = self.prompt.clone();
+        full.extend_from_slice(&self.written);
+        let start_len = self.scan.text().len();
+        let calls_before = self.scan.closed_call_spans().len();
+        let mut new_tokens = Vec::new();
+        let mut shown = self.shown.max(start_len);
+        let was_shown = self.shown;
+        let steer = Steering {
+            sampler,
+            constraint: self.constraint.as_mut(),
+            hook,
+            scan: &mut self.scan,
+        };
+        let (finish, stats) = generate(
+            backend,
+            session,
+            &full,
+            budget.max(1),
+            steer,
+            |tok, scan| {
+                new_tokens.push(tok);
+                let mut flow = ControlFlow::Continue(());
+                if stream && was_shown >= start_len {
+                    let text = scan.text();
+                    let end = whole_chars_end(text, shown, usize::MAX);
+                    if end > shown {
+                        flow = on_text(&String::from_utf8_lossy(&text[shown..end]));
+                        shown = end;
+                    }
+                }
+                if until == Until::CallClosed && scan.closed_call_spans().len() > calls_before {
+                    flow = ControlFlow::Break(());
+                }
+                flow
+            },
+        )?;
+        if stream && was_shown >= start_len {
+            self.shown = shown;
+        }
+        self.written.extend_from_slice(&new_tokens);
+        add_stats(&mut self.stats, &stats);
+        self.finish = finish;
+        Ok(finish)
+    }
+
+    /// The finished turn, parsed against `req`'s tools.
+    pub fn finish(self, req: &TurnRequest) -> TurnResult {
+        let text = self.text();
+        let mut stats = self.stats;
+        stats.generated_tokens = self.written.len();
+        finish_turn(req, text, self.finish, stats)
+    }
+}
+
+/// Where the text from `from` to `upto` (at most) ends without cutting a character.
+fn whole_chars_end(text: &[u8], from: usize, upto: usize) -> usize {
+    let mut end = text.len().min(upto);
+    while end > from && std::str::from_utf8(&text[from..end]).is_err() {
+        end -= 1;
+    }
+    end
+}
+
+/// Adds a segment's figures to the turn's (the generated count is the turn's length,
+/// set when it finishes: tokens dropped by a rewind do not count).
+fn add_stats(total: &mut GenerationStats, s: &GenerationStats) {
+    if total.gen_forwards == 0 && total.prompt_time.is_zero() {
+        total.reused_tokens = s.reused_tokens;
+        total.prompt_time = s.prompt_time;
+    } else {
+        total.gen_time += s.prompt_time;
+    }
+    total.gen_forwards += s.gen_forwards;
+    total.forced_tokens += s.forced_tokens;
+    total.masks_computed += s.masks_computed;
+    total.constraint_time += s.constraint_time;
+    total.gen_time += s.gen_time;
+    if total.time_to_first_token.is_zero() {
+        total.time_to_first_token = s.time_to_first_token;
+    }
+}
+
+/// Run one assistant turn to its end; `on_text` receives the text as it is produced
+/// and may break to stop the turn (cancellation). `hook` shifts the logits.
 pub fn assistant_turn(
     backend: &mut dyn Backend,
     session: &mut Session,
     grammars: &Grammars,
     sampler: &mut Sampler,
     req: &TurnRequest,
+    hook: &mut dyn LogitsHook,
     mut on_text: impl FnMut(&str) -> ControlFlow<()>,
 ) -> Result<TurnResult, DecodeError> {
-    let messages = with_tools(req);
-    let rendered = backend.chat_template().render(&messages, None, true)?;
-    tracing::debug!(target: "ferrosa::prompt", "{rendered}");
-    let prompt = super::prompt_tokens(backend, &rendered, true)?;
-
-    let lark = (req.decoding == Decoding::Constrained).then(|| {
-        req.envelope
-            .grammar(req.allowed.unwrap_or(req.specs), req.choice, req.parallel)
-    });
-    if let (Some(lark), Some(fallback)) = (&lark, req.relevance_gate) {
-        let gated = gate::gated_turn(
+    let mut turn = TurnDecoder::new(backend, grammars, req)?;
+    if turn.flush(&mut on_text) {
+        turn.run(
             backend,
             session,
-            grammars,
             sampler,
-            req,
-            fallback,
-            &prompt,
-            lark,
+            hook,
+            Until::End,
+            true,
             &mut on_text,
         )?;
-        if let Some(g) = gated {
-            return Ok(finish_turn(req, g.text, g.finish, g.stats));
-        }
+    } else {
+        turn.finish = Finish::Stopped;
     }
-    let mut constraint = match &lark {
-        Some(lark) => Some(grammars.compile(lark)?),
-        None => None,
-    };
-    let vocab = backend.vocab().clone();
-    let index = req
-        .copy
-        .filter(|_| constraint.is_some())
-        .map(|c| c.index(&vocab, req.specs));
-    let mut copying;
-    let backend: &mut dyn Backend = match &index {
-        Some(index) => {
-            let seq = session.tokens().to_vec();
-            copying = Copying::new(backend, index, seq, prompt.len());
-            &mut copying
-        }
-        None => backend,
-    };
-    let mut detok = Detokenizer::new(false);
-    let mut text = String::new();
-    let mut piece = String::with_capacity(32);
-    let (finish, stats) = generate(
-        backend,
-        session,
-        &prompt,
-        req.max_tokens,
-        sampler,
-        constraint.as_mut(),
-        |tok| {
-            piece.clear();
-            detok.push(&vocab, tok, &mut piece);
-            text.push_str(&piece);
-            on_text(&piece)
-        },
-    )?;
-    piece.clear();
-    detok.finish(&mut piece);
-    text.push_str(&piece);
-    Ok(finish_turn(req, text, finish, stats))
+    turn.flush(&mut on_text);
+    Ok(turn.finish(req))
 }
 
 /// Parse a finished turn's text.

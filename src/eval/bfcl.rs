@@ -10,6 +10,9 @@ use serde_json::{json, Map, Value};
 
 use crate::tool::ToolSpec;
 
+/// One function of an expected answer: its name and allowed argument values.
+type Answer = (String, Map<String, Value>);
+
 #[derive(Debug, thiserror::Error)]
 pub enum BfclError {
     #[error("cannot read {path}: {message}")]
@@ -135,7 +138,7 @@ pub fn load(path: &Path, skip: usize, limit: Option<usize>) -> Result<Vec<Case>,
         .unwrap_or(Path::new("."))
         .join("possible_answer")
         .join(path.file_name().unwrap_or_default());
-    let mut answers: HashMap<String, Vec<(String, Map<String, Value>)>> = HashMap::new();
+    let mut answers: HashMap<String, Vec<Answer>> = HashMap::new();
     if answers_path.exists() {
         for (_, v) in read_lines(&answers_path)? {
             let id = v["id"].as_str().unwrap_or_default().to_string();

@@ -16,13 +16,20 @@ use std::time::Instant;
 
 use serde::Serialize;
 
-use crate::agent::ground::Grounding;
 use crate::agent::{answer_spec, AnswerMode, ANSWER_TOOL};
-use crate::backend::{Backend, ChatMessage, Role};
+use crate::backend::{Backend, Vocab};
+use crate::chat::{ChatMessage, Role};
 use crate::decode::envelope::{Envelope, ToolChoice};
-use crate::decode::turn::{assistant_turn, CopyFrom, TurnRequest};
+use crate::decode::turn::TurnRequest;
 use crate::decode::{DecodeError, Decoding, Grammars, Sampler, SamplerConfig, Session};
-use crate::tool::ToolCall;
+use crate::strategy::choice::Calibrated;
+use crate::strategy::copy::{defaults, CopyBias, CopyIndex};
+use crate::strategy::ground::Grounding;
+use crate::strategy::guard::{LoopGuard, RepeatGuard};
+use crate::strategy::turn::{run, Engine};
+use crate::strategy::verify::Verification;
+use crate::strategy::Pipeline;
+use crate::tool::{ToolCall, ToolSpec};
 use bfcl::Case;
 
 /// The system message of every BFCL question (the tool list is appended to it).
@@ -62,8 +69,38 @@ pub struct TurnRules {
     pub copy_bias: f32,
     /// Drop optional string and number arguments that neither the question spells nor
     /// their schema declares as the default, as the agent does before a call runs
-    /// (`agent::ground`; the agent holds strings only to it).
+    /// (`strategy::ground`; the agent holds strings only to it).
     pub ground: bool,
+}
+
+impl TurnRules {
+    /// The strategies a BFCL turn runs with under these rules.
+    pub fn pipeline(&self, vocab: &Vocab, specs: &[ToolSpec], questions: &[&str]) -> Pipeline {
+        let mut p = Pipeline::new();
+        let last = questions.last().copied().unwrap_or_default();
+        if self.gated() {
+            p = p
+                .with(Calibrated { lists: true })
+                .with(Verification::new(last, specs))
+                .with(RepeatGuard::new(last));
+        }
+        if self.copy_bias > 0.0 {
+            let index = CopyIndex::new(
+                vocab,
+                questions,
+                &defaults(specs),
+                self.copy_bias,
+                Some(ANSWER_TOOL),
+            );
+            p = p.with(CopyBias::new(index)).with(LoopGuard::new(vocab));
+        }
+        p
+    }
+
+    /// Under a forced call the answer tool is not offered, so the gate has no fallback.
+    fn gated(&self) -> bool {
+        self.relevance_gate && (self.force_call || self.answer_mode == AnswerMode::Tool)
+    }
 }
 
 /// Run one case: one assistant turn with the case's functions, where the model may call
@@ -117,19 +154,21 @@ pub fn run_case(
         decoding,
         // Room for the longest answer text (240 characters can be 240 digit tokens).
         max_tokens: 320,
-        // Under a forced call the answer tool is not offered, so the gate has no fallback.
-        relevance_gate: (rules.relevance_gate
-            && (rules.force_call || rules.answer_mode == AnswerMode::Tool))
-            .then_some(ANSWER_TOOL),
-        copy: (rules.copy_bias > 0.0).then_some(CopyFrom {
-            sources: &questions,
-            bonus: rules.copy_bias,
-            exempt: Some(ANSWER_TOOL),
-        }),
     };
+    let mut pipeline = match decoding {
+        Decoding::Constrained => rules.pipeline(backend.vocab(), &specs, &questions),
+        Decoding::Free => Pipeline::new(),
+    };
+    let fallback = (rules.gated() && !rules.force_call).then_some(ANSWER_TOOL);
     let mut sampler = Sampler::new(SamplerConfig::default(), backend.vocab().len());
     let start = Instant::now();
-    let r = match assistant_turn(backend, session, grammars, &mut sampler, &req, |_| {
+    let mut engine = Engine {
+        backend,
+        session,
+        grammars,
+        sampler: &mut sampler,
+    };
+    let r = match run(&mut engine, &req, &mut pipeline, fallback, &mut |_| {
         ControlFlow::Continue(())
     }) {
         // A question whose functions give no grammar fails alone; the run goes on.

@@ -13,8 +13,8 @@ use std::process::Command;
 use indicatif::{ProgressBar, ProgressStyle};
 use sha2::{Digest, Sha256};
 
+use super::catalog::Entry;
 use super::verify;
-use super::Entry;
 
 #[derive(Debug, thiserror::Error)]
 pub enum FetchError {

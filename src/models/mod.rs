@@ -28,18 +28,8 @@ pub enum ModelError {
         "no model file at {0}; check the path, or pass a catalog name (see `ferrosa models list`)"
     )]
     NoSuchFile(PathBuf),
-    #[error("{path} does not match the catalog's sha256 (expected {expected}, found {found}); run `ferrosa models fetch {name} --force` to replace it")]
-    HashMismatch {
-        name: String,
-        path: PathBuf,
-        expected: String,
-        found: String,
-    },
-    #[error("cannot read {path}: {source}")]
-    Io {
-        path: PathBuf,
-        source: std::io::Error,
-    },
+    #[error(transparent)]
+    Verify(#[from] verify::VerifyError),
     #[error(transparent)]
     Fetch(#[from] fetch::FetchError),
 }

@@ -8,7 +8,24 @@ use std::time::UNIX_EPOCH;
 
 use sha2::{Digest, Sha256};
 
-use super::{Entry, ModelError};
+use super::catalog::Entry;
+
+/// A model file that is not what the catalog says.
+#[derive(Debug, thiserror::Error)]
+pub enum VerifyError {
+    #[error("{path} does not match the catalog's sha256 (expected {expected}, found {found}); run `ferrosa models fetch {name} --force` to replace it")]
+    HashMismatch {
+        name: String,
+        path: PathBuf,
+        expected: String,
+        found: String,
+    },
+    #[error("cannot read {path}: {source}")]
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+}
 
 /// Hex sha256 of a file, calling `progress` with the bytes read so far.
 pub fn sha256_file(path: &Path, mut progress: impl FnMut(u64)) -> std::io::Result<String> {
@@ -60,8 +77,8 @@ pub fn remember(path: &Path, sha: &str) {
 }
 
 /// Check `path` against the catalog entry, hashing only if it changed since the last check.
-pub fn check(entry: &Entry, path: &Path) -> Result<(), ModelError> {
-    let io = |source| ModelError::Io {
+pub fn check(entry: &Entry, path: &Path) -> Result<(), VerifyError> {
+    let io = |source| VerifyError::Io {
         path: path.to_path_buf(),
         source,
     };
@@ -72,7 +89,7 @@ pub fn check(entry: &Entry, path: &Path) -> Result<(), ModelError> {
     }
     let found = sha256_file(path, |_| {}).map_err(io)?;
     if found != expected {
-        return Err(ModelError::HashMismatch {
+        return Err(VerifyError::HashMismatch {
             name: entry.name.clone(),
             path: path.to_path_buf(),
             expected,
@@ -118,7 +135,7 @@ source = [{ package = "p", version = "1", member = "m" }]"#,
         assert!(stamp_path(&p).exists());
         std::fs::write(&p, b"abd").unwrap();
         let err = check(&entry, &p).unwrap_err();
-        assert!(matches!(err, ModelError::HashMismatch { .. }), "{err}");
+        assert!(matches!(err, VerifyError::HashMismatch { .. }), "{err}");
         assert!(err.to_string().contains("models fetch t --force"));
         entry.sha256 = sha256_file(&p, |_| {}).unwrap();
         check(&entry, &p).unwrap();

@@ -9,10 +9,8 @@
 //! - `spec`: `ToolSpec` (name, description, schema), `ToolCall`, schema normalisation
 //! - `schema`: JSON schemas from Rust types (schemars), cleaned for grammars
 //! - `registry`: the type-erased `DynTool`, named packages, lookup
-//! - `default`: the default a parameter's schema or description declares
 //! - `policy`: deny-list, read-only, confirmation, argument limits, time limits
 
-pub mod default;
 pub mod policy;
 pub mod registry;
 pub mod schema;

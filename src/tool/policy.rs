@@ -149,8 +149,7 @@ fn compile(p: &str) -> Result<Regex, PolicyError> {
         message: e
             .to_string()
             .lines()
-            .filter(|l| !l.trim().is_empty())
-            .last()
+            .rfind(|l| !l.trim().is_empty())
             .unwrap_or("invalid regex")
             .trim_start_matches("error: ")
             .to_string(),
@@ -249,8 +248,8 @@ impl Policy {
 
     /// Whether this call changes the robot: its tool actuates and no `observes` rule
     /// covers it.
-    pub fn actuates(&self, tool: &dyn DynTool, call: &ToolCall) -> bool {
-        tool.effect() == Effect::Actuates && !self.observes_call(call)
+    pub fn actuates(&self, effect: Effect, call: &ToolCall) -> bool {
+        effect == Effect::Actuates && !self.observes_call(call)
     }
 
     /// Check one call; only `Allowed`/`Confirmed` calls may run.
@@ -258,7 +257,7 @@ impl Policy {
         let Some(tool) = tool else {
             return Decision::Refused(format!("there is no tool named {}", call.name));
         };
-        let actuates = self.actuates(tool, call);
+        let actuates = self.actuates(tool.effect(), call);
         if actuates && self.read_only {
             return Decision::Refused(format!(
                 "{} changes the robot and the agent is read-only; tell the operator it cannot be done",

@@ -27,15 +27,9 @@ impl Tool for SystemTime {
     }
 
     async fn call(&self, _: NoArgs, _: &ToolContext) -> Result<Value, ToolError> {
-        let now = std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map_err(|e| ToolError::Failed(e.to_string()))?;
-        let secs = now.as_secs() as i64;
-        let days = secs.div_euclid(86_400);
-        let tod = secs.rem_euclid(86_400);
-        let (y, m, d) = crate::backend::template::civil_from_days(days);
+        let now = crate::clock::unix_now();
         Ok(json!({
-            "utc": format!("{y:04}-{m:02}-{d:02}T{:02}:{:02}:{:02}Z", tod / 3600, tod % 3600 / 60, tod % 60),
+            "utc": crate::clock::Utc::from_unix(now.as_secs() as i64).iso(),
             "unix_s": now.as_secs_f64(),
         }))
     }

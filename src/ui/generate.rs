@@ -10,11 +10,13 @@ use std::time::Instant;
 
 use anyhow::Context;
 
-use crate::backend::{Backend, ChatMessage, Detokenizer, Role};
+use crate::backend::{Backend, Detokenizer};
+use crate::chat::{ChatMessage, Role};
 use crate::decode::envelope::{Envelope, ToolChoice};
-use crate::decode::turn::{assistant_turn, TurnRequest};
+use crate::decode::turn::{assistant_turn, render_prompt, TurnRequest};
 use crate::decode::{
-    self, Decoding, Finish, GenerationStats, Grammars, Sampler, SamplerConfig, Session,
+    self, Decoding, Finish, GenerationStats, Grammars, JsonScan, NoHook, Sampler, SamplerConfig,
+    Session, Steering,
 };
 use crate::metrics;
 use crate::tool::specs_from_json;
@@ -69,8 +71,6 @@ pub fn run(args: &GenerateArgs) -> anyhow::Result<()> {
                 parallel: args.parallel,
                 decoding: args.decoding,
                 max_tokens: args.max_tokens,
-                relevance_gate: None,
-                copy: None,
             };
             let mut sampler = Sampler::new(args.sampler, model.vocab().len());
             let r = assistant_turn(
@@ -79,6 +79,7 @@ pub fn run(args: &GenerateArgs) -> anyhow::Result<()> {
                 &grammars,
                 &mut sampler,
                 &req,
+                &mut NoHook,
                 |piece| {
                     let _ = lock.write_all(piece.as_bytes()).and_then(|_| lock.flush());
                     ControlFlow::Continue(())
@@ -118,18 +119,18 @@ fn plain(
     args: &GenerateArgs,
     out: &mut impl Write,
 ) -> anyhow::Result<(Finish, GenerationStats)> {
-    let text = if args.chat {
+    // The template's own markers are special tokens; the prompt itself is taken
+    // literally either way.
+    let prompt = if args.chat {
         let mut messages = Vec::new();
         if let Some(s) = &args.system {
             messages.push(ChatMessage::new(Role::System, s.clone()));
         }
         messages.push(ChatMessage::new(Role::User, args.prompt.clone()));
-        model.chat_template().render(&messages, None, true)?
+        render_prompt(model, &messages, Envelope::Json)?
     } else {
-        args.prompt.clone()
+        decode::prompt_tokens(model, &args.prompt, false)?
     };
-    // The rendered template holds special-token texts; a raw prompt is taken literally.
-    let prompt = decode::prompt_tokens(model, &text, args.chat)?;
 
     let mut sampler = Sampler::new(args.sampler, model.vocab().len());
     let mut detok = Detokenizer::new(false);
@@ -140,9 +141,13 @@ fn plain(
         &mut Session::new(),
         &prompt,
         args.max_tokens,
-        &mut sampler,
-        None,
-        |tok| {
+        Steering {
+            sampler: &mut sampler,
+            constraint: None,
+            hook: &mut NoHook,
+            scan: &mut JsonScan::new(),
+        },
+        |tok, _| {
             piece.clear();
             detok.push(&vocab, tok, &mut piece);
             // A closed stdout (`| head`) ends the run instead of panicking.

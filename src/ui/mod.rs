@@ -3,11 +3,13 @@
 //!
 //! Layout:
 //! - `agent`: `ferrosa ask` and `ferrosa chat`
+//! - `choice`: the command line's names for the library's choices
 //! - `eval`: `ferrosa eval bfcl`
 //! - `generate`: `ferrosa generate`, streaming text from a model, with `--stats`
 //! - `models`: `ferrosa models list|fetch|verify`
 
 pub mod agent;
+pub mod choice;
 pub mod eval;
 pub mod generate;
 pub mod models;

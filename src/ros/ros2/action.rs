@@ -19,9 +19,10 @@ use ros2_client::qos::Durability as QDurability;
 use ros2_client::{ActionTypeName, ServiceMapping};
 use serde_json::{json, Value};
 
-use super::{reliable_qos, ros_name, split_type, Raw, Ros2Graph};
+use super::dds::{reliable_qos, ros_name, split_type, EndpointCache, Raw};
 use crate::ros::cdr;
 use crate::ros::msg::normalize_type;
+use crate::ros::msg::Interfaces;
 use crate::ros::{CancelOutcome, GoalOutcome, GoalStatus, RosError, Sample};
 
 /// Feedback messages kept per goal (the newest).
@@ -96,16 +97,26 @@ fn goal_status(s: GoalStatusEnum) -> GoalStatus {
     }
 }
 
-impl Ros2Graph {
-    async fn action_client(
+/// The action clients of a graph's node, made on first use and kept.
+#[derive(Default)]
+pub(super) struct Actions {
+    clients: EndpointCache<RawActionClient>,
+}
+
+type NodeLock = tokio::sync::Mutex<ros2_client::Node>;
+
+impl Actions {
+    async fn client(
         &self,
+        node: &NodeLock,
         action: &str,
         ty: &str,
         kind: &ActionTypeName,
         timeout: Duration,
     ) -> Result<Arc<RawActionClient>, RosError> {
         let (client, _) = self
-            .endpoint(&self.actions, action, ty, |node| {
+            .clients
+            .get_or_make(node, action, ty, |node| {
                 node.create_action_client::<Raw, Raw, Raw>(
                     ServiceMapping::Enhanced,
                     &ros_name(action)?,
@@ -117,7 +128,7 @@ impl Ros2Graph {
             .await?;
         // Both services the goal needs: a result request sent before the server's reader
         // matches is lost, and the goal then looks as if it never ends.
-        let node = self.node.lock().await;
+        let node = node.lock().await;
         let ready = async {
             client.goal_client().wait_for_service(&node).await;
             client.result_client().wait_for_service(&node).await;
@@ -128,8 +139,10 @@ impl Ros2Graph {
         Ok(client)
     }
 
-    pub(super) async fn do_send_goal(
+    pub(super) async fn send_goal(
         &self,
+        node: &NodeLock,
+        interfaces: &Interfaces,
         action: &str,
         type_name: &str,
         goal: Value,
@@ -138,14 +151,13 @@ impl Ros2Graph {
         let start = Instant::now();
         let (ty, kind) = action_type(type_name)?;
         let goal_ty = format!("{ty}_Goal");
-        let bytes =
-            cdr::encode(&self.interfaces, &goal_ty, &goal, 16).map_err(|e| RosError::Encode {
-                type_name: goal_ty.clone(),
-                reason: e.to_string(),
-            })?;
+        let bytes = cdr::encode(interfaces, &goal_ty, &goal, 16).map_err(|e| RosError::Encode {
+            type_name: goal_ty.clone(),
+            reason: e.to_string(),
+        })?;
         // Finding the server may take part of the wait, but never all of it.
         let find = wait.max(Duration::from_secs(3));
-        let client = self.action_client(action, &ty, &kind, find).await?;
+        let client = self.client(node, action, &ty, &kind, find).await?;
         let left = |floor: u64| {
             wait.saturating_sub(start.elapsed())
                 .max(Duration::from_millis(floor))
@@ -183,7 +195,7 @@ impl Ros2Graph {
                         Ok(Ok((status, raw))) => {
                             outcome.status = goal_status(status);
                             outcome.result = Some(
-                                cdr::decode(&self.interfaces, &result_ty, &raw.0, 1).map_err(
+                                cdr::decode(interfaces, &result_ty, &raw.0, 1).map_err(
                                     |e| RosError::Decode { type_name: result_ty.clone(), reason: e.to_string() },
                                 )?,
                             );
@@ -197,7 +209,7 @@ impl Ros2Graph {
                     break;
                 }
                 Some(Ok(raw)) = feedback.next() => {
-                    if let Ok(message) = cdr::decode(&self.interfaces, &feedback_ty, &raw.0, 16) {
+                    if let Ok(message) = cdr::decode(interfaces, &feedback_ty, &raw.0, 16) {
                         if outcome.feedback.len() == FEEDBACK_KEPT {
                             outcome.feedback.remove(0);
                         }
@@ -209,8 +221,9 @@ impl Ros2Graph {
         Ok(outcome)
     }
 
-    pub(super) async fn do_cancel_goals(
+    pub(super) async fn cancel_goals(
         &self,
+        node: &NodeLock,
         action: &str,
         type_name: &str,
         goal_id: Option<&str>,
@@ -219,9 +232,9 @@ impl Ros2Graph {
         let start = Instant::now();
         let (ty, kind) = action_type(type_name)?;
         let id = goal_id.map(parse_goal_id).transpose()?;
-        let client = self.action_client(action, &ty, &kind, timeout).await?;
+        let client = self.client(node, action, &ty, &kind, timeout).await?;
         {
-            let node = self.node.lock().await;
+            let node = node.lock().await;
             let left = timeout.saturating_sub(start.elapsed());
             if tokio::time::timeout(left, client.cancel_client().wait_for_service(&node))
                 .await

@@ -13,7 +13,7 @@ use ros2_client::{ActionTypeName, Message, Node, ServiceMapping};
 use serde::{Deserialize, Serialize};
 use tokio::task::JoinHandle;
 
-use super::{normalize_angle, Shared, STEP};
+use super::world::{normalize_angle, Rotation, Shared, STEP};
 use crate::ros::ros2::{action_server_qos, ros_name};
 use crate::ros::RosError;
 
@@ -42,15 +42,6 @@ struct Feedback {
 impl Message for Feedback {}
 
 type Server = AsyncActionServer<Goal, Outcome, Feedback>;
-
-/// The goal a turtle is turning toward.
-#[derive(Debug, Clone)]
-pub(super) struct Rotation {
-    id: GoalId,
-    target: f64,
-    start: f64,
-    cancel: bool,
-}
 
 /// Serve `/<turtle>/rotate_absolute`; the returned tasks take goals and cancels.
 pub(super) fn serve(

@@ -8,7 +8,7 @@ use schemars::JsonSchema;
 use serde::Deserialize;
 use serde_json::{json, Map, Value};
 
-use super::{absolute, failed, not_found, Filter, ListArgs, Ros};
+use super::base::{absolute, failed, not_found, Filter, ListArgs, Ros};
 use crate::ros::{GoalStatus, Graph};
 use crate::tool::{Effect, Tool, ToolContext, ToolError};
 

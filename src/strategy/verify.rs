@@ -11,10 +11,16 @@
 //! around) and booleans say nothing either way.
 //!
 //! Strings are compared as lowercased words (a value must be a run of the request's
-//! words), numbers by value (with digit groups read as one number: "$400,000" is
-//! 400000, while "5,10" is two numbers; "three" and "a dozen" are numbers too).
+//! words), numbers by value, both read by `lexicon`.
+//!
+//! Cost: the request is read once per turn; a closed call's leaves are compared once.
 
 use serde_json::Value;
+
+use super::default;
+use super::{Review, Strategy};
+use crate::lexicon::{numbers, same_number, words};
+use crate::tool::ToolCall;
 
 /// The request a proposed call is checked against, split once.
 #[derive(Debug, Clone)]
@@ -39,103 +45,12 @@ impl Novelty {
     }
 }
 
-/// Lowercased runs of letters and digits.
-pub(crate) fn words(text: &str) -> Vec<String> {
-    text.split(|c: char| !c.is_alphanumeric())
-        .filter(|w| !w.is_empty())
-        .map(str::to_lowercase)
-        .collect()
-}
-
-/// The value of a number written as a word ("three hours", "a family of four").
-pub(super) fn number_word(w: &str) -> Option<f64> {
-    const SMALL: [&str; 20] = [
-        "zero",
-        "one",
-        "two",
-        "three",
-        "four",
-        "five",
-        "six",
-        "seven",
-        "eight",
-        "nine",
-        "ten",
-        "eleven",
-        "twelve",
-        "thirteen",
-        "fourteen",
-        "fifteen",
-        "sixteen",
-        "seventeen",
-        "eighteen",
-        "nineteen",
-    ];
-    const TENS: [&str; 8] = [
-        "twenty", "thirty", "forty", "fifty", "sixty", "seventy", "eighty", "ninety",
-    ];
-    if let Some(n) = SMALL.iter().position(|&x| x == w) {
-        return Some(n as f64);
-    }
-    if let Some(n) = TENS.iter().position(|&x| x == w) {
-        return Some(20.0 + 10.0 * n as f64);
-    }
-    match w {
-        "dozen" => Some(12.0),
-        "hundred" => Some(100.0),
-        "thousand" => Some(1000.0),
-        _ => None,
-    }
-}
-
 impl Request {
     pub fn new(text: &str) -> Request {
-        let mut numbers = Vec::new();
-        let plain = super::copy::without_digit_grouping(text.as_bytes());
-        let bytes = plain.as_slice();
-        let mut i = 0;
-        while i < bytes.len() {
-            let starts = bytes[i].is_ascii_digit()
-                && (i == 0 || !(bytes[i - 1].is_ascii_alphanumeric() || bytes[i - 1] == b'.'));
-            if !starts {
-                i += 1;
-                continue;
-            }
-            let mut digits = String::new();
-            let mut j = i;
-            while j < bytes.len() {
-                let b = bytes[j];
-                let next_digit = bytes.get(j + 1).is_some_and(u8::is_ascii_digit);
-                if b.is_ascii_digit() {
-                    digits.push(b as char);
-                } else if b == b'.' && next_digit && !digits.contains(['.', 'e']) {
-                    digits.push('.');
-                } else if matches!(b, b'e' | b'E') && !digits.contains('e') && {
-                    let sign = matches!(bytes.get(j + 1), Some(b'-' | b'+'));
-                    bytes
-                        .get(j + 1 + usize::from(sign))
-                        .is_some_and(u8::is_ascii_digit)
-                } {
-                    digits.push('e');
-                    if let Some(&sign @ (b'-' | b'+')) = bytes.get(j + 1) {
-                        digits.push(sign as char);
-                        j += 1;
-                    }
-                } else {
-                    break;
-                }
-                j += 1;
-            }
-            if let Ok(n) = digits.parse::<f64>() {
-                let negative = i > 0 && bytes[i - 1] == b'-';
-                numbers.push(if negative { -n } else { n });
-                numbers.push(n);
-            }
-            i = j.max(i + 1);
+        Request {
+            words: words(text),
+            numbers: numbers(text),
         }
-        let words = words(text);
-        numbers.extend(words.iter().filter_map(|w| number_word(w)));
-        Request { words, numbers }
     }
 
     /// Does the request spell `v` (a string's words in a row, or a number's value)?
@@ -157,11 +72,7 @@ impl Request {
             }
             Value::Number(n) => {
                 let n = n.as_f64()?;
-                Some(
-                    self.numbers
-                        .iter()
-                        .any(|&m| (m - n).abs() <= 1e-9 * m.abs().max(1.0)),
-                )
+                Some(self.numbers.iter().any(|&m| same_number(m, n)))
             }
             // Booleans and nulls: the request cannot spell them.
             _ => None,
@@ -187,9 +98,7 @@ impl Request {
             let listed = prop.is_some_and(|s| s.get("enum").is_some() || s.get("const").is_some());
             // The parameter's declared default is what the call means when the request
             // says nothing, so it tells nothing either.
-            let default = prop
-                .and_then(crate::tool::default::declared)
-                .is_some_and(|d| d.is(v));
+            let default = prop.and_then(default::declared).is_some_and(|d| d.is(v));
             if kept || listed || default {
                 continue;
             }
@@ -200,6 +109,62 @@ impl Request {
             }
         }
         n
+    }
+}
+
+/// Call verification as a strategy: each call a gated list writes is checked against the
+/// request (see the module header). A first call that brings more unasked values than
+/// asked ones is written again more strictly, then answered instead; a further call is
+/// kept only when it earns its place.
+pub struct Verification {
+    request: Request,
+    /// Each tool's parameter schema, by name.
+    schemas: Vec<(String, Value)>,
+}
+
+impl Verification {
+    pub fn new(request: &str, specs: &[crate::tool::ToolSpec]) -> Verification {
+        Verification {
+            request: Request::new(request),
+            schemas: specs
+                .iter()
+                .map(|s| (s.name.clone(), s.parameters.clone()))
+                .collect(),
+        }
+    }
+}
+
+impl Strategy for Verification {
+    fn name(&self) -> &'static str {
+        "verify"
+    }
+
+    fn review(&mut self, call: &ToolCall, earlier: &[ToolCall], first: bool) -> Review {
+        let schema = self
+            .schemas
+            .iter()
+            .find(|(n, _)| *n == call.name)
+            .map(|(_, s)| s);
+        let same_tool: Vec<Value> = earlier
+            .iter()
+            .filter(|e| e.name == call.name)
+            .map(|e| e.arguments.clone())
+            .collect();
+        let n = self.request.novelty(&call.arguments, &same_tool, schema);
+        tracing::debug!(target: "ferrosa::gate", ?n, first, call = %call.arguments, "reviewed");
+        if first {
+            if n.ungrounded > 0 && n.ungrounded >= n.grounded {
+                Review::Redo
+            } else {
+                Review::Keep
+            }
+        } else if n.earns_its_place() {
+            Review::Keep
+        } else if n.ungrounded > 0 {
+            Review::Redo
+        } else {
+            Review::Reject
+        }
     }
 }
 

@@ -1,54 +1,25 @@
-//! A backend with a real vocabulary and no weights: every forward pass returns equal
-//! logits, so a sampler at temperature 1 picks uniformly among whatever a grammar allows.
-//! Property tests and decoding benchmarks use it to drive the real constrained-decoding
-//! path over a real tokenizer without running a model.
+//! A backend with a vocabulary and no weights: every forward pass returns the same
+//! logits (equal, or with chosen tokens favoured), so a sampler at temperature 1 picks
+//! among whatever a grammar allows. Property tests and decoding benchmarks use it to
+//! drive the real constrained-decoding path without running a model.
 
 use std::sync::Arc;
 
-use super::bpe::Bpe;
-use super::template::{ChatTemplate, TemplateOrigin};
-use super::vocab::{TokenKind, Vocab};
-use super::{Backend, BackendError, Gguf, TokenId, Tokenize};
+use ferrosa::backend::bpe::Bpe;
+use ferrosa::backend::template::{ChatTemplate, TemplateOrigin};
+use ferrosa::backend::vocab::{TokenKind, Vocab};
+use ferrosa::backend::{Backend, BackendError, Gguf, TokenId, Tokenize};
+
+use super::synthetic::{Greedy, Synthetic};
 
 pub struct Uniform {
     vocab: Vocab,
     tokenizer: Arc<dyn Tokenize>,
     template: ChatTemplate,
+    /// What every forward pass returns.
+    base: Vec<f32>,
     logits: Vec<f32>,
     context: usize,
-}
-
-/// Greedy longest-match tokenization over the vocabulary: exact for synthetic byte-level
-/// vocabularies, where every byte is a token.
-struct Greedy(Vocab);
-
-impl Tokenize for Greedy {
-    fn tokenize(&self, text: &str, special: bool) -> Vec<TokenId> {
-        let bytes = text.as_bytes();
-        let mut out = Vec::new();
-        let mut i = 0;
-        while i < bytes.len() {
-            let mut best: Option<(usize, TokenId)> = None;
-            for id in 0..self.0.len() as TokenId {
-                let p = self.0.piece(id);
-                let is_special = self.0.kind(id) == TokenKind::Control;
-                if p.is_empty() || (is_special && !special) {
-                    continue;
-                }
-                if bytes[i..].starts_with(p) && best.is_none_or(|(l, _)| p.len() > l) {
-                    best = Some((p.len(), id));
-                }
-            }
-            match best {
-                Some((l, id)) => {
-                    out.push(id);
-                    i += l;
-                }
-                None => i += 1,
-            }
-        }
-        out
-    }
 }
 
 impl Uniform {
@@ -63,12 +34,38 @@ impl Uniform {
         let bpe = Bpe::from_gguf(g, &vocab).map_err(fail)?;
         let template = ChatTemplate::for_model(g, None)?;
         Ok(Uniform {
+            base: vec![0.0; vocab.len()],
             logits: vec![0.0; vocab.len()],
             vocab,
             tokenizer: Arc::new(bpe),
             template,
             context: 1 << 20,
         })
+    }
+
+    /// The synthetic model's vocabulary and ChatML template (no weights, no file).
+    pub fn synthetic() -> Uniform {
+        let s = Synthetic::chatml();
+        Uniform {
+            base: vec![0.0; s.vocab.len()],
+            logits: vec![0.0; s.vocab.len()],
+            vocab: s.vocab,
+            tokenizer: s.tokenizer,
+            template: s.template,
+            context: 1 << 20,
+        }
+    }
+
+    /// Add `bonus` to the logit of every token whose bytes all satisfy `pick` (a model
+    /// with a taste, e.g. for writing on and on).
+    pub fn favouring(mut self, pick: impl Fn(&[u8]) -> bool, bonus: f32) -> Uniform {
+        for id in 0..self.vocab.len() as TokenId {
+            let p = self.vocab.piece(id);
+            if !p.is_empty() && pick(p) {
+                self.base[id as usize] += bonus;
+            }
+        }
+        self
     }
 
     /// Every single byte as a token, then `control` tokens (the first is EOS), then
@@ -99,6 +96,7 @@ impl Uniform {
         )
         .expect("static template compiles");
         Uniform {
+            base: vec![0.0; vocab.len()],
             logits: vec![0.0; vocab.len()],
             tokenizer: Arc::new(Greedy(vocab.clone())),
             vocab,
@@ -137,7 +135,7 @@ impl Backend for Uniform {
         if let Some(&bad) = tokens.iter().find(|&&t| t as usize >= self.vocab.len()) {
             return Err(BackendError::BadToken(bad));
         }
-        self.logits.fill(0.0);
+        self.logits.copy_from_slice(&self.base);
         Ok(&mut self.logits)
     }
 }

@@ -14,20 +14,20 @@
 //! Messages are built as JSON and encoded by `cdr`, the same codec the tools use.
 
 mod rotate;
+mod world;
+
+use world::{normalize_angle, Shared, Turtle, World, PUBLISH_AFTER, STEP};
+pub use world::{ARENA, CENTER};
 
 use std::collections::BTreeMap;
-use std::f64::consts::PI;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use ros2_client::builtin_interfaces::Time;
 use ros2_client::log::LogLevel;
 use ros2_client::parameters::ParameterValue;
 use ros2_client::qos::Durability as QDurability;
-use ros2_client::rosout::RosoutRaw;
 use ros2_client::{
-    Context, MessageTypeName, Node, NodeLoggingHandle, NodeName, NodeOptions, ServiceMapping,
-    ServiceTypeName,
+    Context, MessageTypeName, Node, NodeName, NodeOptions, ServiceMapping, ServiceTypeName,
 };
 use serde_json::{json, Value};
 use tokio::task::JoinHandle;
@@ -36,105 +36,6 @@ use super::cdr;
 use super::graph::Graph;
 use super::ros2::{background, context, reliable_qos, ros_name, split_type, Raw, Ros2Options};
 use super::{Interfaces, RosError};
-
-/// The arena's side, in metres (turtlesim's 500 px at 45 px/m).
-pub const ARENA: f64 = 11.088889;
-/// Where turtles start and reset to.
-pub const CENTER: f64 = 5.544445;
-const STEP: Duration = Duration::from_millis(16);
-const COMMAND_HOLD: Duration = Duration::from_secs(1);
-/// How long after start-up (or a spawn) a turtle's topics begin to publish.
-const PUBLISH_AFTER: Duration = Duration::from_secs(2);
-
-#[derive(Debug, Clone)]
-struct Turtle {
-    x: f64,
-    y: f64,
-    theta: f64,
-    linear: f64,
-    angular: f64,
-    commanded: Option<Instant>,
-    pen_on: bool,
-}
-
-impl Turtle {
-    fn at(x: f64, y: f64, theta: f64) -> Turtle {
-        Turtle {
-            x,
-            y,
-            theta,
-            linear: 0.0,
-            angular: 0.0,
-            commanded: None,
-            pen_on: true,
-        }
-    }
-
-    /// One turtlesim update: turn, then move, then stay inside the arena.
-    /// Returns true when the turtle hit the wall.
-    fn step(&mut self, dt: f64, now: Instant) -> bool {
-        if self
-            .commanded
-            .map(|t| now.duration_since(t) > COMMAND_HOLD)
-            .unwrap_or(true)
-        {
-            self.linear = 0.0;
-            self.angular = 0.0;
-        }
-        self.theta = normalize_angle(self.theta + self.angular * dt);
-        self.x += self.theta.cos() * self.linear * dt;
-        self.y += self.theta.sin() * self.linear * dt;
-        let hit = self.x < 0.0 || self.x > ARENA || self.y < 0.0 || self.y > ARENA;
-        self.x = self.x.clamp(0.0, ARENA);
-        self.y = self.y.clamp(0.0, ARENA);
-        hit
-    }
-
-    fn pose(&self) -> Value {
-        json!({"x": self.x, "y": self.y, "theta": self.theta,
-               "linear_velocity": self.linear, "angular_velocity": self.angular})
-    }
-}
-
-fn normalize_angle(a: f64) -> f64 {
-    let mut a = a % (2.0 * PI);
-    if a > PI {
-        a -= 2.0 * PI;
-    } else if a < -PI {
-        a += 2.0 * PI;
-    }
-    a
-}
-
-struct World {
-    turtles: BTreeMap<String, Turtle>,
-    /// The `rotate_absolute` goal each turtle is turning toward.
-    rotations: BTreeMap<String, rotate::Rotation>,
-    battery: f64,
-    tasks: BTreeMap<String, Vec<JoinHandle<()>>>,
-}
-
-struct Shared {
-    world: Mutex<World>,
-    interfaces: Interfaces,
-    log: NodeLoggingHandle,
-    node: tokio::sync::Mutex<Node>,
-    background: Mutex<[i64; 3]>,
-}
-
-impl Shared {
-    fn log(&self, level: LogLevel, msg: &str) {
-        self.log.rosout_raw(
-            Time::now(),
-            level,
-            "turtlesim",
-            msg,
-            file!(),
-            "sim",
-            line!(),
-        );
-    }
-}
 
 /// A running sim; dropping it stops the robot.
 pub struct Sim {
@@ -643,7 +544,7 @@ mod tests {
         t.angular = 1.0;
         t.commanded = Some(now);
         t.step(0.5, now);
-        assert!((t.theta - (3.5 - 2.0 * PI)).abs() < 1e-9);
+        assert!((t.theta - (3.5 - 2.0 * std::f64::consts::PI)).abs() < 1e-9);
         let mut t = Turtle::at(11.0, CENTER, 0.0);
         t.linear = 2.0;
         t.commanded = Some(now);

@@ -2,13 +2,16 @@
 //! function docs mostly put it, a phrase in the description ("Default is -9.81 m/s^2.",
 //! "defaults to 'cm'", "Default: true", "Default is all if not specified").
 //!
-//! A value the operator never gave is best left to the tool's default: the grounding of
-//! optional arguments keeps a value equal to it, call verification counts it for nothing,
-//! and the copy bias offers it as one more thing the parameter's value may copy.
+//! Not a strategy of its own: what the strategies know of defaults. A value the operator
+//! never gave is best left to the tool's default: grounding keeps a value equal to it,
+//! call verification counts it for nothing, and the copy bias offers a required
+//! parameter's default as one more thing its value may copy.
+//!
+//! Cost: a scan of one description per call; nothing per token.
 
 use serde_json::Value;
 
-use crate::decode::verify::words;
+use crate::lexicon::{same_number, words};
 
 /// A parameter's declared default.
 #[derive(Debug, Clone, PartialEq)]
@@ -158,7 +161,7 @@ impl Declared {
                 let (Some(a), Some(d)) = (a.as_f64(), d.as_f64()) else {
                     return false;
                 };
-                (a - d).abs() <= 1e-9 * d.abs().max(1.0)
+                same_number(a, d)
             }
             (Value::String(s), _) => self.spells_words(s),
             (a, Some(d)) => a == d,

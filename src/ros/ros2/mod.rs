@@ -14,171 +14,30 @@
 //! pump run on a small background thread of their own, so callers may use any runtime.
 
 mod action;
+mod dds;
 
 pub(crate) use action::server_qos as action_server_qos;
+pub(crate) use dds::{background, context, reliable_qos, ros_name, split_type, Raw};
+use dds::{dds_qos, EndpointCache};
+pub use dds::{DiscoveryRange, Ros2Options};
 
-use std::collections::HashMap;
-use std::net::{IpAddr, Ipv4Addr};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use ros2_client::dds::rustdds::{self, DomainParticipantBuilder};
-use ros2_client::qos::{Durability as QDurability, History, Reliability as QReliability, WhenFull};
+use ros2_client::qos::{Durability as QDurability, Reliability as QReliability};
 use ros2_client::{
-    Context, Message, MessageTypeName, Name, Node, NodeName, NodeOptions, QosProfile,
-    ServiceMapping, ServiceTypeName,
+    Context, Message, MessageTypeName, Node, NodeName, NodeOptions, ServiceMapping, ServiceTypeName,
 };
-use serde::de::{SeqAccess, Visitor};
-use serde::ser::SerializeTuple;
-use serde::{Deserialize, Deserializer, Serialize, Serializer};
+use serde::{Deserialize, Serialize};
 use serde_json::Value;
 
 use super::cdr;
 use super::graph::{
-    type_hash_from_user_data, DdsEndpoint, Durability, Gid, Graph, GraphCache, NodeEntities, Qos,
+    type_hash_from_user_data, DdsEndpoint, Durability, Gid, Graph, GraphCache, NodeEntities,
     Reliability,
 };
 use super::msg::normalize_type;
 use super::{BoxFuture, CancelOutcome, GoalOutcome, Interfaces, RosError, RosGraph, Sample};
-
-/// Where DDS discovery may reach.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum DiscoveryRange {
-    /// This machine only (loopback): the default.
-    Localhost,
-    /// Every network the machine is on.
-    Subnet,
-}
-
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct Ros2Options {
-    pub domain_id: u16,
-    pub range: DiscoveryRange,
-}
-
-impl Default for Ros2Options {
-    fn default() -> Self {
-        Ros2Options {
-            domain_id: 0,
-            range: DiscoveryRange::Localhost,
-        }
-    }
-}
-
-impl Ros2Options {
-    /// From the environment a ROS user sets: `ROS_DOMAIN_ID` (0..=232),
-    /// `ROS_AUTOMATIC_DISCOVERY_RANGE` (LOCALHOST or SUBNET; OFF and SYSTEM_DEFAULT are
-    /// treated as LOCALHOST), else the older `ROS_LOCALHOST_ONLY=0|1`. Unset means
-    /// domain 0, localhost only.
-    pub fn from_env() -> Result<Ros2Options, RosError> {
-        Self::from_vars(|k| std::env::var(k).ok())
-    }
-
-    fn from_vars(get: impl Fn(&str) -> Option<String>) -> Result<Ros2Options, RosError> {
-        let mut opts = Ros2Options::default();
-        if let Some(d) = get("ROS_DOMAIN_ID").filter(|d| !d.trim().is_empty()) {
-            opts.domain_id = d
-                .trim()
-                .parse::<u16>()
-                .ok()
-                .filter(|d| *d <= 232)
-                .ok_or_else(|| {
-                    RosError::Other(format!("ROS_DOMAIN_ID={d} is not a domain id (0-232)"))
-                })?;
-        }
-        match get("ROS_AUTOMATIC_DISCOVERY_RANGE").map(|r| r.trim().to_ascii_uppercase()) {
-            Some(r) if r == "SUBNET" => opts.range = DiscoveryRange::Subnet,
-            Some(r) if ["LOCALHOST", "OFF", "SYSTEM_DEFAULT", ""].contains(&r.as_str()) => {}
-            Some(r) => {
-                return Err(RosError::Other(format!(
-                    "ROS_AUTOMATIC_DISCOVERY_RANGE={r}: use LOCALHOST or SUBNET"
-                )))
-            }
-            None => {
-                if get("ROS_LOCALHOST_ONLY")
-                    .map(|v| v.trim() == "0")
-                    .unwrap_or(false)
-                {
-                    opts.range = DiscoveryRange::Subnet;
-                }
-            }
-        }
-        Ok(opts)
-    }
-}
-
-/// A ROS 2 context (one DDS participant) with these options.
-pub fn context(opts: &Ros2Options) -> Result<Context, RosError> {
-    let mut builder = DomainParticipantBuilder::new(opts.domain_id);
-    if opts.range == DiscoveryRange::Localhost {
-        builder = builder.with_only_networks([IpAddr::V4(Ipv4Addr::LOCALHOST)]);
-    }
-    let participant = builder
-        .build()
-        .map_err(|e| RosError::Other(format!("cannot start DDS: {e:?}")))?;
-    Context::from_domain_participant(participant)
-        .map_err(|e| RosError::Other(format!("cannot start ROS 2: {e:?}")))
-}
-
-/// A background runtime (two worker threads) for ROS tasks, so a slow task never
-/// starves a participant's spinner.
-pub(crate) fn background() -> tokio::runtime::Handle {
-    let (tx, rx) = std::sync::mpsc::channel();
-    std::thread::Builder::new()
-        .name("ros2".into())
-        .spawn(move || {
-            let rt = tokio::runtime::Builder::new_multi_thread()
-                .worker_threads(2)
-                .thread_name("ros2-worker")
-                .enable_time()
-                .build()
-                .expect("a tokio runtime for ROS");
-            tx.send(rt.handle().clone())
-                .expect("handing out the runtime");
-            rt.block_on(std::future::pending::<()>());
-        })
-        .expect("spawning the ROS thread");
-    rx.recv().expect("the ROS thread's runtime")
-}
-
-/// A payload of any type: the CDR body, passed through serde untouched.
-#[derive(Debug, Clone, Default, PartialEq)]
-pub struct Raw(pub Vec<u8>);
-
-impl Message for Raw {}
-
-impl Serialize for Raw {
-    fn serialize<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
-        // A tuple of bytes: CDR writes them as they are, with no length or padding.
-        let mut t = s.serialize_tuple(self.0.len())?;
-        for b in &self.0 {
-            t.serialize_element(b)?;
-        }
-        t.end()
-    }
-}
-
-impl<'de> Deserialize<'de> for Raw {
-    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Raw, D::Error> {
-        struct Bytes;
-        impl<'de> Visitor<'de> for Bytes {
-            type Value = Raw;
-            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
-                f.write_str("a CDR payload")
-            }
-            fn visit_seq<A: SeqAccess<'de>>(self, mut seq: A) -> Result<Raw, A::Error> {
-                // Read bytes until the payload ends (the deserializer reports the end
-                // as an error, which here only means "no more bytes").
-                let mut out = Vec::new();
-                while let Ok(Some(b)) = seq.next_element::<u8>() {
-                    out.push(b);
-                }
-                Ok(Raw(out))
-            }
-        }
-        d.deserialize_tuple(usize::MAX, Bytes)
-    }
-}
 
 // `ros_discovery_info`, read with our own types (rmw_dds_common, Jazzy: 16-byte GIDs).
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -202,63 +61,15 @@ struct ParticipantEntities {
 
 impl Message for ParticipantEntities {}
 
-pub(crate) fn reliable_qos(durability: QDurability, depth: usize) -> QosProfile {
-    QosProfile::subscription_default()
-        .reliability(QReliability::Reliable {
-            when_full: WhenFull::DEFAULT,
-        })
-        .durability(durability)
-        .history(History::KeepLast { depth })
-}
-
-/// `pkg/msg/Name` (any spelling) split for ros2-client's type names.
-pub(crate) fn split_type(type_name: &str) -> Result<(String, String, String), RosError> {
-    let full = normalize_type(type_name);
-    match full.split('/').collect::<Vec<_>>().as_slice() {
-        [pkg, kind, name] => Ok((pkg.to_string(), kind.to_string(), name.to_string())),
-        _ => Err(RosError::Other(format!(
-            "{type_name}: not a ROS type name (pkg/msg/Name)"
-        ))),
-    }
-}
-
-pub(crate) fn ros_name(name: &str) -> Result<Name, RosError> {
-    let name = if name.starts_with('/') {
-        name.to_string()
-    } else {
-        format!("/{name}")
-    };
-    Name::parse(&name).map_err(|_| RosError::BadName(name))
-}
-
-fn dds_qos(q: &rustdds::QosPolicies) -> Qos {
-    use rustdds::policy;
-    Qos {
-        reliability: match q.reliability() {
-            Some(policy::Reliability::BestEffort) => Reliability::BestEffort,
-            _ => Reliability::Reliable,
-        },
-        durability: match q.durability() {
-            Some(policy::Durability::TransientLocal)
-            | Some(policy::Durability::Transient)
-            | Some(policy::Durability::Persistent) => Durability::TransientLocal,
-            _ => Durability::Volatile,
-        },
-    }
-}
-
-/// Endpoints made on first use and kept, by (ROS name, type).
-type Endpoints<T> = Mutex<HashMap<(String, String), Arc<T>>>;
-
 /// The ROS 2 graph, through one hidden node of our own.
 pub struct Ros2Graph {
     context: Context,
     node: tokio::sync::Mutex<Node>,
     cache: Arc<Mutex<GraphCache>>,
     interfaces: Interfaces,
-    publishers: Endpoints<ros2_client::Publisher<Raw>>,
-    clients: Endpoints<ros2_client::Client<Raw, Raw>>,
-    actions: Endpoints<action::RawActionClient>,
+    publishers: EndpointCache<ros2_client::Publisher<Raw>>,
+    clients: EndpointCache<ros2_client::Client<Raw, Raw>>,
+    actions: action::Actions,
 }
 
 impl Ros2Graph {
@@ -321,9 +132,9 @@ impl Ros2Graph {
             node: tokio::sync::Mutex::new(node),
             cache,
             interfaces: Interfaces::bundled(),
-            publishers: Mutex::new(HashMap::new()),
-            clients: Mutex::new(HashMap::new()),
-            actions: Mutex::new(HashMap::new()),
+            publishers: EndpointCache::default(),
+            clients: EndpointCache::default(),
+            actions: action::Actions::default(),
         })
     }
 
@@ -371,28 +182,6 @@ impl Ros2Graph {
             .nodes
             .retain(|n| !n.rsplit('/').next().unwrap_or("").starts_with('_'));
         graph
-    }
-
-    /// The endpoint kept in `cache` under (`name`, `ty`), or one `make` creates on our
-    /// node, then kept; `true` when it was made by this call.
-    async fn endpoint<T>(
-        &self,
-        cache: &Endpoints<T>,
-        name: &str,
-        ty: &str,
-        make: impl FnOnce(&mut Node) -> Result<T, RosError>,
-    ) -> Result<(Arc<T>, bool), RosError> {
-        let key = (name.to_string(), ty.to_string());
-        let cached = cache.lock().expect("endpoint cache").get(&key).cloned();
-        if let Some(e) = cached {
-            return Ok((e, false));
-        }
-        let made = Arc::new(make(&mut *self.node.lock().await)?);
-        cache
-            .lock()
-            .expect("endpoint cache")
-            .insert(key, made.clone());
-        Ok((made, true))
     }
 
     /// Learn `ty`, used on `topic`, from a node that publishes or subscribes to it: its
@@ -573,7 +362,8 @@ impl Ros2Graph {
                 reason: e.to_string(),
             })?;
         let (publisher, _) = self
-            .endpoint(&self.publishers, topic, &ty, |node| {
+            .publishers
+            .get_or_make(&self.node, topic, &ty, |node| {
                 let (pkg, _, short) = split_type(&ty)?;
                 // Volatile: a late subscriber must never receive an old command.
                 let qos = reliable_qos(QDurability::Volatile, 10);
@@ -628,7 +418,8 @@ impl Ros2Graph {
                 reason: e.to_string(),
             })?;
         let (client, fresh) = self
-            .endpoint(&self.clients, service, &ty, |node| {
+            .clients
+            .get_or_make(&self.node, service, &ty, |node| {
                 let qos = reliable_qos(QDurability::Volatile, 10);
                 node.create_client::<Raw, Raw>(
                     ServiceMapping::Enhanced,
@@ -730,7 +521,14 @@ impl RosGraph for Ros2Graph {
         goal: Value,
         wait: Duration,
     ) -> BoxFuture<'a, Result<GoalOutcome, RosError>> {
-        Box::pin(self.do_send_goal(action, type_name, goal, wait))
+        Box::pin(self.actions.send_goal(
+            &self.node,
+            &self.interfaces,
+            action,
+            type_name,
+            goal,
+            wait,
+        ))
     }
 
     fn cancel_goals<'a>(
@@ -740,7 +538,10 @@ impl RosGraph for Ros2Graph {
         goal_id: Option<&'a str>,
         timeout: Duration,
     ) -> BoxFuture<'a, Result<CancelOutcome, RosError>> {
-        Box::pin(self.do_cancel_goals(action, type_name, goal_id, timeout))
+        Box::pin(
+            self.actions
+                .cancel_goals(&self.node, action, type_name, goal_id, timeout),
+        )
     }
 }
 
@@ -751,98 +552,4 @@ const NEW_CLIENT_SETTLE: Duration = Duration::from_millis(300);
 /// services (get, list, describe, set to a value) and type descriptions.
 fn idempotent_service(ty: &str) -> bool {
     ty.starts_with("rcl_interfaces/srv/") || ty.starts_with("type_description_interfaces/srv/")
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    fn opts(vars: &[(&str, &str)]) -> Result<Ros2Options, RosError> {
-        let vars: HashMap<String, String> = vars
-            .iter()
-            .map(|(k, v)| (k.to_string(), v.to_string()))
-            .collect();
-        Ros2Options::from_vars(|k| vars.get(k).cloned())
-    }
-
-    #[test]
-    fn environment_defaults_to_localhost() {
-        assert_eq!(opts(&[]).unwrap(), Ros2Options::default());
-        assert_eq!(opts(&[("ROS_DOMAIN_ID", "42")]).unwrap().domain_id, 42);
-        assert!(opts(&[("ROS_DOMAIN_ID", "300")]).is_err());
-        assert!(opts(&[("ROS_DOMAIN_ID", "x")]).is_err());
-        assert_eq!(
-            opts(&[("ROS_AUTOMATIC_DISCOVERY_RANGE", "subnet")])
-                .unwrap()
-                .range,
-            DiscoveryRange::Subnet
-        );
-        assert_eq!(
-            opts(&[("ROS_AUTOMATIC_DISCOVERY_RANGE", "OFF")])
-                .unwrap()
-                .range,
-            DiscoveryRange::Localhost
-        );
-        assert!(opts(&[("ROS_AUTOMATIC_DISCOVERY_RANGE", "everywhere")]).is_err());
-        assert_eq!(
-            opts(&[("ROS_LOCALHOST_ONLY", "0")]).unwrap().range,
-            DiscoveryRange::Subnet
-        );
-        assert_eq!(
-            opts(&[("ROS_LOCALHOST_ONLY", "1")]).unwrap().range,
-            DiscoveryRange::Localhost
-        );
-        // The newer variable wins.
-        assert_eq!(
-            opts(&[
-                ("ROS_LOCALHOST_ONLY", "0"),
-                ("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-            ])
-            .unwrap()
-            .range,
-            DiscoveryRange::Localhost
-        );
-    }
-
-    #[test]
-    fn raw_payloads_pass_through_cdr_untouched() {
-        use rustdds::no_key::{DeserializerAdapter, SerializerAdapter};
-        use rustdds::{CDRDeserializerAdapter, CDRSerializerAdapter, RepresentationIdentifier};
-        let raw = Raw(vec![1, 0, 0, 0, 7, 0, 0, 0, 0x41, 0x42]);
-        let bytes = <CDRSerializerAdapter<Raw> as SerializerAdapter<Raw>>::to_bytes(&raw).unwrap();
-        assert_eq!(&bytes[..], &raw.0[..]);
-        let back = <CDRDeserializerAdapter<Raw> as DeserializerAdapter<Raw>>::from_bytes(
-            &bytes,
-            RepresentationIdentifier::CDR_LE,
-        )
-        .unwrap();
-        assert_eq!(back, raw);
-    }
-}
-
-/// Set in a process that `loopback_netns` started.
-pub const IN_LOOPBACK_NETNS: &str = "FERROSA_IN_NETNS";
-
-/// A command that runs `exe args…` in a new network namespace whose only interface is
-/// loopback (`unshare -n`, then `ip link set lo up`), killed after `limit_s` seconds: DDS
-/// traffic of tests and benchmarks cannot leave the machine. Needs root (or a user
-/// namespace), util-linux and iproute2; the child sees `IN_LOOPBACK_NETNS` set.
-pub fn loopback_netns(
-    exe: &std::path::Path,
-    args: impl IntoIterator<Item = impl AsRef<std::ffi::OsStr>>,
-    limit_s: u32,
-) -> std::process::Command {
-    let mut cmd = std::process::Command::new("unshare");
-    cmd.args([
-        "-n",
-        "sh",
-        "-c",
-        "ip link set lo up && exec timeout -k 5 \"$@\"",
-        "sh",
-    ])
-    .arg(limit_s.to_string())
-    .arg(exe)
-    .args(args)
-    .env(IN_LOOPBACK_NETNS, "1");
-    cmd
 }

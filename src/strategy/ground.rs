@@ -10,11 +10,15 @@
 //!
 //! Required arguments, enums, booleans and arrays are never touched: the grammar already
 //! bounds them, and a required value must be the model's own guess.
+//!
+//! Cost: per call, each optional argument's words looked up in the text gathered so far;
+//! nothing per token.
 
 use serde_json::Value;
 
-use crate::decode::verify::Request;
-use crate::tool::{default, ToolCall, ToolSpec};
+use super::verify::Request;
+use super::{default, Strategy};
+use crate::tool::{ToolCall, ToolSpec};
 
 /// Words of at least this many characters must be grounded; shorter ones ("/", "x") are
 /// left alone.
@@ -113,6 +117,16 @@ fn is_open(prop: &Value, types: &[&str]) -> bool {
     (of(ty) || ty.as_array().is_some_and(|t| t.iter().any(of)))
         && prop.get("enum").is_none()
         && prop.get("const").is_none()
+}
+
+impl Strategy for Grounding {
+    fn name(&self) -> &'static str {
+        "grounding"
+    }
+
+    fn settle(&self, call: &mut ToolCall, spec: &ToolSpec) -> Vec<String> {
+        self.drop_ungrounded(call, spec)
+    }
 }
 
 /// Values without a word this short or shorter ("/", ".*") are left alone; longer ones

@@ -9,19 +9,24 @@
 use std::collections::VecDeque;
 use std::sync::Arc;
 
-use super::bpe::Bpe;
-use super::template::ChatTemplate;
-use super::vocab::{TokenKind, Vocab};
-use super::{Backend, BackendError, ChatMessage, Gguf, Role, TokenId, Tokenize};
+use ferrosa::backend::bpe::Bpe;
+use ferrosa::backend::template::ChatTemplate;
+use ferrosa::backend::vocab::{TokenKind, Vocab};
+use ferrosa::backend::{Backend, BackendError, Gguf, TokenId, Tokenize};
+use ferrosa::chat::{ChatMessage, Role};
+
+use super::synthetic::Synthetic;
 
 pub struct Scripted {
     vocab: Vocab,
-    tokenizer: Arc<Bpe>,
+    tokenizer: Arc<dyn Tokenize>,
     template: ChatTemplate,
     /// Tokens that open an assistant turn ("<|im_start|>assistant\n" for ChatML).
     opener: Vec<TokenId>,
     replies: VecDeque<String>,
     current: Option<String>,
+    /// The current reply has been written to its end.
+    finished: bool,
     history: Vec<TokenId>,
     logits: Vec<f32>,
     context: usize,
@@ -30,6 +35,7 @@ pub struct Scripted {
 impl Scripted {
     /// A scripted model with the vocabulary, tokenizer and template of a GGUF file
     /// (byte-level BPE, e.g. SmolLM2), replying `replies` in order.
+    #[allow(dead_code)]
     pub fn from_gguf(g: &Gguf, replies: &[&str]) -> Result<Scripted, BackendError> {
         let fail = |reason: String| BackendError::Load {
             backend: "scripted",
@@ -39,13 +45,31 @@ impl Scripted {
         let vocab = Vocab::from_gguf(g).map_err(fail)?;
         let tokenizer = Arc::new(Bpe::from_gguf(g, &vocab).map_err(fail)?);
         let template = ChatTemplate::for_model(g, None)?;
+        Scripted::new(vocab, tokenizer, template, replies)
+    }
+
+    /// A scripted model over the synthetic vocabulary (no weights needed).
+    pub fn synthetic(replies: &[&str]) -> Scripted {
+        let s = Synthetic::chatml();
+        Scripted::new(s.vocab, s.tokenizer, s.template, replies).expect("ChatML has an opener")
+    }
+
+    fn new(
+        vocab: Vocab,
+        tokenizer: Arc<dyn Tokenize>,
+        template: ChatTemplate,
+        replies: &[&str],
+    ) -> Result<Scripted, BackendError> {
         let user = [ChatMessage::new(Role::User, "x")];
         let with = template.render(&user, None, true)?;
         let without = template.render(&user, None, false)?;
         let opener_text = with.strip_prefix(&without).unwrap_or("").to_string();
         let opener = tokenizer.tokenize(&opener_text, true);
         if opener.is_empty() {
-            return Err(fail("the chat template has no assistant opener".into()));
+            return Err(BackendError::Eval {
+                backend: "scripted",
+                reason: "the chat template has no assistant opener".into(),
+            });
         }
         Ok(Scripted {
             logits: vec![0.0; vocab.len()],
@@ -55,6 +79,7 @@ impl Scripted {
             opener,
             replies: replies.iter().map(|r| r.to_string()).collect(),
             current: None,
+            finished: false,
             history: Vec::new(),
             context: 8192,
         })
@@ -91,7 +116,7 @@ impl Backend for Scripted {
     }
 
     fn tokenize(&self, text: &str, special: bool) -> Result<Vec<TokenId>, BackendError> {
-        Ok(self.tokenizer.encode(text, special))
+        Ok(self.tokenizer.tokenize(text, special))
     }
 
     fn tokenizer(&self) -> Arc<dyn Tokenize> {
@@ -100,6 +125,9 @@ impl Backend for Scripted {
 
     fn forward(&mut self, keep: usize, tokens: &[TokenId]) -> Result<&mut [f32], BackendError> {
         let keep = keep.min(self.history.len());
+        // Within a turn every forward extends what came before; going back means a new
+        // turn whose prompt shares a prefix with the last one.
+        let rewound = keep < self.history.len();
         if keep + tokens.len() > self.context {
             return Err(BackendError::ContextFull {
                 needed: keep + tokens.len(),
@@ -116,9 +144,12 @@ impl Backend for Scripted {
             self.logits.fill(0.0);
             return Ok(&mut self.logits);
         };
-        // A turn starts when its opener arrives in this batch.
-        if start > keep || self.current.is_none() {
+        // A turn starts when its opener arrives in this batch, or after the last reply
+        // was written to its end (a turn whose prompt repeats the last one's reuses the
+        // cache past its opener).
+        if start > keep || self.current.is_none() || self.finished || rewound {
             self.current = Some(self.replies.pop_front().unwrap_or_default());
+            self.finished = false;
         }
         let reply = self.current.clone().unwrap_or_default();
         let written: Vec<u8> = self.history[start..]
@@ -141,6 +172,7 @@ impl Backend for Scripted {
         // finite, so a grammar mask still leaves the best scripted option on top.
         self.logits.fill(-1e6);
         if rest.is_empty() {
+            self.finished = true;
             for &e in self.vocab.eog() {
                 self.logits[e as usize] = 1e6;
             }

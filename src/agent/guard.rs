@@ -1,0 +1,259 @@
+//! The guards: what a step's calls pass between the model's turn and the policy, in the
+//! order `Guards::standard` lists them. A guard may narrow the tools a step offers
+//! before the model is asked, and judge (or edit) the calls it made after.
+//!
+//! - `Grounded`: optional arguments nobody asked for are dropped (`strategy::ground`).
+//! - `NoRepeat`: a call already made this run is not made again; a turn of nothing but
+//!   repeats leaves the next step only the answer.
+//! - `AskedFor`: an actuating call runs only when the operator's request points at it
+//!   (`intent`); tools it cannot point at are not offered.
+//!
+//! The policy (`tool::Policy`: deny-list, limits, confirmation) comes after all of them.
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::sync::Arc;
+
+use serde_json::Value;
+
+use super::intent::Intent;
+use crate::strategy::ground::Grounding;
+use crate::strategy::Strategy;
+use crate::tool::{Effect, Policy, ToolCall, ToolSpec};
+
+/// What a guard says of one call.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Verdict {
+    /// On to the policy.
+    Pass,
+    /// Not made, and not shown to the model as a call (a repeat).
+    Skip,
+    /// Not made; the reason is what the model reads.
+    Refuse(String),
+}
+
+/// One guard (see the module header).
+pub trait Guard {
+    fn name(&self) -> &'static str;
+
+    /// Before the model's turn: the tools this step may call, of those `offered` (`None`:
+    /// all of them).
+    fn narrow(&self, _offered: &[ToolSpec]) -> Option<Vec<String>> {
+        None
+    }
+
+    /// After the turn: one verdict per call (calls may be edited).
+    fn check(&mut self, calls: &mut [ToolCall], _offered: &[ToolSpec]) -> Vec<Verdict> {
+        vec![Verdict::Pass; calls.len()]
+    }
+
+    /// After the calls ran: what happened to one (`done`: it ran or was refused, so
+    /// asking again would get the same), and the text the model was shown.
+    fn observe(&mut self, _call: &ToolCall, _done: bool, _shown: &str) {}
+}
+
+/// The guards of a run, in order.
+pub struct Guards {
+    guards: Vec<Box<dyn Guard>>,
+}
+
+impl Guards {
+    /// The guards every run has: grounding, no repeats, and (with `asked`) actuation only
+    /// when asked for. `said` is what the operator said this session.
+    pub fn standard(query: &str, said: &[&str], asked: Option<Asked>) -> Guards {
+        let mut guards: Vec<Box<dyn Guard>> = vec![
+            Box::new(Grounded(Grounding::new(said.iter().copied()))),
+            Box::new(NoRepeat::default()),
+        ];
+        if let Some(asked) = asked {
+            guards.push(Box::new(AskedFor {
+                intent: Intent::new(query),
+                asked,
+            }));
+        }
+        Guards { guards }
+    }
+
+    /// Their names, in order.
+    pub fn names(&self) -> Vec<&'static str> {
+        self.guards.iter().map(|g| g.name()).collect()
+    }
+
+    /// The tools this step may call: those every guard allows.
+    pub fn narrow(&self, offered: &[ToolSpec]) -> Option<Vec<String>> {
+        let mut allowed: Option<Vec<String>> = None;
+        for g in &self.guards {
+            if let Some(names) = g.narrow(offered) {
+                allowed = Some(match allowed {
+                    None => names,
+                    Some(prev) => prev.into_iter().filter(|n| names.contains(n)).collect(),
+                });
+            }
+        }
+        allowed
+    }
+
+    /// Each call's verdict: the first guard that does not pass it decides.
+    pub fn check(&mut self, calls: &mut [ToolCall], offered: &[ToolSpec]) -> Vec<Verdict> {
+        let mut verdicts = vec![Verdict::Pass; calls.len()];
+        for g in &mut self.guards {
+            let said = g.check(calls, offered);
+            for (v, s) in verdicts.iter_mut().zip(said) {
+                if *v == Verdict::Pass {
+                    *v = s;
+                }
+            }
+        }
+        verdicts
+    }
+
+    pub fn observe(&mut self, call: &ToolCall, done: bool, shown: &str) {
+        for g in &mut self.guards {
+            g.observe(call, done, shown);
+        }
+    }
+}
+
+/// Grounding of optional arguments against what the operator said and tools returned.
+struct Grounded(Grounding);
+
+impl Guard for Grounded {
+    fn name(&self) -> &'static str {
+        "grounded"
+    }
+
+    fn check(&mut self, calls: &mut [ToolCall], offered: &[ToolSpec]) -> Vec<Verdict> {
+        for c in calls.iter_mut() {
+            if let Some(spec) = offered.iter().find(|s| s.name == c.name) {
+                let dropped = self.0.settle(c, spec);
+                if !dropped.is_empty() {
+                    tracing::debug!(tool = %c.name, ?dropped, "ungrounded arguments dropped");
+                }
+            }
+        }
+        vec![Verdict::Pass; calls.len()]
+    }
+
+    fn observe(&mut self, _: &ToolCall, _: bool, shown: &str) {
+        self.0.add(shown);
+    }
+}
+
+/// Calls already made this run (name and arguments). Small models repeat a call after it
+/// succeeded (or was refused); a repeat gets the same result, so the next step offers
+/// only the answer.
+#[derive(Default)]
+struct NoRepeat {
+    done: Vec<(String, Value)>,
+    answer_only: bool,
+}
+
+impl Guard for NoRepeat {
+    fn name(&self) -> &'static str {
+        "no-repeat"
+    }
+
+    fn narrow(&self, _: &[ToolSpec]) -> Option<Vec<String>> {
+        self.answer_only
+            .then(|| vec![super::answer::ANSWER_TOOL.to_string()])
+    }
+
+    fn check(&mut self, calls: &mut [ToolCall], _: &[ToolSpec]) -> Vec<Verdict> {
+        let verdicts: Vec<Verdict> = calls
+            .iter()
+            .map(|c| {
+                let repeat = self
+                    .done
+                    .iter()
+                    .any(|(n, a)| *n == c.name && same_value(a, &c.arguments));
+                if repeat {
+                    Verdict::Skip
+                } else {
+                    Verdict::Pass
+                }
+            })
+            .collect();
+        if !verdicts.is_empty() && verdicts.iter().all(|v| *v == Verdict::Skip) {
+            self.answer_only = true;
+        }
+        verdicts
+    }
+
+    fn observe(&mut self, call: &ToolCall, done: bool, _: &str) {
+        if done {
+            self.done.push((call.name.clone(), call.arguments.clone()));
+        }
+    }
+}
+
+/// What the actuation guard needs to know of the tools.
+#[derive(Clone)]
+pub struct Asked {
+    pub policy: Arc<Policy>,
+    /// Each tool's declared effect.
+    pub effects: BTreeMap<String, Effect>,
+    /// Tools whose every call actuates (no `observes` rule covers one).
+    pub actuators: BTreeSet<String>,
+    /// The words of all the other tools.
+    pub observing: BTreeSet<String>,
+}
+
+/// Actuation the operator asked for (see `intent`).
+struct AskedFor {
+    intent: Intent,
+    asked: Asked,
+}
+
+impl Guard for AskedFor {
+    fn name(&self) -> &'static str {
+        "asked-for"
+    }
+
+    fn narrow(&self, offered: &[ToolSpec]) -> Option<Vec<String>> {
+        let askable: Vec<String> = offered
+            .iter()
+            .filter(|s| {
+                !self.asked.actuators.contains(&s.name)
+                    || self.intent.may_ask_for(s, &self.asked.observing)
+            })
+            .map(|s| s.name.clone())
+            .collect();
+        (askable.len() < offered.len()).then_some(askable)
+    }
+
+    fn check(&mut self, calls: &mut [ToolCall], offered: &[ToolSpec]) -> Vec<Verdict> {
+        calls
+            .iter()
+            .map(|c| {
+                let spec = offered.iter().find(|s| s.name == c.name);
+                let effect = self.asked.effects.get(&c.name).copied();
+                let actuates = effect.is_some_and(|e| self.asked.policy.actuates(e, c));
+                let unasked = actuates
+                    && spec.is_some_and(|s| !self.intent.asks_for(c, s, &self.asked.observing));
+                if unasked {
+                    Verdict::Refuse(format!(
+                        "the operator did not ask for {}: no word of the request points at it or at its target; do not act, answer instead",
+                        c.name
+                    ))
+                } else {
+                    Verdict::Pass
+                }
+            })
+            .collect()
+    }
+}
+
+/// JSON equality with numbers compared by value (3 and 3.0 are the same argument).
+pub fn same_value(a: &Value, b: &Value) -> bool {
+    match (a, b) {
+        (Value::Number(x), Value::Number(y)) => x.as_f64() == y.as_f64(),
+        (Value::Array(x), Value::Array(y)) => {
+            x.len() == y.len() && x.iter().zip(y).all(|(p, q)| same_value(p, q))
+        }
+        (Value::Object(x), Value::Object(y)) => {
+            x.len() == y.len()
+                && x.iter()
+                    .all(|(k, v)| y.get(k).is_some_and(|w| same_value(v, w)))
+        }
+        _ => a == b,
+    }
+}

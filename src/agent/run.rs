@@ -1,0 +1,378 @@
+//! One run of the agent, as a small state machine. Each step is:
+//!
+//! 1. **think**: one assistant turn (the model, through the strategy pipeline), with the
+//!    tools the guards leave;
+//! 2. **guard**: the calls pass the guards (`guard`) in order;
+//! 3. **policy**: each call the guards passed is checked (and confirmed) by the policy;
+//! 4. **act**: the allowed calls run concurrently, each under the time limit;
+//! 5. **observe**: results (or the reasons for refusals) are appended for the next step.
+//!
+//! The run ends with an answer (the `reply` call), at the step limit, or on
+//! cancellation. Events stream as they happen: tokens during the turn, each call with its
+//! decision, each result.
+
+use std::ops::ControlFlow;
+use std::sync::atomic::Ordering;
+use std::time::Instant;
+
+use serde_json::{json, Value};
+
+use super::answer::{self, ANSWER_CHARS, ANSWER_TOOL};
+use super::guard::{Guards, Verdict};
+use super::memory::truncate_output;
+use super::{Agent, AgentError, Event, Finish, RunResult, StepRecord, Timings};
+use crate::backend::BackendError;
+use crate::chat::{ChatMessage, Role};
+use crate::decode::envelope::to_json_spaced;
+use crate::decode::turn::TurnResult;
+use crate::decode::{DecodeError, Decoding, Finish as DecodeFinish, Sampler, Turn};
+use crate::strategy::turn::Engine;
+use crate::tool::{Decision, ToolCall, ToolSpec};
+
+/// What the model's turn came to.
+enum Thought {
+    /// Calls to make.
+    Calls(Vec<ToolCall>),
+    /// The run is over.
+    Done(Finish),
+}
+
+/// A run in progress.
+pub(super) struct Run<'a> {
+    pub agent: &'a mut Agent,
+    pub query: &'a str,
+    pub events: &'a mut dyn FnMut(&Event),
+    pub start: Instant,
+    pub offered: Vec<ToolSpec>,
+    pub guards: Guards,
+    /// This run's calls and results, as the model reads them.
+    pub scratch: Vec<ChatMessage>,
+    pub records: Vec<StepRecord>,
+    pub timings: Timings,
+    pub answer: String,
+    /// What the last tool returned, as shown.
+    pub last_observation: String,
+    /// What argument values may be copied from: what the operator said, what tools
+    /// returned.
+    pub copy_from: Vec<String>,
+    /// A turn was cut off: the next may only answer.
+    pub answer_only: bool,
+    /// When this step's first token came (ms since the query).
+    pub step_first_token: Option<f64>,
+}
+
+impl Run<'_> {
+    fn emit(&mut self, e: Event) {
+        if let Some(t) = &mut self.agent.trace {
+            t.event(&e);
+        }
+        (self.events)(&e);
+    }
+
+    /// Run steps until the run ends.
+    pub fn run(mut self) -> Result<RunResult, AgentError> {
+        let mut finish = Finish::MaxSteps;
+        for step in 0..self.agent.config.max_steps {
+            if self.agent.cancel.load(Ordering::SeqCst) {
+                finish = Finish::Cancelled;
+                break;
+            }
+            let mut calls = match self.think(step)? {
+                Thought::Done(f) => {
+                    finish = f;
+                    break;
+                }
+                Thought::Calls(c) => c,
+            };
+            let verdicts = self.guards.check(&mut calls, &self.offered);
+            if verdicts.iter().all(|v| *v == Verdict::Skip) {
+                if let Some(t) = &mut self.agent.trace {
+                    t.record("repeat", json!({"step": step, "calls": calls}));
+                }
+                continue;
+            }
+            let decisions = self.decide(&calls, verdicts);
+            self.act_and_observe(step, &calls, decisions);
+        }
+        Ok(self.end(finish))
+    }
+
+    /// The step's turn: the model writes calls, or the answer.
+    fn think(&mut self, step: usize) -> Result<Thought, AgentError> {
+        let allowed = if self.answer_only {
+            Some(vec![ANSWER_TOOL.to_string()])
+        } else {
+            self.guards.narrow(&self.offered)
+        };
+        let t_model = Instant::now();
+        let result = self.turn(allowed);
+        self.timings.model_ms += t_model.elapsed().as_secs_f64() * 1e3;
+        let r = match result {
+            Ok(r) => r,
+            Err(DecodeError::Backend(BackendError::ContextFull { needed, limit })) => {
+                self.answer = format!(
+                    "I ran out of context ({needed} tokens needed, {limit} available) before finishing. {}",
+                    answer::last_result(&self.last_observation)
+                );
+                let message = self.answer.clone();
+                self.emit(Event::Error { message });
+                return Ok(Thought::Done(Finish::MaxSteps));
+            }
+            Err(e) => return Err(e.into()),
+        };
+        self.timings.prompt_tokens.push(r.stats.prompt_tokens);
+        self.timings.reused_tokens.push(r.stats.reused_tokens);
+        self.emit(Event::Step {
+            step,
+            prompt_tokens: r.stats.prompt_tokens,
+            reused_tokens: r.stats.reused_tokens,
+            tools: self.offered.iter().map(|s| s.name.clone()).collect(),
+        });
+        if r.finish == DecodeFinish::Stopped && self.agent.cancel.load(Ordering::SeqCst) {
+            return Ok(Thought::Done(Finish::Cancelled));
+        }
+        self.read_turn(r)
+    }
+
+    /// The turn's text, as calls or an answer.
+    fn read_turn(&mut self, r: TurnResult) -> Result<Thought, AgentError> {
+        let turn: Turn = match r.turn {
+            Ok(t) => t,
+            Err(e)
+                if r.finish == DecodeFinish::Length
+                    && self.agent.config.decoding == Decoding::Constrained =>
+            {
+                // Cut off before the call was complete (only past the closing steer's
+                // overrun): tell the model, as a failed step, and let it only answer.
+                let msg = format!(
+                    "your reply was cut off after {} tokens before the call was complete ({e}); answer now",
+                    self.agent.config.max_turn_tokens
+                );
+                self.emit(Event::Error {
+                    message: msg.clone(),
+                });
+                self.scratch
+                    .push(ChatMessage::new(Role::Assistant, r.text.clone()));
+                self.scratch.push(ChatMessage::tool(
+                    "system",
+                    to_json_spaced(&json!({ "error": msg })),
+                ));
+                self.answer_only = true;
+                return Ok(Thought::Calls(Vec::new()));
+            }
+            Err(e) => {
+                // Free decoding: what the model wrote is all there is; show it as the
+                // answer rather than inventing one.
+                self.emit(Event::Error {
+                    message: format!("the model's turn did not parse: {e}"),
+                });
+                self.answer = r.text.trim().to_string();
+                return Ok(Thought::Done(Finish::Answer));
+            }
+        };
+        if let Some(a) = turn.calls.iter().find(|c| c.name == ANSWER_TOOL) {
+            self.answer = answer::tidy(
+                a.arguments["text"].as_str().unwrap_or_default(),
+                ANSWER_CHARS,
+            );
+            return Ok(Thought::Done(Finish::Answer));
+        }
+        if turn.calls.is_empty() {
+            self.answer = turn.prose;
+            return Ok(Thought::Done(Finish::Answer));
+        }
+        if self.timings.first_call_token_ms.is_none() {
+            self.timings.first_call_token_ms = self.step_first_token;
+        }
+        Ok(Thought::Calls(turn.calls))
+    }
+
+    /// The policy's decision on each call the guards passed, in call order (so
+    /// confirmations are asked in order).
+    fn decide(&mut self, calls: &[ToolCall], verdicts: Vec<Verdict>) -> Vec<Option<Decision>> {
+        calls
+            .iter()
+            .zip(verdicts)
+            .map(|(c, v)| match v {
+                Verdict::Skip => None,
+                Verdict::Refuse(why) => Some(Decision::Refused(why)),
+                Verdict::Pass => {
+                    let tool = self.agent.registry.get(&c.name).map(|t| t.as_ref());
+                    Some(self.agent.policy.check(tool, c))
+                }
+            })
+            .collect()
+    }
+
+    /// Run the allowed calls and append what came of each call that was not skipped.
+    fn act_and_observe(
+        &mut self,
+        step: usize,
+        calls: &[ToolCall],
+        decisions: Vec<Option<Decision>>,
+    ) {
+        let shown: Vec<(ToolCall, Decision)> = calls
+            .iter()
+            .zip(decisions)
+            .filter_map(|(c, d)| d.map(|d| (c.clone(), d)))
+            .collect();
+        for (i, (c, d)) in shown.iter().enumerate() {
+            self.emit(Event::ToolCall {
+                step,
+                index: i,
+                name: c.name.clone(),
+                arguments: c.arguments.clone(),
+                decision: d.clone(),
+            });
+        }
+        let (calls, decisions): (Vec<ToolCall>, Vec<Decision>) = shown.into_iter().unzip();
+        let t_tools = Instant::now();
+        let outcomes = self.agent.run_calls(&calls, &decisions);
+        self.timings.tools_ms += t_tools.elapsed().as_secs_f64() * 1e3;
+        self.scratch.push(ChatMessage::new(
+            Role::Assistant,
+            self.agent.config.envelope.render_calls(&calls),
+        ));
+        for (i, ((call, decision), (output, ok, ms))) in
+            calls.into_iter().zip(decisions).zip(outcomes).enumerate()
+        {
+            self.observe(step, i, call, decision, output, ok, ms);
+        }
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn observe(
+        &mut self,
+        step: usize,
+        index: usize,
+        call: ToolCall,
+        decision: Decision,
+        output: Value,
+        ok: bool,
+        ms: f64,
+    ) {
+        self.emit(Event::ToolResult {
+            step,
+            index,
+            name: call.name.clone(),
+            output: output.clone(),
+            ok,
+            ms,
+        });
+        let shown = truncate_output(&to_json_spaced(&output), self.agent.config.output_chars);
+        // A refused call is as done as a successful one: asking again gets the same.
+        let done = ok || matches!(decision, Decision::Refused(_));
+        self.guards.observe(&call, done, &shown);
+        self.copy_from.push(shown.clone());
+        self.last_observation = shown.clone();
+        self.scratch.push(ChatMessage::tool(&call.name, shown));
+        self.records.push(StepRecord {
+            step,
+            name: call.name,
+            arguments: call.arguments,
+            output,
+            ok,
+            ms,
+            decision,
+        });
+    }
+
+    /// The run's result, with what is known when there is no answer.
+    fn end(mut self, finish: Finish) -> RunResult {
+        match finish {
+            Finish::MaxSteps if self.answer.is_empty() => {
+                self.answer = format!(
+                    "I stopped after {} steps without a final answer. {}",
+                    self.agent.config.max_steps,
+                    answer::last_result(&self.last_observation)
+                );
+            }
+            Finish::Cancelled => {
+                self.answer = format!("Cancelled. {}", answer::last_result(&self.last_observation));
+            }
+            _ => {}
+        }
+        self.timings.total_ms = self.start.elapsed().as_secs_f64() * 1e3;
+        self.emit(Event::Answer {
+            text: self.answer.clone(),
+            finish: format!("{finish:?}").to_lowercase(),
+        });
+        if finish == Finish::Answer {
+            self.agent.memory.push(self.query, self.answer.clone());
+        }
+        if let Some(t) = &mut self.agent.trace {
+            t.record(
+                "timings",
+                serde_json::to_value(&self.timings).unwrap_or_default(),
+            );
+        }
+        RunResult {
+            answer: self.answer,
+            finish,
+            steps: self.records,
+            timings: self.timings,
+            tools_offered: self.offered.iter().map(|s| s.name.clone()).collect(),
+        }
+    }
+
+    /// Decode one turn with `allowed` tools (all offered when `None`), tokens streamed
+    /// as events as they come.
+    fn turn(&mut self, allowed: Option<Vec<String>>) -> Result<TurnResult, DecodeError> {
+        let messages = self
+            .agent
+            .context(self.query, &self.scratch, &self.offered)?;
+        let allowed_specs: Option<Vec<ToolSpec>> = allowed.map(|names| {
+            self.offered
+                .iter()
+                .filter(|s| names.contains(&s.name))
+                .cloned()
+                .collect()
+        });
+        let sources: Vec<&str> = self.copy_from.iter().map(String::as_str).collect();
+        let mut pipeline = self.agent.pipeline(&sources);
+        let req = self.agent.request(
+            &messages,
+            &self.offered,
+            allowed_specs
+                .as_deref()
+                .filter(|a| a.len() < self.offered.len()),
+        );
+        let cancel = self.agent.cancel.clone();
+        let start = self.start;
+        self.step_first_token = None;
+        let first = &mut self.timings.first_token_ms;
+        let step_first = &mut self.step_first_token;
+        let events = &mut *self.events;
+        let agent = &mut *self.agent;
+        let mut sampler = Sampler::new(agent.config.sampler, agent.backend.vocab().len());
+        let mut engine = Engine {
+            backend: agent.backend.as_mut(),
+            session: &mut agent.session,
+            grammars: &agent.grammars,
+            sampler: &mut sampler,
+        };
+        crate::strategy::turn::run(
+            &mut engine,
+            &req,
+            &mut pipeline,
+            Some(ANSWER_TOOL),
+            &mut |piece: &str| {
+                let now = Some(start.elapsed().as_secs_f64() * 1e3);
+                if first.is_none() {
+                    *first = now;
+                }
+                if step_first.is_none() {
+                    *step_first = now;
+                }
+                events(&Event::Token {
+                    text: piece.to_string(),
+                });
+                if cancel.load(Ordering::SeqCst) {
+                    ControlFlow::Break(())
+                } else {
+                    ControlFlow::Continue(())
+                }
+            },
+        )
+    }
+}

@@ -1,0 +1,330 @@
+//! The agent's state between requests: the model and its KV-cache session, the tools
+//! and the policy, the robot prompt, the conversation, the trace; and what a run asks
+//! of it (the context of a step, the strategies of a turn, running calls).
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::sync::atomic::AtomicBool;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use serde_json::{json, Value};
+
+use super::answer::{answer_spec, ANSWER_TOOL};
+use super::config::{AgentConfig, AnswerMode};
+use super::guard::Asked;
+use super::intent;
+use super::memory::Memory;
+use super::outcome::AgentError;
+use super::select;
+use super::trace::Trace;
+use crate::backend::Backend;
+use crate::chat::{ChatMessage, Role};
+use crate::decode::envelope::{Envelope, ToolChoice};
+use crate::decode::turn::{render_prompt, with_tools, TurnRequest};
+use crate::decode::{DecodeError, Decoding, Grammars, Session};
+use crate::strategy::copy::{defaults, CopyBias, CopyIndex};
+use crate::strategy::guard::LoopGuard;
+use crate::strategy::Pipeline;
+use crate::tool::{Decision, Effect, Policy, Registry, ToolCall, ToolContext, ToolError, ToolSpec};
+
+/// The agent: a model, tools under a policy, a robot prompt, and the conversation so
+/// far. `ask` runs one request (see `run`).
+pub struct Agent {
+    pub(super) backend: Box<dyn Backend>,
+    /// What the actuation guard knows of the tools (`guard::Asked`).
+    pub(super) asked: Asked,
+    pub(super) grammars: Grammars,
+    pub(super) registry: Registry,
+    pub(super) policy: Arc<Policy>,
+    pub(super) system: String,
+    pub config: AgentConfig,
+    pub(super) session: Session,
+    pub(super) memory: Memory,
+    pub(super) runtime: tokio::runtime::Runtime,
+    pub(super) trace: Option<Trace>,
+    pub(super) cancel: Arc<AtomicBool>,
+}
+
+/// Tokens `text` takes in a prompt (a guess from its length if it cannot be tokenized).
+fn token_count(backend: &dyn Backend, text: &str) -> usize {
+    backend
+        .tokenize(text, true)
+        .map_or(text.len() / 3, |t| t.len())
+}
+
+impl Agent {
+    pub fn new(
+        backend: Box<dyn Backend>,
+        registry: Registry,
+        policy: Arc<Policy>,
+        system: String,
+        config: AgentConfig,
+    ) -> Result<Agent, AgentError> {
+        let grammars = Grammars::new(backend.vocab(), backend.tokenizer())
+            .map_err(|e| AgentError::Decode(e.into()))?;
+        let runtime = tokio::runtime::Builder::new_multi_thread()
+            .worker_threads(2)
+            .enable_all()
+            .build()
+            .map_err(|e| AgentError::Runtime(e.to_string()))?;
+        let registry = if policy.read_only {
+            registry.without_actuators(|name| policy.may_observe(name))
+        } else {
+            registry
+        };
+        // Tools whose every call changes the robot (no `observes` rule may cover one),
+        // and the words of all the others, for telling which actuation a request asks for.
+        let actuators: BTreeSet<String> = registry
+            .tools()
+            .filter(|t| t.effect() == Effect::Actuates && !policy.may_observe(&t.spec().name))
+            .map(|t| t.spec().name.clone())
+            .collect();
+        let observing = intent::vocabulary(
+            registry
+                .tools()
+                .filter(|t| !actuators.contains(&t.spec().name))
+                .map(|t| t.spec()),
+        );
+        let effects: BTreeMap<String, Effect> = registry
+            .tools()
+            .map(|t| (t.spec().name.clone(), t.effect()))
+            .collect();
+        Ok(Agent {
+            asked: Asked {
+                policy: policy.clone(),
+                effects,
+                actuators,
+                observing,
+            },
+            backend,
+            grammars,
+            registry,
+            policy,
+            system,
+            config,
+            session: Session::new(),
+            memory: Memory::default(),
+            runtime,
+            trace: None,
+            cancel: Arc::new(AtomicBool::new(false)),
+        })
+    }
+
+    pub fn with_trace(mut self, trace: Trace) -> Agent {
+        self.trace = Some(trace);
+        self
+    }
+
+    pub fn trace_path(&self) -> Option<&std::path::Path> {
+        self.trace.as_ref().map(|t| t.path())
+    }
+
+    /// Set this flag (e.g. from a Ctrl-C handler) to end the current run cleanly.
+    pub fn cancel_flag(&self) -> Arc<AtomicBool> {
+        self.cancel.clone()
+    }
+
+    pub fn registry(&self) -> &Registry {
+        &self.registry
+    }
+
+    /// Exchanges the agent remembers (what the next prompt may include).
+    pub fn history_len(&self) -> usize {
+        self.memory.len()
+    }
+
+    pub fn backend(&self) -> &dyn Backend {
+        self.backend.as_ref()
+    }
+
+    /// Forget the conversation (the KV cache keeps the system prompt).
+    pub fn clear(&mut self) {
+        self.memory.clear();
+    }
+
+    fn tokens(&self, text: &str) -> usize {
+        token_count(self.backend.as_ref(), text)
+    }
+
+    /// Which tools to offer for `query`, by the token cost of their specs.
+    pub fn offered_tools(&self, query: &str) -> Vec<ToolSpec> {
+        let mut specs = self.registry.specs();
+        if self.config.answer_mode == AnswerMode::Tool {
+            specs.push(answer_spec());
+        }
+        let chosen = select::select(
+            query,
+            &specs,
+            &self.config.always_on,
+            self.config.tool_budget_tokens,
+            |s| self.tokens(&Envelope::describe_tool(s)),
+        );
+        chosen.into_iter().map(|i| specs[i].clone()).collect()
+    }
+
+    /// Prompt tokens of the first step of `query` with these tools and no history.
+    pub fn prompt_tokens_with(&self, query: &str, specs: &[ToolSpec]) -> usize {
+        let messages = [
+            ChatMessage::new(Role::System, self.system.clone()),
+            ChatMessage::new(Role::User, query),
+        ];
+        let req = self.request(&messages, specs, None);
+        render_prompt(
+            self.backend.as_ref(),
+            &with_tools(&req),
+            self.config.envelope,
+        )
+        .map_or(0, |t| t.len())
+    }
+
+    pub(super) fn choice(&self) -> ToolChoice {
+        match self.config.answer_mode {
+            AnswerMode::Tool => ToolChoice::Required,
+            AnswerMode::Prose => ToolChoice::Auto,
+            AnswerMode::Decline => ToolChoice::Decline,
+        }
+    }
+
+    pub(super) fn request<'a>(
+        &self,
+        messages: &'a [ChatMessage],
+        specs: &'a [ToolSpec],
+        allowed: Option<&'a [ToolSpec]>,
+    ) -> TurnRequest<'a> {
+        TurnRequest {
+            messages,
+            specs,
+            allowed,
+            envelope: self.config.envelope,
+            choice: self.choice(),
+            parallel: true,
+            decoding: self.config.decoding,
+            max_tokens: self.config.max_turn_tokens,
+        }
+    }
+
+    /// The strategies of a step's turn: the copy bias (with its array guard) when on.
+    pub(super) fn pipeline(&self, sources: &[&str]) -> Pipeline {
+        let mut p = Pipeline::new();
+        if self.config.copy_bias > 0.0 && self.config.decoding == Decoding::Constrained {
+            let vocab = self.backend.vocab();
+            let offered = self.registry.specs();
+            let index = CopyIndex::new(
+                vocab,
+                sources,
+                &defaults(&offered),
+                self.config.copy_bias,
+                Some(ANSWER_TOOL),
+            );
+            p = p.with(CopyBias::new(index)).with(LoopGuard::new(vocab));
+        }
+        p
+    }
+
+    /// The messages of a step: the system prompt, the history that fits, the query and
+    /// this run's scratchpad.
+    pub(super) fn context(
+        &mut self,
+        query: &str,
+        scratch: &[ChatMessage],
+        offered: &[ToolSpec],
+    ) -> Result<Vec<ChatMessage>, DecodeError> {
+        let mut base = vec![ChatMessage::new(Role::System, self.system.clone())];
+        base.push(ChatMessage::new(Role::User, query));
+        base.extend(scratch.iter().cloned());
+        let fixed = {
+            let req = self.request(&base, offered, None);
+            render_prompt(
+                self.backend.as_ref(),
+                &with_tools(&req),
+                self.config.envelope,
+            )?
+            .len()
+        };
+        let room = self
+            .backend
+            .context_len()
+            .saturating_sub(fixed + self.config.reserve_tokens)
+            .min(self.config.history_tokens);
+        let backend = self.backend.as_ref();
+        let dropped = self.memory.trim(room, |s| token_count(backend, s));
+        if dropped > 0 {
+            if let Some(t) = &mut self.trace {
+                t.record(
+                    "history_trimmed",
+                    json!({"dropped_exchanges": dropped, "room_tokens": room}),
+                );
+            }
+        }
+        let mut messages = vec![base[0].clone()];
+        messages.extend(self.memory.messages());
+        messages.extend(base[1..].iter().cloned());
+        Ok(messages)
+    }
+
+    /// Run allowed calls concurrently; results in call order as (output, ok, ms).
+    pub(super) fn run_calls(
+        &self,
+        calls: &[ToolCall],
+        decisions: &[Decision],
+    ) -> Vec<(Value, bool, f64)> {
+        let timeout = self.policy.timeout;
+        let handles: Vec<_> = calls
+            .iter()
+            .zip(decisions)
+            .map(|(call, decision)| {
+                let tool = match decision {
+                    Decision::Refused(_) => None,
+                    _ => self.registry.get(&call.name).cloned(),
+                };
+                let args = call.arguments.clone();
+                let refused = match decision {
+                    Decision::Refused(r) => Some(r.clone()),
+                    _ => None,
+                };
+                self.runtime.spawn(async move {
+                    let start = Instant::now();
+                    let result = match (tool, refused) {
+                        (_, Some(reason)) => Err(ToolError::Refused(reason)),
+                        (None, None) => Err(ToolError::Failed("no such tool".into())),
+                        (Some(tool), None) => {
+                            let cx = ToolContext { timeout };
+                            match tokio::time::timeout(timeout, tool.call(args, &cx)).await {
+                                Ok(r) => r,
+                                Err(_) => Err(ToolError::Timeout(timeout)),
+                            }
+                        }
+                    };
+                    (result, start.elapsed())
+                })
+            })
+            .collect();
+        self.runtime.block_on(async {
+            let mut out = Vec::with_capacity(handles.len());
+            for h in handles {
+                let (result, took): (Result<Value, ToolError>, Duration) = match h.await {
+                    Ok(x) => x,
+                    // A panicking tool is a failed call, not a crashed agent.
+                    Err(e) => (
+                        Err(ToolError::Failed(format!("the tool crashed: {e}"))),
+                        Duration::ZERO,
+                    ),
+                };
+                let ms = took.as_secs_f64() * 1e3;
+                out.push(match result {
+                    Ok(mut v) => {
+                        let removed = self.policy.redact(&mut v);
+                        if removed > 0 {
+                            if let Value::Object(m) = &mut v {
+                                m.insert("hidden_by_policy".into(), json!(removed));
+                            }
+                        }
+                        (v, true, ms)
+                    }
+                    Err(e) => (json!({"error": e.to_string()}), false, ms),
+                });
+            }
+            out
+        })
+    }
+}

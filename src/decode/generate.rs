@@ -1,0 +1,348 @@
+//! The generation loop: evaluate a prompt (reusing what the KV cache already holds), then
+//! sample token by token, with an optional grammar and a logits hook, until end of
+//! generation, the token limit or the caller's stop. `Session` remembers what the
+//! backend's cache holds, so a prompt sharing a prefix evaluates only its tail.
+//!
+//! Per token: the hook adjusts the logits, the grammar checks the sampled token (the full
+//! mask only when it is refused), and the tokens the grammar then forces are evaluated
+//! in one batch with the next forward pass. Near the budget a constrained turn steers to
+//! a close (`close`), so a started call always ends complete. The loop allocates nothing
+//! per token.
+
+use std::ops::ControlFlow;
+use std::time::{Duration, Instant};
+
+use super::close;
+use super::hook::{LogitsHook, TokenContext};
+use super::{Constraint, DecodeError, Finish, Sampler};
+use crate::backend::{Backend, BackendError, TokenId, Vocab};
+use crate::json::JsonScan;
+
+#[derive(Debug, Clone, Default)]
+pub struct GenerationStats {
+    pub prompt_tokens: usize,
+    /// Prompt tokens found already in the KV cache and not evaluated again.
+    pub reused_tokens: usize,
+    pub prompt_time: Duration,
+    pub generated_tokens: usize,
+    /// From the first sampled token to the last: sampling plus single-token forwards.
+    pub gen_time: Duration,
+    /// Forward passes during generation (each evaluates a sampled token and the tokens
+    /// the grammar forced after it).
+    pub gen_forwards: usize,
+    /// Tokens appended because the grammar forced them, without sampling.
+    pub forced_tokens: usize,
+    /// Of those, the ones forced before the first sample (evaluated with the prompt).
+    pub forced_at_start: usize,
+    /// Steps where the sampled token was refused and the full mask was computed.
+    pub masks_computed: usize,
+    /// Time spent in the grammar (checking, masking, committing, forcing).
+    pub constraint_time: Duration,
+    pub time_to_first_token: Duration,
+}
+
+impl GenerationStats {
+    pub fn prompt_tok_per_s(&self) -> f64 {
+        let evaluated = self.prompt_tokens - self.reused_tokens;
+        evaluated as f64 / self.prompt_time.as_secs_f64().max(1e-9)
+    }
+
+    /// Forward passes per second: the model's decode speed.
+    pub fn gen_tok_per_s(&self) -> f64 {
+        self.gen_forwards as f64 / self.gen_time.as_secs_f64().max(1e-9)
+    }
+
+    /// Tokens emitted per second after the prompt, forced ones included: the output
+    /// rate an operator sees. (Tokens forced before the first sample ride in the
+    /// prompt's batch and are left out.)
+    pub fn output_tok_per_s(&self) -> f64 {
+        let n = self
+            .generated_tokens
+            .saturating_sub(self.forced_at_start + 1);
+        n as f64 / self.gen_time.as_secs_f64().max(1e-9)
+    }
+}
+
+/// The tokens of a prompt as a fresh context needs them: BOS when the model wants one
+/// (once, even if a template writes it too), then `text`. With `special`, special-token
+/// texts (from a rendered chat template) become their ids; without, the text is literal.
+pub fn prompt_tokens(
+    backend: &dyn Backend,
+    text: &str,
+    special: bool,
+) -> Result<Vec<TokenId>, BackendError> {
+    let mut prompt: Vec<TokenId> = backend.vocab().bos().into_iter().collect();
+    let body = backend.tokenize(text, special)?;
+    let skip = usize::from(!prompt.is_empty() && body.first() == prompt.first());
+    prompt.extend_from_slice(&body[skip..]);
+    Ok(prompt)
+}
+
+/// The token sequence the backend's KV cache holds.
+#[derive(Debug, Default, Clone)]
+pub struct Session {
+    tokens: Vec<TokenId>,
+}
+
+impl Session {
+    pub fn new() -> Session {
+        Session::default()
+    }
+
+    pub fn tokens(&self) -> &[TokenId] {
+        &self.tokens
+    }
+
+    /// The cache now holds only the first `n` tokens it held.
+    pub fn truncate(&mut self, n: usize) {
+        self.tokens.truncate(n);
+    }
+
+    /// The cache now also holds `tokens`, after what it held.
+    pub fn extend(&mut self, tokens: &[TokenId]) {
+        self.tokens.extend_from_slice(tokens);
+    }
+
+    /// Forget the cache contents (the next prompt is evaluated in full).
+    pub fn clear(&mut self) {
+        self.tokens.clear();
+    }
+
+    /// How many leading tokens of `prompt` are cached, leaving at least one to evaluate
+    /// (the backend returns logits only for tokens it evaluates).
+    pub fn reusable(&self, prompt: &[TokenId]) -> usize {
+        let common = self
+            .tokens
+            .iter()
+            .zip(prompt)
+            .take_while(|(a, b)| a == b)
+            .count();
+        common.min(prompt.len().saturating_sub(1))
+    }
+}
+
+/// What steers a generation besides the model: the sampler, the grammar (if any), the
+/// logits hook, and the reader of the turn's text (every emitted token's bytes are pushed
+/// to it; it may already hold the turn's earlier text).
+pub struct Steering<'a> {
+    pub sampler: &'a mut Sampler,
+    pub constraint: Option<&'a mut Constraint>,
+    pub hook: &'a mut dyn LogitsHook,
+    pub scan: &'a mut JsonScan,
+}
+
+/// Generate after `prompt`, calling `on_token` with each emitted token, sampled or
+/// forced by the grammar, and the turn's text after it (the stop token included, so a
+/// caller can see why it ended); `on_token` may break to stop early. With a constraint,
+/// every token obeys its grammar, and a call started before `max_tokens` is closed (up
+/// to `close::OVERRUN` tokens past it).
+pub fn generate(
+    backend: &mut dyn Backend,
+    session: &mut Session,
+    prompt: &[TokenId],
+    max_tokens: usize,
+    steer: Steering,
+    mut on_token: impl FnMut(TokenId, &JsonScan) -> ControlFlow<()>,
+) -> Result<(Finish, GenerationStats), DecodeError> {
+    let Steering {
+        sampler,
+        mut constraint,
+        hook,
+        scan,
+    } = steer;
+    if prompt.is_empty() {
+        return Err(DecodeError::Backend(BackendError::Eval {
+            backend: backend.name(),
+            reason: "empty prompt".into(),
+        }));
+    }
+    let start = Instant::now();
+    let hard_limit = max_tokens + constraint.as_ref().map_or(0, |_| close::OVERRUN);
+    let vocab = backend.vocab().clone();
+    let (mut logits, forced, mut stats) = prefill(
+        backend,
+        session,
+        prompt,
+        hard_limit,
+        constraint.as_deref_mut(),
+    )?;
+    // Tokens forced at the start were evaluated with the prompt; they reach the caller
+    // now, once the model has actually seen them.
+    for &f in &forced {
+        if stats.time_to_first_token.is_zero() {
+            stats.time_to_first_token = start.elapsed();
+        }
+        push_text(scan, &vocab, f);
+        let _ = on_token(f, scan);
+    }
+    let gen_start = Instant::now();
+    let mut pending: Vec<TokenId> = Vec::with_capacity(64);
+    let finish = 'gen: loop {
+        // A grammar finished by forced tokens alone allows only end-of-generation.
+        if constraint.as_deref().is_some_and(Constraint::is_stopped) {
+            break Finish::EndOfGeneration;
+        }
+        let remaining = max_tokens.saturating_sub(stats.generated_tokens);
+        hook.adjust(
+            &TokenContext {
+                vocab: &vocab,
+                scan: &*scan,
+                remaining,
+            },
+            logits,
+        );
+        let chosen = match constraint.as_deref_mut() {
+            Some(c) => {
+                let t = Instant::now();
+                let tok = if close::should_close(remaining, scan) {
+                    close::closing_choice(c, &vocab, scan, logits)?
+                } else {
+                    c.choose(logits, sampler)?
+                };
+                stats.constraint_time += t.elapsed();
+                tok
+            }
+            None => sampler.sample(logits),
+        };
+        let Some(tok) = chosen else {
+            break Finish::NoCandidate;
+        };
+        if stats.time_to_first_token.is_zero() {
+            stats.time_to_first_token = start.elapsed();
+        }
+        stats.generated_tokens += 1;
+        push_text(scan, &vocab, tok);
+        let flow = on_token(tok, scan);
+        if vocab.is_eog(tok) || flow.is_break() {
+            // The grammar takes every emitted token, so a turn that stops here can be
+            // rewound token for token (`TurnDecoder::rewind`).
+            if let Some(c) = constraint.as_deref_mut() {
+                c.advance(tok)?;
+            }
+            break if vocab.is_eog(tok) {
+                Finish::EndOfGeneration
+            } else {
+                Finish::Stopped
+            };
+        }
+        pending.clear();
+        pending.push(tok);
+        if let Some(c) = constraint.as_deref_mut() {
+            let t = Instant::now();
+            let forced = c.commit(tok)?;
+            stats.constraint_time += t.elapsed();
+            for &f in forced {
+                if stats.generated_tokens >= hard_limit {
+                    break;
+                }
+                stats.generated_tokens += 1;
+                stats.forced_tokens += 1;
+                pending.push(f);
+                push_text(scan, &vocab, f);
+                if on_token(f, scan).is_break() {
+                    break 'gen Finish::Stopped;
+                }
+            }
+            // A finished grammar allows only end-of-generation: no need to ask the model.
+            if c.is_stopped() {
+                break Finish::EndOfGeneration;
+            }
+        }
+        // Past the budget only to close a call that is open.
+        let open = constraint.is_some() && scan.open_count() > 0;
+        if stats.generated_tokens >= hard_limit || (stats.generated_tokens >= max_tokens && !open) {
+            break Finish::Length;
+        }
+        if session.tokens.len() + pending.len() > backend.context_len() {
+            break Finish::ContextFull;
+        }
+        logits = forward(backend, session, &pending)?;
+        stats.gen_forwards += 1;
+    };
+    if let Some(c) = constraint {
+        stats.masks_computed = c.masks_computed;
+    }
+    stats.gen_time = gen_start.elapsed();
+    Ok((finish, stats))
+}
+
+/// Evaluate what of `prompt` the cache lacks, with the tokens the grammar forces before
+/// any sampling in the same batch: the logits after them, those forced tokens, and the
+/// statistics so far.
+fn prefill<'b>(
+    backend: &'b mut dyn Backend,
+    session: &mut Session,
+    prompt: &[TokenId],
+    limit: usize,
+    constraint: Option<&mut Constraint>,
+) -> Result<(&'b mut [f32], Vec<TokenId>, GenerationStats), DecodeError> {
+    let start = Instant::now();
+    let keep = session.reusable(prompt);
+    let mut stats = GenerationStats {
+        prompt_tokens: prompt.len(),
+        reused_tokens: keep,
+        ..Default::default()
+    };
+    session.tokens.truncate(keep);
+    // Room for every token this call can add, so the per-token loop never reallocates.
+    session
+        .tokens
+        .reserve((prompt.len() - keep + limit).min(backend.context_len()));
+    let mut batch: Vec<TokenId> = prompt[keep..].to_vec();
+    let mut forced = Vec::new();
+    if let Some(c) = constraint {
+        let t = Instant::now();
+        forced.extend(c.forced_at_start()?.iter().take(limit));
+        stats.constraint_time += t.elapsed();
+        stats.forced_at_start = forced.len();
+        stats.forced_tokens += forced.len();
+        stats.generated_tokens += forced.len();
+        batch.extend_from_slice(&forced);
+    }
+    session.tokens.truncate(keep);
+    let logits = forward(backend, session, &batch)?;
+    stats.prompt_time = start.elapsed();
+    Ok((logits, forced, stats))
+}
+
+/// Evaluate `tokens` after what the session holds, and record them; on failure the
+/// session is cleared (what the cache holds is unknown then: start clean next time).
+fn forward<'b>(
+    backend: &'b mut dyn Backend,
+    session: &mut Session,
+    tokens: &[TokenId],
+) -> Result<&'b mut [f32], DecodeError> {
+    match backend.forward(session.tokens.len(), tokens) {
+        Ok(l) => {
+            session.tokens.extend_from_slice(tokens);
+            Ok(l)
+        }
+        Err(e) => {
+            session.clear();
+            Err(e.into())
+        }
+    }
+}
+
+/// The turn's text grows by `tok`'s bytes (control tokens write none).
+fn push_text(scan: &mut JsonScan, vocab: &Vocab, tok: TokenId) {
+    if vocab.kind(tok) != crate::backend::vocab::TokenKind::Control {
+        scan.push(vocab.piece(tok));
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn reusable_prefix_leaves_one_token_to_evaluate() {
+        let s = Session {
+            tokens: vec![1, 2, 3, 4],
+        };
+        assert_eq!(s.reusable(&[1, 2, 3, 4, 5]), 4);
+        assert_eq!(s.reusable(&[1, 2, 3, 4]), 3);
+        assert_eq!(s.reusable(&[1, 9]), 1);
+        assert_eq!(s.reusable(&[7]), 0);
+    }
+}

@@ -1,0 +1,311 @@
+//! The turn driver: one assistant turn through a `Pipeline`.
+//!
+//! Without a strategy that decides (`Strategy::decides`), or when the turn may answer in
+//! prose, the turn is decoded to its end with the pipeline as the logits hook. Otherwise,
+//! and only when every candidate tool name can be written as the envelope spells it
+//! (checked before anything is shown), the pipeline picks the tool, and for a turn that
+//! may make a list, each call is written before it is shown: reviewed when it closes
+//! (kept, written again more strictly, or dropped), and the list goes on or closes as the
+//! pipeline decides. A turned-down first call gives way to the fallback tool (the one
+//! that answers in words).
+
+use std::ops::ControlFlow;
+
+use super::choice::CONTENT_FREE;
+use super::{Pipeline, Review, Scorer};
+use crate::backend::{Backend, TokenId};
+use crate::chat::Role;
+use crate::decode::turn::{
+    render_prompt, with_tools, Mark, TurnDecoder, TurnRequest, TurnResult, Until,
+};
+use crate::decode::{DecodeError, Envelope, Finish, Grammars, Sampler, Session, ToolChoice};
+use crate::tool::ToolCall;
+
+/// The model and what decoding it needs.
+pub struct Engine<'a> {
+    pub backend: &'a mut dyn Backend,
+    pub session: &'a mut Session,
+    pub grammars: &'a Grammars,
+    pub sampler: &'a mut Sampler,
+}
+
+/// Run `req` through `pipeline`; `fallback` names the tool that answers in words (if it
+/// is offered). `on_text` gets the text once it is final, and may break to stop.
+pub fn run(
+    engine: &mut Engine,
+    req: &TurnRequest,
+    pipeline: &mut Pipeline,
+    fallback: Option<&str>,
+    on_text: &mut dyn FnMut(&str) -> ControlFlow<()>,
+) -> Result<TurnResult, DecodeError> {
+    let mut turn = TurnDecoder::new(engine.backend, engine.grammars, req)?;
+    let gate = if pipeline.decides() {
+        Gate::prepare(engine.backend, &mut turn, req, fallback)?
+    } else {
+        None
+    };
+    match gate {
+        Some(gate) => gate.run(engine, &mut turn, req, pipeline, on_text)?,
+        None => decode_rest(engine, &mut turn, pipeline, on_text)?,
+    }
+    Ok(turn.finish(req))
+}
+
+/// A turn the pipeline decides: the candidate names and the content-free prompt.
+struct Gate {
+    /// Each allowed tool's name as tokens after what the grammar forces first.
+    names: Vec<Vec<TokenId>>,
+    fallback: Option<usize>,
+    /// The prompt with a content-free request in place of the last one.
+    base_prompt: Vec<TokenId>,
+}
+
+/// A call written after a list decided to go on, not yet kept.
+struct Proposal {
+    /// Before the separator, and the tokens that close the list instead.
+    before: Mark,
+    close: Vec<TokenId>,
+    /// After the separator (where a second attempt starts).
+    after: Mark,
+}
+
+impl Gate {
+    /// Everything the gate needs, or `None` when it does not apply: the turn may answer in
+    /// prose, there is nothing to decide, or the grammar spells the names otherwise.
+    fn prepare(
+        backend: &dyn Backend,
+        turn: &mut TurnDecoder,
+        req: &TurnRequest,
+        fallback: Option<&str>,
+    ) -> Result<Option<Gate>, DecodeError> {
+        let names: Vec<&str> = req
+            .allowed_specs()
+            .iter()
+            .map(|s| s.name.as_str())
+            .collect();
+        let fallback = names.iter().position(|n| Some(*n) == fallback);
+        let last_user = req.messages.iter().rposition(|m| m.role == Role::User);
+        let nothing_to_decide = names.len() < 2 && (!req.parallel || fallback.is_some());
+        let Some(last_user) = last_user else {
+            return Ok(None);
+        };
+        if req.choice != ToolChoice::Required || nothing_to_decide || turn.written().is_empty() {
+            return Ok(None);
+        }
+        let forced = turn.text();
+        let mut tokens = Vec::with_capacity(names.len());
+        for name in &names {
+            let opening = call_opening(req.envelope, name);
+            let Some(rest) = opening.strip_prefix(forced.as_str()) else {
+                tracing::debug!(%opening, "gate skipped: the grammar forces something else");
+                return Ok(None);
+            };
+            let toks = backend.tokenize(rest, false)?;
+            if !turn.allows(&toks) {
+                tracing::debug!(%opening, "gate skipped: the grammar refuses this spelling");
+                return Ok(None);
+            }
+            tokens.push(toks);
+        }
+        let mut messages = req.messages.to_vec();
+        messages[last_user].content = CONTENT_FREE.into();
+        let baseline = TurnRequest {
+            messages: &messages,
+            ..req.clone()
+        };
+        let base_prompt = render_prompt(backend, &with_tools(&baseline), req.envelope)?;
+        Ok(Some(Gate {
+            names: tokens,
+            fallback,
+            base_prompt,
+        }))
+    }
+
+    fn scorer<'a>(&'a self, engine: &'a mut Engine, turn: &'a TurnDecoder) -> Scorer<'a> {
+        Scorer {
+            backend: &mut *engine.backend,
+            session: &mut *engine.session,
+            base: &self.base_prompt,
+            real: turn.prompt(),
+        }
+    }
+
+    fn run(
+        self,
+        engine: &mut Engine,
+        turn: &mut TurnDecoder,
+        req: &TurnRequest,
+        pipeline: &mut Pipeline,
+        on_text: &mut dyn FnMut(&str) -> ControlFlow<()>,
+    ) -> Result<(), DecodeError> {
+        let written = turn.written().to_vec();
+        let chosen = pipeline.choose(
+            &mut self.scorer(engine, turn),
+            &written,
+            &self.names,
+            self.fallback,
+        )?;
+        let Some(chosen) = chosen else {
+            return decode_rest(engine, turn, pipeline, on_text);
+        };
+        let before_name = turn.mark();
+        turn.force(engine.backend, &self.names[chosen])?;
+        let opening = turn.mark();
+        let separators = req
+            .envelope
+            .list_separators()
+            .filter(|_| req.parallel && Some(chosen) != self.fallback);
+        let Some((more, close)) = separators else {
+            return decode_rest(engine, turn, pipeline, on_text);
+        };
+        let until = Until::CallClosed;
+        let mut calls: Vec<ToolCall> = Vec::new();
+        let mut check_first = self.fallback.is_some();
+        let mut retried = false;
+        let mut proposal: Option<Proposal> = None;
+        loop {
+            let e = &mut *engine;
+            let finish = turn.run(
+                e.backend, e.session, e.sampler, pipeline, until, false, on_text,
+            )?;
+            let Some(call) = closed_call(turn).filter(|_| finish == Finish::Stopped) else {
+                // The turn ended with no call closing (the grammar had no more to say).
+                if let Some(p) = proposal.take() {
+                    turn.rewind(p.before)?;
+                    turn.force(engine.backend, &p.close)?;
+                }
+                turn.flush(on_text);
+                return Ok(());
+            };
+            let (call, call_end) = call;
+            let review = if proposal.is_some() {
+                pipeline.review(&call, &calls, false)
+            } else if check_first {
+                pipeline.review(&call, &[], true)
+            } else {
+                Review::Keep
+            };
+            let again = review == Review::Redo && !retried && pipeline.strict(true);
+            retried = again;
+            if again {
+                let to = proposal.as_ref().map_or(opening, |p| p.after);
+                turn.rewind(to)?;
+                continue;
+            }
+            pipeline.strict(false);
+            if review != Review::Keep {
+                match proposal.take() {
+                    // A further call that does not earn its place: the list closes before it.
+                    Some(p) => {
+                        turn.rewind(p.before)?;
+                        turn.force(engine.backend, &p.close)?;
+                    }
+                    // A first call the request did not ask for: answer instead.
+                    None => {
+                        turn.rewind(before_name)?;
+                        turn.force(engine.backend, &self.names[self.fallback.unwrap_or(chosen)])?;
+                    }
+                }
+                return decode_rest(engine, turn, pipeline, on_text);
+            }
+            check_first = false;
+            calls.push(call);
+            // Does the list go on? The endings are scored as the model would spell them:
+            // what was written since the opening plus each ending, tokenized whole (the
+            // brace that closed the call often shares a token with what follows it).
+            let since = &turn.scan().text()[opening.bytes()..call_end];
+            let since = String::from_utf8_lossy(since).into_owned();
+            let with = |ending: &str| engine.backend.tokenize(&format!("{since}{ending}"), false);
+            let options = [with(more)?, with(close)?];
+            let common = options[0]
+                .iter()
+                .zip(&options[1])
+                .take_while(|(a, b)| a == b)
+                .count();
+            turn.rewind(opening)?;
+            let tails = [options[0][common..].to_vec(), options[1][common..].to_vec()];
+            let both = [&options[0], &options[1]].map(|o| turn.allows(o));
+            turn.force(engine.backend, &options[0][..common])?;
+            if !turn.flush_to(call_end, on_text) {
+                return Ok(());
+            }
+            if !both.iter().all(|&ok| ok) {
+                // The list is full (or cannot end here): the grammar decides.
+                return decode_rest(engine, turn, pipeline, on_text);
+            }
+            let written = turn.written().to_vec();
+            let go_on = pipeline.go_on(&mut self.scorer(engine, turn), &written, &tails)?;
+            match go_on {
+                Some(true) => {
+                    let before = turn.mark();
+                    turn.force(engine.backend, &tails[0])?;
+                    proposal = Some(Proposal {
+                        before,
+                        close: tails[1].clone(),
+                        after: turn.mark(),
+                    });
+                }
+                Some(false) => {
+                    turn.force(engine.backend, &tails[1])?;
+                    return decode_rest(engine, turn, pipeline, on_text);
+                }
+                None => return decode_rest(engine, turn, pipeline, on_text),
+            }
+        }
+    }
+}
+
+/// What `envelope` writes from the start of a turn to the end of the first call's tool
+/// name, closing quote included.
+fn call_opening(envelope: Envelope, name: &str) -> String {
+    let call = ToolCall {
+        name: name.into(),
+        arguments: serde_json::json!({}),
+    };
+    let text = envelope.render_calls(&[call]);
+    let quoted = serde_json::to_string(name).unwrap_or_default();
+    let end = text
+        .find(&quoted)
+        .map_or(text.len(), |at| at + quoted.len());
+    text[..end].to_string()
+}
+
+/// The call that just closed, parsed, and where its text ends.
+fn closed_call(turn: &TurnDecoder) -> Option<(ToolCall, usize)> {
+    let scan = turn.scan();
+    let &(start, end) = scan.closed_call_spans().last()?;
+    let v: serde_json::Value = serde_json::from_slice(&scan.text()[start..end]).ok()?;
+    Some((
+        ToolCall {
+            name: v["name"].as_str()?.to_string(),
+            arguments: v["arguments"].clone(),
+        },
+        end,
+    ))
+}
+
+/// Decode the rest of the turn as usual, streaming.
+fn decode_rest(
+    engine: &mut Engine,
+    turn: &mut TurnDecoder,
+    pipeline: &mut Pipeline,
+    on_text: &mut dyn FnMut(&str) -> ControlFlow<()>,
+) -> Result<(), DecodeError> {
+    if !turn.flush(on_text) {
+        return Ok(());
+    }
+    if !turn.is_done() {
+        let e = &mut *engine;
+        turn.run(
+            e.backend,
+            e.session,
+            e.sampler,
+            pipeline,
+            Until::End,
+            true,
+            on_text,
+        )?;
+    }
+    turn.flush(on_text);
+    Ok(())
+}

@@ -1,0 +1,228 @@
+//! What every ROS tool shares: the graph handle, failures as the model reads them ("no
+//! topic /x; did you mean /y?"), listing filters and summaries, and name spelling.
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::sync::Arc;
+
+use regex::Regex;
+use schemars::JsonSchema;
+use serde::Deserialize;
+use serde_json::{json, Value};
+
+use crate::ros::{Graph, RosError, RosGraph};
+use crate::tool::ToolError;
+
+#[derive(Clone)]
+pub struct Ros {
+    pub(super) graph: Arc<dyn RosGraph>,
+}
+
+/// A ROS failure as the model reads it (also used by the turtle tools).
+pub(crate) fn failed(e: RosError) -> ToolError {
+    ToolError::Failed(e.to_string())
+}
+
+impl Ros {
+    pub(super) async fn snapshot(&self) -> Result<Graph, ToolError> {
+        self.graph.graph().await.map_err(failed)
+    }
+
+    /// The type of `topic`, or a "no topic" error with near names.
+    pub(super) async fn topic_type(&self, topic: &str) -> Result<String, ToolError> {
+        let g = self.snapshot().await?;
+        g.topic_type(topic).ok_or_else(|| no_topic(topic, &g))
+    }
+}
+
+/// "no topic /x; did you mean /y?" or, with nothing near, which tool lists them.
+pub(super) fn not_found<'a>(
+    kind: &str,
+    wanted: &str,
+    names: impl Iterator<Item = &'a String>,
+    list_tool: &str,
+) -> ToolError {
+    let near = suggest(wanted, names);
+    ToolError::Failed(if near.is_empty() {
+        format!("no {kind} {wanted}; call {list_tool} to see the {kind}s")
+    } else {
+        format!("no {kind} {wanted}; did you mean {}?", near.join(" or "))
+    })
+}
+
+pub(super) fn require_node(g: &Graph, node: &str) -> Result<(), ToolError> {
+    if g.nodes.iter().any(|n| n == node) {
+        Ok(())
+    } else {
+        Err(ToolError::Failed(format!(
+            "no node {node}; running nodes: {}",
+            g.nodes.join(", ")
+        )))
+    }
+}
+
+/// `{name, type}` items of a name → types map, keyed by their name for filtering.
+pub(super) fn typed(item: &str, map: BTreeMap<String, BTreeSet<String>>) -> Vec<(String, Value)> {
+    map.into_iter()
+        .map(|(name, types)| {
+            let ty = types.into_iter().collect::<Vec<_>>().join(", ");
+            (name.clone(), json!({item: name, "type": ty}))
+        })
+        .collect()
+}
+
+/// `pattern` and `namespace` of a listing, compiled.
+pub(super) struct Filter {
+    pattern: Option<Regex>,
+    namespace: Option<String>,
+    echo: Value,
+}
+
+impl Filter {
+    pub(super) fn new(
+        pattern: Option<String>,
+        namespace: Option<String>,
+    ) -> Result<Filter, ToolError> {
+        let re = match pattern.as_deref().filter(|p| !p.is_empty()) {
+            Some(p) => Some(
+                Regex::new(p)
+                    .map_err(|e| ToolError::InvalidArguments(format!("pattern {p:?}: {e}")))?,
+            ),
+            None => None,
+        };
+        let namespace = namespace.filter(|n| !n.is_empty() && n != "/").map(|n| {
+            if n.starts_with('/') {
+                n
+            } else {
+                format!("/{n}")
+            }
+        });
+        Ok(Filter {
+            echo: json!({"pattern": pattern, "namespace": namespace}),
+            pattern: re,
+            namespace,
+        })
+    }
+
+    /// `{count, <key>: the items whose names the filters keep, filters}`; when they keep
+    /// nothing but there is something, the unfiltered listing too, so a wrong filter is
+    /// seen as one.
+    pub(super) fn listing(&self, key: &str, items: Vec<(String, Value)>) -> Value {
+        let (kept_names, kept): (Vec<&str>, Vec<&Value>) = items
+            .iter()
+            .filter(|(n, _)| self.keeps(n))
+            .map(|(n, v)| (n.as_str(), v))
+            .unzip();
+        let mut out = json!({"summary": summary(key, &kept_names), "count": kept.len(), key: kept, "filters": self.echo});
+        let filtered = self.pattern.is_some() || self.namespace.is_some();
+        if kept.is_empty() && !items.is_empty() && filtered {
+            let (all_names, all): (Vec<&str>, Vec<&Value>) =
+                items.iter().map(|(n, v)| (n.as_str(), v)).unzip();
+            out["summary"] = json!(format!(
+                "No {key} matched the filters; without them, {}",
+                summary(key, &all_names)
+            ));
+            out[format!("all_{key}")] = json!(all);
+            out["all_count"] = json!(all.len());
+        }
+        out
+    }
+
+    fn keeps(&self, name: &str) -> bool {
+        let ns_ok = self.namespace.as_deref().is_none_or(|ns| {
+            name == ns || name.starts_with(&format!("{}/", ns.trim_end_matches('/')))
+        });
+        ns_ok && self.pattern.as_ref().is_none_or(|re| re.is_match(name))
+    }
+}
+
+/// "2 nodes: /a, /b" (at most 12 names, then "and N more"), the sentence a small model
+/// copies into its answer instead of counting a JSON array itself.
+pub(super) fn summary(key: &str, names: &[&str]) -> String {
+    const SHOWN: usize = 12;
+    let noun = if names.len() == 1 {
+        key.trim_end_matches('s')
+    } else {
+        key
+    };
+    if names.is_empty() {
+        return format!("0 {key}");
+    }
+    let mut text = format!(
+        "{} {noun}: {}",
+        names.len(),
+        names[..names.len().min(SHOWN)].join(", ")
+    );
+    if names.len() > SHOWN {
+        text.push_str(&format!(" and {} more", names.len() - SHOWN));
+    }
+    text
+}
+
+pub(super) fn absolute(name: &str) -> String {
+    let name = name.trim();
+    if name.starts_with('/') {
+        name.to_string()
+    } else {
+        format!("/{name}")
+    }
+}
+
+/// Names close to `wanted`, for "no such X" answers.
+pub(super) fn suggest<'a>(wanted: &str, names: impl Iterator<Item = &'a String>) -> Vec<String> {
+    let tail = wanted.rsplit('/').next().unwrap_or(wanted).to_lowercase();
+    names
+        .filter(|n| {
+            let n = n.to_lowercase();
+            !tail.is_empty()
+                && (n.contains(&tail) || tail.contains(n.rsplit('/').next().unwrap_or("")))
+        })
+        .take(5)
+        .cloned()
+        .collect()
+}
+
+#[derive(Deserialize, JsonSchema)]
+pub struct ListArgs {
+    /// Only names matching this regular expression; leave out to list all.
+    #[serde(default)]
+    pub pattern: Option<String>,
+    /// Only names under this namespace; leave out to list all.
+    #[serde(default)]
+    #[schemars(regex(pattern = r"^/[A-Za-z0-9_/]*$"))]
+    pub namespace: Option<String>,
+}
+
+#[derive(Deserialize, JsonSchema)]
+pub struct NodeArgs {
+    /// Node name, e.g. "/turtlesim".
+    pub node: String,
+}
+
+#[derive(Deserialize, JsonSchema)]
+pub struct TopicArgs {
+    /// Topic name, e.g. "/turtle1/pose".
+    pub topic: String,
+}
+
+pub(super) fn no_topic(topic: &str, g: &Graph) -> ToolError {
+    not_found("topic", topic, g.topics().keys(), "ros_topic_list")
+}
+
+#[derive(Deserialize, JsonSchema)]
+pub struct ServiceArgs {
+    /// Service name, e.g. "/spawn".
+    pub service: String,
+}
+
+pub(super) fn service_type(g: &Graph, service: &str) -> Result<String, ToolError> {
+    let services = g.services();
+    match services.get(service).and_then(|t| t.iter().next()) {
+        Some(t) => Ok(t.clone()),
+        None => Err(not_found(
+            "service",
+            service,
+            services.keys(),
+            "ros_service_list",
+        )),
+    }
+}

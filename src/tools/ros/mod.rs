@@ -1,0 +1,222 @@
+//! The ROS tools, `ros_<noun>_<verb>`, over any `RosGraph` (ROS 2, the sim, the fake).
+//! Each returns structured JSON with counts and the filters applied, so a small model
+//! reads answers instead of counting; listings take a `pattern` (regex) and a
+//! `namespace`. String arguments pass the policy's deny-list before a call runs, and
+//! listings are redacted after, like every tool.
+//!
+//! Layout:
+//! - `base`: the graph handle, failures as the model reads them, filters, summaries
+//! - `graph`: nodes, topics and services listed and described
+//! - `topic`: echo, rate, publish
+//! - `service`: service calls
+//! - `param`: parameters (through the node's `rcl_interfaces` services)
+//! - `iface`: interface definitions and `/rosout` logs
+//! - `action`: actions (list, send a goal, cancel)
+
+mod action;
+mod base;
+mod graph;
+mod iface;
+mod param;
+mod service;
+mod topic;
+
+use std::sync::Arc;
+
+pub(crate) use base::failed;
+use base::Ros;
+
+use crate::ros::RosGraph;
+use crate::tool::Package;
+
+/// Every ROS tool over `graph`.
+pub fn package(graph: Arc<dyn RosGraph>) -> Package {
+    let g = || Ros {
+        graph: graph.clone(),
+    };
+    Package::new("ros")
+        .with(graph::NodeList(g()))
+        .with(graph::NodeInfo(g()))
+        .with(graph::TopicList(g()))
+        .with(graph::TopicInfo(g()))
+        .with(topic::TopicEcho(g()))
+        .with(topic::TopicHz(g()))
+        .with(topic::TopicPublish(g()))
+        .with(graph::ServiceList(g()))
+        .with(graph::ServiceInfo(g()))
+        .with(service::ServiceCall(g()))
+        .with(param::ParamList(g()))
+        .with(param::ParamGet(g()))
+        .with(param::ParamSet(g()))
+        .with(iface::InterfaceShow(g()))
+        .with(iface::LogRead(g()))
+        .with(action::ActionList(g()))
+        .with(action::ActionSendGoal(g()))
+        .with(action::ActionCancel(g()))
+}
+
+#[cfg(test)]
+mod tests {
+    use std::time::Duration;
+
+    use serde_json::{json, Value};
+
+    use super::graph::{NodeInfo, NodeList, ServiceList, TopicList};
+    use super::iface::InterfaceShow;
+    use super::service::ServiceCall;
+    use super::topic::{TopicEcho, TopicHz, TopicPublish};
+    use super::*;
+    use crate::ros::fake::{FakeGraph, Sent};
+    use crate::ros::graph::testing::{ep, gid};
+    use crate::ros::graph::{GraphCache, NodeEntities};
+    use crate::tool::{Tool, ToolContext, ToolError};
+
+    fn fake() -> Arc<FakeGraph> {
+        let mut cache = GraphCache::default();
+        cache.update_participant(
+            gid(99),
+            vec![NodeEntities {
+                name: "turtlesim".into(),
+                namespace: "/".into(),
+                readers: vec![gid(1), gid(3)],
+                writers: vec![gid(2)],
+            }],
+        );
+        let graph = cache.join(&[
+            ep(
+                1,
+                false,
+                "rt/turtle1/cmd_vel",
+                "geometry_msgs::msg::dds_::Twist_",
+            ),
+            ep(2, true, "rt/turtle1/pose", "turtlesim::msg::dds_::Pose_"),
+            ep(
+                3,
+                false,
+                "rq/turtle1/teleport_absoluteRequest",
+                "turtlesim::srv::dds_::TeleportAbsolute_Request_",
+            ),
+        ]);
+        Arc::new(
+            FakeGraph::new()
+                .with_graph(graph)
+                .with_messages(
+                    "/turtle1/pose",
+                    vec![json!({"x": 1.0}), json!({"x": 2.0}), json!({"x": 3.0})],
+                )
+                .with_service("/turtle1/teleport_absolute", json!({})),
+        )
+    }
+
+    /// Run a tool on a current-thread runtime with a 5 s limit (also the action tests').
+    pub(super) fn run<T: Tool>(t: &T, args: Value) -> Result<Value, ToolError> {
+        let args: T::Args = serde_json::from_value(args).unwrap();
+        let cx = ToolContext {
+            timeout: Duration::from_secs(5),
+        };
+        tokio::runtime::Builder::new_current_thread()
+            .enable_time()
+            .build()
+            .unwrap()
+            .block_on(t.call(args, &cx))
+    }
+
+    #[test]
+    fn listings_count_and_filter() {
+        let ros = Ros { graph: fake() };
+        let out = run(&NodeList(ros.clone()), json!({})).unwrap();
+        assert_eq!(out["count"], 1);
+        assert_eq!(out["nodes"][0], "/turtlesim");
+        let out = run(&TopicList(ros.clone()), json!({"pattern": "pose"})).unwrap();
+        assert_eq!(out["count"], 1);
+        assert_eq!(out["topics"][0]["type"], "turtlesim/msg/Pose");
+        assert_eq!(out["filters"]["pattern"], "pose");
+        let out = run(&TopicList(ros.clone()), json!({"namespace": "turtle1"})).unwrap();
+        assert_eq!(out["count"], 2);
+        let out = run(&TopicList(ros.clone()), json!({"namespace": "/turtle"})).unwrap();
+        assert_eq!(out["count"], 0, "a namespace is a whole path segment");
+        assert_eq!(
+            out["all_count"], 2,
+            "an empty filtered listing shows the unfiltered one"
+        );
+        assert!(run(&TopicList(ros.clone()), json!({"pattern": "("})).is_err());
+        let out = run(&ServiceList(ros.clone()), json!({})).unwrap();
+        assert_eq!(out["services"][0]["type"], "turtlesim/srv/TeleportAbsolute");
+        let info = run(&NodeInfo(ros.clone()), json!({"node": "turtlesim"})).unwrap();
+        assert_eq!(
+            info["counts"],
+            json!({"publishers": 1, "subscribers": 1, "services": 1, "clients": 0})
+        );
+    }
+
+    #[test]
+    fn echo_hz_and_unknown_topics() {
+        let ros = Ros { graph: fake() };
+        let out = run(
+            &TopicEcho(ros.clone()),
+            json!({"topic": "/turtle1/pose", "count": 2}),
+        )
+        .unwrap();
+        assert_eq!(out["count"], 2);
+        assert_eq!(out["messages"][1]["x"], 2.0);
+        let hz = run(
+            &TopicHz(ros.clone()),
+            json!({"topic": "/turtle1/pose", "window_s": 3.0}),
+        )
+        .unwrap();
+        assert_eq!(hz["rate_hz"], 1.0);
+        let err = run(&TopicEcho(ros.clone()), json!({"topic": "/turtle1/pos"})).unwrap_err();
+        assert!(
+            err.to_string().contains("did you mean /turtle1/pose"),
+            "{err}"
+        );
+    }
+
+    #[test]
+    fn publish_and_call_take_types_from_the_graph() {
+        let graph = fake();
+        let ros = Ros {
+            graph: graph.clone(),
+        };
+        run(
+            &TopicPublish(ros.clone()),
+            json!({"topic": "/turtle1/cmd_vel", "message": {"linear": {"x": 1.0}}}),
+        )
+        .unwrap();
+        let out = run(
+            &ServiceCall(ros.clone()),
+            json!({"service": "turtle1/teleport_absolute", "request": {"x": 1.0}}),
+        )
+        .unwrap();
+        assert_eq!(out["type"], "turtlesim/srv/TeleportAbsolute");
+        assert_eq!(
+            graph.sent(),
+            [
+                Sent::Publish {
+                    topic: "/turtle1/cmd_vel".into(),
+                    type_name: "geometry_msgs/msg/Twist".into(),
+                    message: json!({"linear": {"x": 1.0}})
+                },
+                Sent::Call {
+                    service: "/turtle1/teleport_absolute".into(),
+                    type_name: "turtlesim/srv/TeleportAbsolute".into(),
+                    request: json!({"x": 1.0})
+                },
+            ]
+        );
+        let err = run(&ServiceCall(ros), json!({"service": "/teleport"})).unwrap_err();
+        assert!(
+            err.to_string()
+                .contains("did you mean /turtle1/teleport_absolute"),
+            "{err}"
+        );
+    }
+
+    #[test]
+    fn interface_show_gives_definition_and_example() {
+        let ros = Ros { graph: fake() };
+        let out = run(&InterfaceShow(ros), json!({"type": "turtlesim/srv/Spawn"})).unwrap();
+        assert!(out["definition"].as_str().unwrap().contains("string name"));
+        assert_eq!(out["example"]["request"]["name"], "");
+    }
+}

@@ -1,0 +1,41 @@
+//! Calling a service.
+
+use schemars::JsonSchema;
+use serde::Deserialize;
+use serde_json::{json, Map, Value};
+
+use super::base::{absolute, failed, service_type, Ros};
+use crate::tool::{Effect, Tool, ToolContext, ToolError};
+
+#[derive(Deserialize, JsonSchema)]
+pub struct CallArgs {
+    /// Service name, e.g. "/turtle1/teleport_absolute".
+    pub service: String,
+    /// Request fields, e.g. {"x": 2.0, "y": 3.0}; absent fields are zero.
+    #[serde(default)]
+    pub request: Option<Map<String, Value>>,
+}
+
+pub struct ServiceCall(pub(super) Ros);
+
+impl Tool for ServiceCall {
+    type Args = CallArgs;
+    const NAME: &'static str = "ros_service_call";
+    const EFFECT: Effect = Effect::Actuates;
+    fn description(&self) -> String {
+        "Call a ROS service with a request and return its response. May act on the robot.".into()
+    }
+    async fn call(&self, a: CallArgs, cx: &ToolContext) -> Result<Value, ToolError> {
+        let service = absolute(&a.service);
+        let g = self.0.snapshot().await?;
+        let ty = service_type(&g, &service)?;
+        let request = Value::Object(a.request.unwrap_or_default());
+        let response = self
+            .0
+            .graph
+            .call_service(&service, &ty, request, cx.timeout)
+            .await
+            .map_err(failed)?;
+        Ok(json!({"service": service, "type": ty, "response": response}))
+    }
+}

@@ -1,0 +1,166 @@
+//! Topics' traffic: reading messages, measuring rates, publishing one message.
+
+use std::time::Duration;
+
+use schemars::JsonSchema;
+use serde::Deserialize;
+use serde_json::{json, Map, Value};
+
+use super::base::{absolute, failed, Ros};
+use crate::tool::{Effect, Tool, ToolContext, ToolError};
+
+#[derive(Deserialize, JsonSchema)]
+pub struct EchoArgs {
+    /// Topic name, e.g. "/turtle1/pose".
+    pub topic: String,
+    /// Messages to collect, 1 to 20 (default 1).
+    #[serde(default)]
+    #[schemars(range(min = 1, max = 20))]
+    pub count: Option<u32>,
+    /// Seconds to wait at most, 0.1 to 10 (default 3).
+    #[serde(default)]
+    #[schemars(range(min = 0.1, max = 10.0))]
+    pub timeout_s: Option<f64>,
+}
+
+/// Long arrays (images, scans) are cut so one message cannot flood the context.
+fn shorten(v: &mut Value) {
+    match v {
+        Value::Array(items) => {
+            if items.len() > 16 {
+                let n = items.len();
+                items.truncate(16);
+                items.push(json!(format!("... {} more of {n}", n - 16)));
+            }
+            items.iter_mut().for_each(shorten);
+        }
+        Value::Object(m) => m.values_mut().for_each(shorten),
+        _ => {}
+    }
+}
+
+pub struct TopicEcho(pub(super) Ros);
+
+impl Tool for TopicEcho {
+    type Args = EchoArgs;
+    const NAME: &'static str = "ros_topic_echo";
+    const EFFECT: Effect = Effect::Observes;
+    fn description(&self) -> String {
+        "Read the latest messages on a topic (e.g. a pose, a battery state), as JSON.".into()
+    }
+    async fn call(&self, a: EchoArgs, cx: &ToolContext) -> Result<Value, ToolError> {
+        let topic = absolute(&a.topic);
+        let count = a.count.unwrap_or(1).clamp(1, 20) as usize;
+        let window =
+            Duration::from_secs_f64(a.timeout_s.unwrap_or(3.0).clamp(0.1, 10.0)).min(cx.timeout);
+        let ty = self.0.topic_type(&topic).await?;
+        let samples = self
+            .0
+            .graph
+            .subscribe(&topic, Some(&ty), count, window)
+            .await
+            .map_err(failed)?;
+        let messages: Vec<Value> = samples
+            .into_iter()
+            .map(|mut s| {
+                shorten(&mut s.message);
+                s.message
+            })
+            .collect();
+        let mut out =
+            json!({"topic": topic, "type": ty, "count": messages.len(), "messages": messages});
+        if out["count"] == 0 {
+            out["note"] = json!(format!(
+                "no message within {:.1} s; the publisher may be idle",
+                window.as_secs_f64()
+            ));
+        }
+        Ok(out)
+    }
+}
+
+#[derive(Deserialize, JsonSchema)]
+pub struct HzArgs {
+    /// Topic name.
+    pub topic: String,
+    /// Seconds to measure, 0.5 to 10 (default 2).
+    #[serde(default)]
+    #[schemars(range(min = 0.5, max = 10.0))]
+    pub window_s: Option<f64>,
+}
+
+pub struct TopicHz(pub(super) Ros);
+
+impl Tool for TopicHz {
+    type Args = HzArgs;
+    const NAME: &'static str = "ros_topic_hz";
+    const EFFECT: Effect = Effect::Observes;
+    fn description(&self) -> String {
+        "Measure how often a topic publishes (messages per second).".into()
+    }
+    async fn call(&self, a: HzArgs, cx: &ToolContext) -> Result<Value, ToolError> {
+        let topic = absolute(&a.topic);
+        let window =
+            Duration::from_secs_f64(a.window_s.unwrap_or(2.0).clamp(0.5, 10.0)).min(cx.timeout);
+        let ty = self.0.topic_type(&topic).await?;
+        let samples = self
+            .0
+            .graph
+            .subscribe(&topic, Some(&ty), 100_000, window)
+            .await
+            .map_err(failed)?;
+        let rate = match (samples.first(), samples.last()) {
+            (Some(a), Some(b)) if samples.len() > 1 && b.t > a.t => {
+                (samples.len() - 1) as f64 / (b.t - a.t)
+            }
+            _ => 0.0,
+        };
+        Ok(
+            json!({"topic": topic, "messages": samples.len(), "window_s": window.as_secs_f64(),
+                  "rate_hz": (rate * 100.0).round() / 100.0}),
+        )
+    }
+}
+
+#[derive(Deserialize, JsonSchema)]
+pub struct PublishArgs {
+    /// Topic name, e.g. "/turtle1/cmd_vel".
+    pub topic: String,
+    /// The message fields, e.g. {"linear": {"x": 1.0}}; absent fields are zero.
+    pub message: Map<String, Value>,
+    /// Message type, e.g. "geometry_msgs/msg/Twist"; taken from the topic when omitted.
+    #[serde(default)]
+    pub message_type: Option<String>,
+}
+
+pub struct TopicPublish(pub(super) Ros);
+
+impl Tool for TopicPublish {
+    type Args = PublishArgs;
+    const NAME: &'static str = "ros_topic_publish";
+    const EFFECT: Effect = Effect::Actuates;
+    fn description(&self) -> String {
+        "Publish one message on a topic. Can move the robot.".into()
+    }
+    async fn call(&self, a: PublishArgs, _: &ToolContext) -> Result<Value, ToolError> {
+        let topic = absolute(&a.topic);
+        let ty = match a.message_type.filter(|t| !t.is_empty()) {
+            Some(t) => t,
+            None => {
+                let g = self.0.snapshot().await?;
+                g.topic_type(&topic).ok_or_else(|| {
+                    ToolError::Failed(format!("{topic} has no known type; give message_type"))
+                })?
+            }
+        };
+        let message = Value::Object(a.message);
+        self.0
+            .graph
+            .publish(&topic, &ty, message.clone())
+            .await
+            .map_err(failed)?;
+        Ok(
+            json!({"published": true, "topic": topic, "type": crate::ros::msg::normalize_type(&ty), "message": message}),
+        )
+    }
+}

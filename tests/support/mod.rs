@@ -1,0 +1,9 @@
+//! What the integration tests share: synthetic models (no weights), test backends, and
+//! the loopback-only network namespace the ROS tests run in. Benches include single
+//! files of it by path.
+
+pub mod bytext;
+pub mod netns;
+pub mod scripted;
+pub mod synthetic;
+pub mod uniform;
