@@ -131,7 +131,8 @@ fn main() {
         .clone()
         .map(|g| g as Arc<dyn ferrosa::ros::RosGraph>);
     let t = std::time::Instant::now();
-    let mut agent = build_with(&args, Arc::new(Yes), graph).expect("build the agent");
+    let mut agent = build_with(&args, Arc::new(Yes), graph, ferrosa::estop::EStop::new())
+        .expect("build the agent");
     let load_ms = t.elapsed().as_secs_f64() * 1e3;
     println!("sim discovered in {discovered_ms:.0} ms; agent (model, grammars, tools) built in {load_ms:.0} ms");
     println!();

@@ -9,6 +9,9 @@
 //! - `lexicon`: words and numbers, read one way everywhere
 //! - `json`: the one incremental reader of JSON text (where a turn stands)
 //! - `clock`: wall-clock time as calendar fields
+//! - `estop`: the emergency stop, one latch every part shares
+//! - `fence`: names off limits (the deny-list), canonical ROS names, redaction
+//! - `limits`: motion limits (speeds, teleports, parameters) on encoded messages
 //! - `metrics`: process measurements (peak RSS, CPU model) for stats and benches
 //! - `backend`: model runtimes behind the `Backend` trait (llama.cpp, candle); GGUF
 //!   metadata; vocabulary; chat templates
@@ -31,9 +34,12 @@ pub mod backend;
 pub mod chat;
 pub mod clock;
 pub mod decode;
+pub mod estop;
 pub mod eval;
+pub mod fence;
 pub mod json;
 pub mod lexicon;
+pub mod limits;
 pub mod metrics;
 pub mod models;
 pub mod ros;

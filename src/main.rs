@@ -94,8 +94,22 @@ enum Command {
         #[command(flatten)]
         agent: AgentOpts,
     },
-    /// Talk to the agent (REPL): /tools, /clear, /trace, /quit; Ctrl-C stops a run.
+    /// Talk to the agent (REPL): /stop (e-stop, also mid-run; so does Ctrl-C), /reset,
+    /// /call, /tools, /clear, /trace, /quit.
     Chat {
+        #[command(flatten)]
+        agent: AgentOpts,
+    },
+    /// Run one tool call through exactly the agent's policy path (deny-list, e-stop,
+    /// limits, confirmation, the ROS boundary) and print {name, arguments, decision,
+    /// output} as JSON. Without a terminal and without --yes, an actuating call is
+    /// refused as unconfirmed.
+    Call {
+        /// The tool, e.g. ros_node_list.
+        name: String,
+        /// Its arguments, a JSON object.
+        #[arg(default_value = "{}")]
+        arguments: String,
         #[command(flatten)]
         agent: AgentOpts,
     },
@@ -349,6 +363,11 @@ fn main() -> ExitCode {
         }),
         Command::Ask { query, json, agent } => ui::agent::ask(&agent.into_args(dir), &query, json),
         Command::Chat { agent } => ui::agent::chat(&agent.into_args(dir)),
+        Command::Call {
+            name,
+            arguments,
+            agent,
+        } => ui::call::run(&agent.into_args(dir), &name, &arguments),
         Command::Demo { agent } => {
             let mut args = agent.into_args(dir);
             if args.robot == ui::agent::Robot::None {

@@ -402,11 +402,12 @@ fn actuation_runs_only_when_the_request_points_at_it() {
         "ros_topic_publish",
         json!({"name": "/turtle1/cmd_vel", "value": 1.0}),
     );
-    // A question: the model publishes anyway; even with everything approved, it is
+    // A request that asks for nothing the call targets (a question would not even offer
+    // the publish): the model publishes anyway; even with everything approved, it is
     // refused before it runs, and the model is told why.
     let script = [publish.clone(), answer("The turtle is at the centre.")];
     let mut a = agent(&script, vec![ros_like(&runs)], approve_all(), 8192);
-    let (r, _) = ask(&mut a, "where is the turtle?");
+    let (r, _) = ask(&mut a, "tell me what the turtle is doing");
     assert_eq!(runs.load(Ordering::SeqCst), 0, "an unasked publish ran");
     assert!(
         matches!(&r.steps[0].decision, Decision::Refused(why) if why.contains("did not ask")),
@@ -495,7 +496,7 @@ fn deny_listed_names_are_refused_on_every_kind_of_call_and_hidden_from_listings(
     )
     .unwrap();
     p.add_model_pattern("^/camera").unwrap();
-    assert!(p.denied("/camera/raw").is_some() && p.denied("/secret/x").is_some());
+    assert!(p.denied("/camera/raw") && p.denied("/secret/x"));
 }
 
 struct Recorder {

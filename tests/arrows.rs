@@ -17,36 +17,44 @@ const ALLOWED: &[(&str, &[&str])] = &[
     ("chat", &[]),
     ("lexicon", &[]),
     ("json", &["lexicon"]),
+    ("estop", &[]),
+    ("fence", &[]),
+    ("limits", &[]),
     ("clock", &[]),
     ("metrics", &[]),
     ("backend", &["chat", "clock", "metrics"]),
     ("models", &["backend", "metrics"]),
-    ("tool", &["chat", "lexicon"]),
+    ("tool", &["chat", "lexicon", "estop", "fence", "limits"]),
     ("decode", &["backend", "tool", "chat", "lexicon", "json"]),
     (
         "strategy",
         &["decode", "backend", "tool", "chat", "lexicon", "json"],
     ),
-    ("ros", &["lexicon", "clock"]),
-    ("tools", &["tool", "ros", "lexicon", "clock", "chat"]),
+    ("ros", &["lexicon", "clock", "estop", "fence", "limits"]),
+    (
+        "tools",
+        &[
+            "tool", "ros", "lexicon", "clock", "chat", "estop", "fence", "limits",
+        ],
+    ),
     (
         "agent",
         &[
-            "decode", "strategy", "backend", "tool", "chat", "lexicon", "clock",
+            "decode", "strategy", "backend", "tool", "chat", "lexicon", "clock", "estop", "fence",
         ],
     ),
     (
         "eval",
         &[
             "agent", "strategy", "decode", "backend", "tool", "tools", "ros", "chat", "lexicon",
-            "models", "metrics", "clock", "json",
+            "models", "metrics", "clock", "json", "estop", "fence", "limits",
         ],
     ),
     (
         "ui",
         &[
             "agent", "strategy", "decode", "backend", "tool", "tools", "ros", "chat", "lexicon",
-            "models", "metrics", "clock", "eval", "json",
+            "models", "metrics", "clock", "eval", "json", "estop", "fence", "limits",
         ],
     ),
 ];

@@ -829,3 +829,44 @@ fn real_model_makes_only_valid_calls_when_constrained() {
     );
     assert_eq!(valid[0], 50);
 }
+
+/// A list whose calls end in a value the grammar completes itself (an enum): deciding
+/// whether the list goes on rewrites the call's end as the model would spell it, and
+/// what the grammar forces after the shared part must not be written twice.
+#[test]
+fn a_list_of_calls_ending_in_forced_values_goes_on_and_closes() {
+    let specs = vec![
+        ToolSpec::new(
+            "weather",
+            "Weather in a city.",
+            json!({"type": "object", "properties": {"city": {"type": "string", "enum": ["Paris", "Lyon"]}}, "required": ["city"]}),
+        )
+        .unwrap(),
+        ferrosa::agent::answer_spec(),
+    ];
+    let model = ByText::new(|text| {
+        let asked = !text.contains("N/A");
+        let turn = text.rsplit("assistant\n").next().unwrap_or("");
+        let calls = turn.matches("\"city\"").count();
+        let weather = if asked { -0.5 } else { -1.5 };
+        if let Some(next) = after(
+            turn,
+            "{\"name\": \"",
+            &[("weather\"", weather), ("reply\"", -2.0)],
+        ) {
+            return next;
+        }
+        let city = ["Paris\"}}", "Lyon\"}}"][calls.clamp(1, 2) - 1];
+        if let Some(next) = after(turn, "\"city\": \"", &[(city, -0.1)]) {
+            return next;
+        }
+        if turn.ends_with("}}") {
+            let more = if asked && calls < 2 { -0.2 } else { -3.0 };
+            return vec![(",\n".into(), more), ("\n]</tool_call>".into(), -1.0)];
+        }
+        vec![("<|im_end|>".into(), 0.0)]
+    });
+    let (names, args) = driven(model, &specs, "weather in Paris and in Lyon", true);
+    assert_eq!(names, ["weather", "weather"]);
+    assert_eq!(args, [json!({"city": "Paris"}), json!({"city": "Lyon"})]);
+}

@@ -21,6 +21,8 @@ static COUNTING: alloc::Counting = alloc::Counting;
 mod candle_parity;
 mod cli;
 mod decoding;
+mod estop;
 mod eval;
 mod ros;
 mod runtime;
+mod safety;

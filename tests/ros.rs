@@ -78,7 +78,7 @@ fn sim_graph_echo_publish_services_parameters() {
         graph.call_service("/turtle1/teleport_absolute", "turtlesim/srv/TeleportAbsolute",
             json!({"x": 2.0, "y": 3.0, "theta": 0.5}), Duration::from_secs(5)).await.unwrap();
         let spawned = graph.call_service("/spawn", "turtlesim/srv/Spawn",
-            json!({"x": 1.0, "y": 1.0, "theta": 0.0, "name": "rafael"}), Duration::from_secs(5)).await.unwrap();
+            json!({"x": 1.0, "y": 1.0, "theta": 0.0, "name": "rafael"}), Duration::from_secs(5)).await.unwrap().response;
         assert_eq!(spawned, json!({"name": "rafael"}));
         let p = graph.subscribe("/turtle1/pose", None, 1, Duration::from_secs(5)).await.unwrap();
         assert!((p[0].message["x"].as_f64().unwrap() - 2.0).abs() < 1e-4);
@@ -87,11 +87,11 @@ fn sim_graph_echo_publish_services_parameters() {
 
         // Parameters are services.
         let got = graph.call_service("/turtlesim/get_parameters", "rcl_interfaces/srv/GetParameters",
-            json!({"names": ["background_r"]}), Duration::from_secs(5)).await.unwrap();
+            json!({"names": ["background_r"]}), Duration::from_secs(5)).await.unwrap().response;
         assert_eq!(got["values"][0]["integer_value"], json!(69));
         let set = graph.call_service("/turtlesim/set_parameters", "rcl_interfaces/srv/SetParameters",
             json!({"parameters": [{"name": "background_r", "value": {"type": 2, "integer_value": 10}}]}),
-            Duration::from_secs(5)).await.unwrap();
+            Duration::from_secs(5)).await.unwrap().response;
         assert_eq!(set["results"][0]["successful"], json!(true), "{set}");
 
         // Logs: /rosout keeps history for late joiners.
@@ -256,7 +256,7 @@ fn ask_sim_moves_the_turtle_with_the_real_model() {
 }
 
 /// The Python of the rclpy virtualenv `.ci/setup` makes (or `FERROSA_RCLPY_PYTHON`).
-fn rclpy_python() -> std::path::PathBuf {
+pub fn rclpy_python() -> std::path::PathBuf {
     let p = std::env::var_os("FERROSA_RCLPY_PYTHON")
         .map(std::path::PathBuf::from)
         .unwrap_or_else(|| {
@@ -270,7 +270,7 @@ fn rclpy_python() -> std::path::PathBuf {
     p
 }
 
-fn peer_script() -> std::path::PathBuf {
+pub fn peer_script() -> std::path::PathBuf {
     std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/peers/rclpy_peer.py")
 }
 

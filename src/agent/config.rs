@@ -2,6 +2,9 @@
 //! budgets of its context, and the strategies it uses.
 
 use super::answer::ANSWER_TOOL;
+
+/// The e-stop tool (`tools::stop`), offered whatever the request.
+pub const STOP_TOOL: &str = "robot_stop";
 use crate::decode::envelope::Envelope;
 use crate::decode::{Decoding, SamplerConfig};
 
@@ -58,7 +61,7 @@ impl AgentConfig {
             history_tokens: 768,
             asked_actuation_only: true,
             tool_budget_tokens: 1500,
-            always_on: vec![ANSWER_TOOL.to_string()],
+            always_on: vec![ANSWER_TOOL.to_string(), STOP_TOOL.to_string()],
             output_chars: 1500,
             copy_bias: 0.0,
             sampler: SamplerConfig::default(),

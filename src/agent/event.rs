@@ -1,5 +1,7 @@
 //! The typed events a run produces, in order. Every front end (one-shot, REPL, JSON,
-//! trace file) consumes the same stream.
+//! trace file) consumes the same stream, and nothing behind the fence reaches it: call
+//! arguments, results, errors and answers are redacted, and streamed text is released a
+//! whole word at a time so a denied name split across tokens is caught too.
 
 use serde::Serialize;
 use serde_json::Value;
@@ -45,4 +47,40 @@ pub enum Event {
     Error {
         message: String,
     },
+}
+
+/// Streamed text, redacted a word at a time: a name-like word is held back until the
+/// character after it shows it is complete.
+pub struct WordStream {
+    fence: std::sync::Arc<crate::fence::Fence>,
+    pending: String,
+}
+
+impl WordStream {
+    pub fn new(fence: std::sync::Arc<crate::fence::Fence>) -> WordStream {
+        WordStream {
+            fence,
+            pending: String::new(),
+        }
+    }
+
+    /// Add a piece; returns the text that can be shown now (possibly empty).
+    pub fn push(&mut self, piece: &str) -> String {
+        self.pending.push_str(piece);
+        let name_char = |c: char| c.is_alphanumeric() || matches!(c, '_' | '/' | '.' | '~' | '-');
+        let cut = self
+            .pending
+            .char_indices()
+            .rev()
+            .find(|&(_, c)| !name_char(c))
+            .map_or(0, |(i, c)| i + c.len_utf8());
+        let ready: String = self.pending.drain(..cut).collect();
+        self.fence.redact(&ready).into_owned()
+    }
+
+    /// The rest, at the end of the stream.
+    pub fn finish(&mut self) -> String {
+        let rest = std::mem::take(&mut self.pending);
+        self.fence.redact(&rest).into_owned()
+    }
 }

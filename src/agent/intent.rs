@@ -1,79 +1,123 @@
 //! Actuation the operator asked for. A small model that has run one tool tends to call
 //! the next one it was shown, and with an operator who approves everything (`--yes`) that
 //! moves the robot unasked ("where is the turtle?" → pose, then move, rotate, teleport).
-//! So an actuating call runs only when a word of the request points at it: one of the
-//! tool's own words (its name and description, minus every word an observing tool also
-//! uses: "turtle" names the robot, "drive" names an act), or a word of one of the call's
-//! string arguments (the `/spawn` of a service call). Tools the request cannot point at
-//! (no own word in it, no string argument to name a target) are left out of the grammar;
-//! the rest are checked once the call is made.
+//! So an actuating call runs only when the request asks for it (`concepts`: in a clause
+//! that neither forbids it, "don't move", nor only asks about it, "is it moving?"):
+//!
+//! - a tool whose name names an act (`turtle_move`, `turtle_reset`) when the request asks
+//!   for that act;
+//! - a generic tool (a service call, a publish, a goal, a parameter) when the request
+//!   asks for what its target names (`/spawn` for "spawn a turtle", `/turtle1/cmd_vel`
+//!   for "drive forward") or names the target itself; the generic verb alone ("call",
+//!   "run") unlocks nothing;
+//! - a tool whose name names no act the lexicon knows (a robot's own `eels_raise_head`)
+//!   when the request uses one of its own name words that no observing tool uses.
+//!
+//! Tools the request cannot ask for leave the grammar before the model writes; the rest
+//! are checked once the call is made. Stopping (`robot_stop`) is never gated.
 
 use std::collections::BTreeSet;
 
 use serde_json::Value;
 
-use super::select::stems;
+use super::concepts::{acts_of, asked_acts, clauses, Act, Clause, Mood};
+use crate::lexicon::folded_words;
 use crate::tool::{ToolCall, ToolSpec};
 
 /// The words of tool names and descriptions: `tools` are the observing ones.
 pub fn vocabulary<'a>(tools: impl IntoIterator<Item = &'a ToolSpec>) -> BTreeSet<String> {
-    tools.into_iter().flat_map(spec_words).collect()
+    tools
+        .into_iter()
+        .flat_map(|s| name_words(&s.name))
+        .collect()
 }
 
-fn spec_words(spec: &ToolSpec) -> Vec<String> {
-    let mut w = stems(&spec.name.replace('_', " "));
-    w.extend(stems(&spec.description));
-    w
+fn name_words(name: &str) -> Vec<String> {
+    folded_words(&name.replace(['_', '.'], " "))
 }
 
-fn has_string_parameter(spec: &ToolSpec) -> bool {
-    spec.parameters["properties"]
-        .as_object()
-        .is_some_and(|props| props.values().any(|p| p["type"] == "string"))
+/// String arguments that name a ROS thing (what a generic tool acts on).
+const TARGET_KEYS: &[&str] = &["service", "topic", "action", "node", "name", "goal_id"];
+
+fn is_generic(spec: &ToolSpec) -> bool {
+    spec.parameters["properties"].as_object().is_some_and(|p| {
+        TARGET_KEYS
+            .iter()
+            .any(|k| p.get(*k).is_some_and(|v| v["type"] == "string"))
+    })
 }
 
-fn string_words(v: &Value, out: &mut Vec<String>) {
-    match v {
-        Value::String(s) => out.extend(stems(s)),
-        Value::Array(a) => a.iter().for_each(|x| string_words(x, out)),
-        Value::Object(o) => o.values().for_each(|x| string_words(x, out)),
-        _ => {}
-    }
+fn target_words(call: &ToolCall) -> Vec<String> {
+    TARGET_KEYS
+        .iter()
+        .filter_map(|k| call.arguments.get(*k).and_then(Value::as_str))
+        .flat_map(|t| folded_words(&t.replace(['_', '/'], " ")))
+        .collect()
 }
 
-/// The operator's request, as words.
+/// The operator's request, read for actuation.
 pub struct Intent {
-    words: BTreeSet<String>,
+    clauses: Vec<Clause>,
+    asked: Vec<Act>,
 }
 
 impl Intent {
     pub fn new(query: &str) -> Intent {
+        let clauses = clauses(query);
         Intent {
-            words: stems(query).into_iter().collect(),
+            asked: asked_acts(&clauses),
+            clauses,
         }
     }
 
-    /// Whether the request uses one of the actuating tool's own words (those no observing
-    /// tool uses, `observing` being their vocabulary).
-    pub fn names_tool(&self, spec: &ToolSpec, observing: &BTreeSet<String>) -> bool {
-        spec_words(spec)
+    /// Words of the clauses that ask for something.
+    fn asking_words(&self) -> impl Iterator<Item = &String> {
+        self.clauses
             .iter()
-            .any(|w| !observing.contains(w) && self.words.contains(w))
+            .filter(|c| c.mood == Mood::Asked)
+            .flat_map(|c| c.words.iter())
     }
 
-    /// Whether some call of `spec` could be asked for by this request.
+    /// Whether the request uses one of `words` in a clause that asks for something.
+    fn says(&self, words: &[String]) -> bool {
+        let said: Vec<&String> = self.asking_words().collect();
+        words.iter().any(|w| {
+            w.len() > 2
+                && said
+                    .iter()
+                    .any(|s| *s == w || (w.len() > 4 && s.starts_with(w.as_str())))
+        })
+    }
+
+    /// Whether some call of `spec` could be asked for by this request (tools that
+    /// cannot leave the grammar).
     pub fn may_ask_for(&self, spec: &ToolSpec, observing: &BTreeSet<String>) -> bool {
-        self.names_tool(spec, observing) || has_string_parameter(spec)
+        let own = name_words(&spec.name);
+        let acts = acts_of(&own);
+        if is_generic(spec) {
+            return !self.asked.is_empty() || self.asking_words().any(|w| w.len() > 3);
+        }
+        if acts.is_empty() {
+            let own: Vec<String> = own.into_iter().filter(|w| !observing.contains(w)).collect();
+            return self.says(&own);
+        }
+        acts.iter().any(|a| self.asked.contains(a))
     }
 
-    /// Whether this call of an actuating tool is what the request points at.
+    /// Whether this call of an actuating tool is what the request asks for.
     pub fn asks_for(&self, call: &ToolCall, spec: &ToolSpec, observing: &BTreeSet<String>) -> bool {
-        if self.names_tool(spec, observing) {
-            return true;
+        if !is_generic(spec) {
+            return self.may_ask_for(spec, observing);
         }
-        let mut words = Vec::new();
-        string_words(&call.arguments, &mut words);
-        words.iter().any(|w| self.words.contains(w))
+        let target = target_words(call);
+        let target_acts = acts_of(&target);
+        target_acts.iter().any(|a| self.asked.contains(a))
+            || self.says(
+                &target
+                    .into_iter()
+                    .filter(|w| !observing.contains(w))
+                    .collect::<Vec<_>>(),
+            )
     }
 }
 
@@ -82,77 +126,75 @@ mod tests {
     use super::*;
     use serde_json::json;
 
-    fn spec(name: &str, desc: &str, props: Value) -> ToolSpec {
-        ToolSpec::new(name, desc, json!({"type": "object", "properties": props})).unwrap()
+    fn spec(name: &str, props: Value) -> ToolSpec {
+        ToolSpec::new(name, "", json!({"type": "object", "properties": props})).unwrap()
     }
 
-    fn tools() -> (Vec<ToolSpec>, Vec<ToolSpec>) {
-        let observing = vec![
-            spec(
-                "turtle_pose",
-                "Where the turtle is: its pose (x, y, heading).",
-                json!({}),
-            ),
-            spec(
-                "ros_service_list",
-                "List the ROS services with their types.",
-                json!({}),
-            ),
+    fn tools() -> (BTreeSet<String>, Vec<ToolSpec>) {
+        let observing = [
+            spec("turtle_pose", json!({})),
+            spec("ros_service_list", json!({})),
+            spec("ros_topic_echo", json!({"topic": {"type": "string"}})),
         ];
         let actuating = vec![
-            spec(
-                "turtle_move",
-                "Drive the turtle straight forward (or backward) a distance in meters. Moves the robot.",
-                json!({"distance": {"type": "number"}}),
-            ),
+            spec("turtle_move", json!({"distance": {"type": "number"}})),
+            spec("turtle_rotate", json!({"degrees": {"type": "number"}})),
             spec(
                 "ros_service_call",
-                "Call a ROS service with a request.",
                 json!({"service": {"type": "string"}, "request": {"type": "object"}}),
             ),
+            spec("eels_raise_head", json!({"angle": {"type": "number"}})),
         ];
-        (observing, actuating)
+        (vocabulary(&observing), actuating)
+    }
+
+    fn call(name: &str, args: Value) -> ToolCall {
+        ToolCall {
+            name: name.into(),
+            arguments: args,
+        }
     }
 
     #[test]
-    fn a_question_about_the_robot_asks_for_no_motion() {
+    fn the_request_must_ask_for_the_act() {
         let (obs, act) = tools();
-        let vocab = vocabulary(&obs);
-        let q = Intent::new("where is the turtle?");
-        // "turtle" is an observing tool's word too: it names the robot, not an act.
-        assert!(!q.names_tool(&act[0], &vocab));
-        assert!(!q.may_ask_for(&act[0], &vocab));
-        let call = ToolCall {
-            name: "turtle_move".into(),
-            arguments: json!({"distance": 1.0}),
+        let asks = |q: &str, i: usize, args: Value| {
+            Intent::new(q).asks_for(&call(&act[i].name, args), &act[i], &obs)
         };
-        assert!(!q.asks_for(&call, &act[0], &vocab));
-    }
-
-    #[test]
-    fn the_tools_own_words_or_its_target_ask_for_it() {
-        let (obs, act) = tools();
-        let vocab = vocabulary(&obs);
-        let drive = Intent::new("drive forward 2 meters");
-        assert!(drive.names_tool(&act[0], &vocab));
-        let moving = Intent::new("move the turtle back");
-        assert!(
-            moving.names_tool(&act[0], &vocab),
-            "stems meet: move / moves"
-        );
-        // A service call is pointed at by the service it names.
-        let spawn = Intent::new("spawn a new turtle at x 2 y 3");
-        assert!(spawn.may_ask_for(&act[1], &vocab));
-        let call = |service: &str| ToolCall {
-            name: "ros_service_call".into(),
-            arguments: json!({"service": service, "request": {"x": 2.0}}),
-        };
-        assert!(spawn.asks_for(&call("/spawn"), &act[1], &vocab));
-        assert!(!spawn.asks_for(&call("/kill"), &act[1], &vocab));
-        assert!(!Intent::new("what services are there?").asks_for(
-            &call("/reset"),
-            &act[1],
-            &vocab
+        assert!(asks("move the turtle forward 2 meters", 0, json!({})));
+        assert!(!asks("where is the turtle?", 0, json!({})));
+        assert!(!asks("don't move the turtle", 0, json!({})));
+        assert!(!asks("how much battery is left?", 1, json!({})));
+        assert!(!asks("stop the turtle now", 0, json!({})));
+        assert!(asks(
+            "Bewege die Schildkröte 1 Meter vorwärts",
+            0,
+            json!({})
         ));
+        assert!(asks("gira 90 grados a la izquierda", 1, json!({})));
+    }
+
+    #[test]
+    fn a_generic_call_is_asked_for_by_its_target() {
+        let (obs, act) = tools();
+        let svc = |q: &str, s: &str| {
+            Intent::new(q).asks_for(
+                &call("ros_service_call", json!({"service": s})),
+                &act[2],
+                &obs,
+            )
+        };
+        assert!(svc("spawn a new turtle at x 2 y 3", "/spawn"));
+        assert!(!svc("spawn a new turtle at x 2 y 3", "/kill"));
+        assert!(svc("call the reset service", "/reset"));
+        assert!(!svc("call the reset service", "/kill"));
+        assert!(!svc("list the running nodes", "/reset"));
+        assert!(!svc("what services are there?", "/reset"));
+        assert!(!svc("don't reset anything", "/reset"));
+        // A robot's own tool: its own words ask for it.
+        let raise =
+            |q: &str| Intent::new(q).asks_for(&call("eels_raise_head", json!({})), &act[3], &obs);
+        assert!(raise("raise the head by 10 degrees"));
+        assert!(!raise("what is the head angle?"));
     }
 }

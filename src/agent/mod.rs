@@ -18,7 +18,9 @@
 //! - `config`: limits, budgets and modes
 //! - `outcome`: what a run returns (answer, finish, calls, timings)
 //! - `answer`: the `reply` pseudo-tool and the answer as the operator reads it
-//! - `intent`: whether the operator's request points at an actuating call
+//! - `concepts`: what a request asks for, forbids or asks about (acts, negation, mood),
+//!   in six languages
+//! - `intent`: whether the operator's request asks for an actuating call
 //! - `prompt`: robot system prompts (ROSA's fields) from TOML
 //! - `memory`: chat history, trimming, output truncation
 //! - `select`: choosing tools when their specs exceed the budget
@@ -26,6 +28,7 @@
 //! - `trace`: JSONL session traces
 
 pub mod answer;
+pub mod concepts;
 pub mod config;
 pub mod event;
 pub mod guard;
@@ -75,7 +78,7 @@ impl Agent {
             t.record(
                 "query",
                 json!({"query": query, "tools_offered": offered.iter().map(|s| &s.name).collect::<Vec<_>>(),
-                       "tools_total": self.registry.len(), "guards": guards.names()}),
+                       "tools_total": self.exec.registry().len(), "guards": guards.names()}),
             );
         }
         run::Run {

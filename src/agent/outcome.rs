@@ -41,6 +41,8 @@ pub struct Timings {
     pub total_ms: f64,
     pub model_ms: f64,
     pub tools_ms: f64,
+    /// Tokens the model wrote (forced ones included), over every step.
+    pub generated_tokens: usize,
     /// Prompt tokens of each step, and how many of them came from the KV cache.
     pub prompt_tokens: Vec<usize>,
     pub reused_tokens: Vec<usize>,

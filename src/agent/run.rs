@@ -15,7 +15,7 @@ use std::ops::ControlFlow;
 use std::sync::atomic::Ordering;
 use std::time::Instant;
 
-use serde_json::{json, Value};
+use serde_json::json;
 
 use super::answer::{self, ANSWER_CHARS, ANSWER_TOOL};
 use super::guard::{Guards, Verdict};
@@ -27,6 +27,7 @@ use crate::decode::envelope::to_json_spaced;
 use crate::decode::turn::TurnResult;
 use crate::decode::{DecodeError, Decoding, Finish as DecodeFinish, Sampler, Turn};
 use crate::strategy::turn::Engine;
+use crate::tool::exec::Outcome;
 use crate::tool::{Decision, ToolCall, ToolSpec};
 
 /// What the model's turn came to.
@@ -62,15 +63,37 @@ pub(super) struct Run<'a> {
 }
 
 impl Run<'_> {
-    fn emit(&mut self, e: Event) {
+    /// Send an event to the trace and the front end, with nothing behind the fence.
+    fn emit(&mut self, mut e: Event) {
+        let policy = self.agent.exec.policy();
+        match &mut e {
+            Event::ToolCall { arguments, .. } => {
+                policy.redact(arguments);
+            }
+            Event::ToolResult { output, .. } => {
+                policy.redact(output);
+            }
+            Event::Answer { text, .. } | Event::Error { message: text } => {
+                *text = policy.redact_text(text).into_owned();
+            }
+            Event::Step { .. } | Event::Token { .. } => {}
+        }
         if let Some(t) = &mut self.agent.trace {
             t.event(&e);
         }
         (self.events)(&e);
     }
 
-    /// Run steps until the run ends.
+    /// Run steps until the run ends. A request to stop stops the robot before anything
+    /// else, without the model (stopping needs no model, no intent, no confirmation).
     pub fn run(mut self) -> Result<RunResult, AgentError> {
+        if super::concepts::asks_to_stop(self.query) {
+            let estop = self.agent.exec.policy().estop().clone();
+            estop.trigger(&format!("the operator: {}", self.query.trim()));
+            self.answer =
+                "Stopped. Motion stays refused until the operator resets the e-stop.".into();
+            return Ok(self.end(Finish::Answer));
+        }
         let mut finish = Finish::MaxSteps;
         for step in 0..self.agent.config.max_steps {
             if self.agent.cancel.load(Ordering::SeqCst) {
@@ -120,6 +143,7 @@ impl Run<'_> {
             }
             Err(e) => return Err(e.into()),
         };
+        self.timings.generated_tokens += r.stats.generated_tokens;
         self.timings.prompt_tokens.push(r.stats.prompt_tokens);
         self.timings.reused_tokens.push(r.stats.reused_tokens);
         self.emit(Event::Step {
@@ -196,10 +220,7 @@ impl Run<'_> {
             .map(|(c, v)| match v {
                 Verdict::Skip => None,
                 Verdict::Refuse(why) => Some(Decision::Refused(why)),
-                Verdict::Pass => {
-                    let tool = self.agent.registry.get(&c.name).map(|t| t.as_ref());
-                    Some(self.agent.policy.check(tool, c))
-                }
+                Verdict::Pass => Some(self.agent.exec.decide(c)),
             })
             .collect()
     }
@@ -227,30 +248,24 @@ impl Run<'_> {
         }
         let (calls, decisions): (Vec<ToolCall>, Vec<Decision>) = shown.into_iter().unzip();
         let t_tools = Instant::now();
-        let outcomes = self.agent.run_calls(&calls, &decisions);
+        let outcomes = self.agent.exec.run(&calls, &decisions, &self.agent.cancel);
         self.timings.tools_ms += t_tools.elapsed().as_secs_f64() * 1e3;
         self.scratch.push(ChatMessage::new(
             Role::Assistant,
             self.agent.config.envelope.render_calls(&calls),
         ));
-        for (i, ((call, decision), (output, ok, ms))) in
-            calls.into_iter().zip(decisions).zip(outcomes).enumerate()
-        {
-            self.observe(step, i, call, decision, output, ok, ms);
+        for (i, (call, o)) in calls.into_iter().zip(outcomes).enumerate() {
+            self.observe(step, i, call, o);
         }
     }
 
-    #[allow(clippy::too_many_arguments)]
-    fn observe(
-        &mut self,
-        step: usize,
-        index: usize,
-        call: ToolCall,
-        decision: Decision,
-        output: Value,
-        ok: bool,
-        ms: f64,
-    ) {
+    fn observe(&mut self, step: usize, index: usize, call: ToolCall, o: Outcome) {
+        let Outcome {
+            output,
+            ok,
+            ms,
+            decision,
+        } = o;
         self.emit(Event::ToolResult {
             step,
             index,
@@ -266,10 +281,12 @@ impl Run<'_> {
         self.copy_from.push(shown.clone());
         self.last_observation = shown.clone();
         self.scratch.push(ChatMessage::tool(&call.name, shown));
+        let mut arguments = call.arguments;
+        self.agent.exec.policy().redact(&mut arguments);
         self.records.push(StepRecord {
             step,
             name: call.name,
-            arguments: call.arguments,
+            arguments,
             output,
             ok,
             ms,
@@ -292,6 +309,12 @@ impl Run<'_> {
             }
             _ => {}
         }
+        self.answer = self
+            .agent
+            .exec
+            .policy()
+            .redact_text(&self.answer)
+            .into_owned();
         self.timings.total_ms = self.start.elapsed().as_secs_f64() * 1e3;
         self.emit(Event::Answer {
             text: self.answer.clone(),
@@ -343,6 +366,7 @@ impl Run<'_> {
         let first = &mut self.timings.first_token_ms;
         let step_first = &mut self.step_first_token;
         let events = &mut *self.events;
+        let mut words = super::event::WordStream::new(self.agent.exec.policy().fence().clone());
         let agent = &mut *self.agent;
         let mut sampler = Sampler::new(agent.config.sampler, agent.backend.vocab().len());
         let mut engine = Engine {
@@ -351,7 +375,7 @@ impl Run<'_> {
             grammars: &agent.grammars,
             sampler: &mut sampler,
         };
-        crate::strategy::turn::run(
+        let result = crate::strategy::turn::run(
             &mut engine,
             &req,
             &mut pipeline,
@@ -364,15 +388,21 @@ impl Run<'_> {
                 if step_first.is_none() {
                     *step_first = now;
                 }
-                events(&Event::Token {
-                    text: piece.to_string(),
-                });
+                let text = words.push(piece);
+                if !text.is_empty() {
+                    events(&Event::Token { text });
+                }
                 if cancel.load(Ordering::SeqCst) {
                     ControlFlow::Break(())
                 } else {
                     ControlFlow::Continue(())
                 }
             },
-        )
+        );
+        let rest = words.finish();
+        if !rest.is_empty() {
+            events(&Event::Token { text: rest });
+        }
+        result
     }
 }

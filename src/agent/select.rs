@@ -30,11 +30,6 @@ fn stem(w: &str) -> &str {
     w
 }
 
-/// The content words of `s`, lowercased and stemmed.
-pub(crate) fn stems(s: &str) -> Vec<String> {
-    words(s).iter().map(|w| stem(w).to_string()).collect()
-}
-
 /// Score of a tool for a query: name words count triple, description words once.
 pub fn score(query: &str, spec: &ToolSpec) -> f64 {
     let q: Vec<String> = words(query).iter().map(|w| stem(w).to_string()).collect();

@@ -5,9 +5,8 @@
 use std::collections::{BTreeMap, BTreeSet};
 use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
-use std::time::{Duration, Instant};
 
-use serde_json::{json, Value};
+use serde_json::json;
 
 use super::answer::{answer_spec, ANSWER_TOOL};
 use super::config::{AgentConfig, AnswerMode};
@@ -25,7 +24,8 @@ use crate::decode::{DecodeError, Decoding, Grammars, Session};
 use crate::strategy::copy::{defaults, CopyBias, CopyIndex};
 use crate::strategy::guard::LoopGuard;
 use crate::strategy::Pipeline;
-use crate::tool::{Decision, Effect, Policy, Registry, ToolCall, ToolContext, ToolError, ToolSpec};
+use crate::tool::exec::Executor;
+use crate::tool::{Effect, Policy, Registry, ToolSpec};
 
 /// The agent: a model, tools under a policy, a robot prompt, and the conversation so
 /// far. `ask` runs one request (see `run`).
@@ -34,13 +34,12 @@ pub struct Agent {
     /// What the actuation guard knows of the tools (`guard::Asked`).
     pub(super) asked: Asked,
     pub(super) grammars: Grammars,
-    pub(super) registry: Registry,
-    pub(super) policy: Arc<Policy>,
+    /// Runs calls through the policy (and holds the registry and the policy).
+    pub(super) exec: Executor,
     pub(super) system: String,
     pub config: AgentConfig,
     pub(super) session: Session,
     pub(super) memory: Memory,
-    pub(super) runtime: tokio::runtime::Runtime,
     pub(super) trace: Option<Trace>,
     pub(super) cancel: Arc<AtomicBool>,
 }
@@ -62,11 +61,6 @@ impl Agent {
     ) -> Result<Agent, AgentError> {
         let grammars = Grammars::new(backend.vocab(), backend.tokenizer())
             .map_err(|e| AgentError::Decode(e.into()))?;
-        let runtime = tokio::runtime::Builder::new_multi_thread()
-            .worker_threads(2)
-            .enable_all()
-            .build()
-            .map_err(|e| AgentError::Runtime(e.to_string()))?;
         let registry = if policy.read_only {
             registry.without_actuators(|name| policy.may_observe(name))
         } else {
@@ -98,13 +92,12 @@ impl Agent {
             },
             backend,
             grammars,
-            registry,
-            policy,
+            exec: Executor::new(registry, policy)
+                .map_err(|e| AgentError::Runtime(e.to_string()))?,
             system,
             config,
             session: Session::new(),
             memory: Memory::default(),
-            runtime,
             trace: None,
             cancel: Arc::new(AtomicBool::new(false)),
         })
@@ -119,13 +112,36 @@ impl Agent {
         self.trace.as_ref().map(|t| t.path())
     }
 
+    /// Use `cancel` as the run's cancel flag (one the front end also sets).
+    pub fn with_cancel(mut self, cancel: Arc<AtomicBool>) -> Agent {
+        self.cancel = cancel;
+        self
+    }
+
+    /// The e-stop the policy and the ROS boundary share.
+    pub fn estop(&self) -> Arc<crate::estop::EStop> {
+        self.exec.policy().estop().clone()
+    }
+
+    /// The names off limits.
+    pub fn fence(&self) -> &Arc<crate::fence::Fence> {
+        self.exec.policy().fence()
+    }
+
+    /// One call straight through the policy (the operator's own, e.g. the REPL's
+    /// `/call`): no model, no guards, exactly the checks and the running the agent's
+    /// calls get.
+    pub fn call(&self, call: &crate::tool::ToolCall) -> crate::tool::exec::Outcome {
+        self.exec.call(call, &self.cancel)
+    }
+
     /// Set this flag (e.g. from a Ctrl-C handler) to end the current run cleanly.
     pub fn cancel_flag(&self) -> Arc<AtomicBool> {
         self.cancel.clone()
     }
 
     pub fn registry(&self) -> &Registry {
-        &self.registry
+        self.exec.registry()
     }
 
     /// Exchanges the agent remembers (what the next prompt may include).
@@ -148,7 +164,7 @@ impl Agent {
 
     /// Which tools to offer for `query`, by the token cost of their specs.
     pub fn offered_tools(&self, query: &str) -> Vec<ToolSpec> {
-        let mut specs = self.registry.specs();
+        let mut specs = self.exec.registry().specs();
         if self.config.answer_mode == AnswerMode::Tool {
             specs.push(answer_spec());
         }
@@ -208,7 +224,7 @@ impl Agent {
         let mut p = Pipeline::new();
         if self.config.copy_bias > 0.0 && self.config.decoding == Decoding::Constrained {
             let vocab = self.backend.vocab();
-            let offered = self.registry.specs();
+            let offered = self.exec.registry().specs();
             let index = CopyIndex::new(
                 vocab,
                 sources,
@@ -260,71 +276,5 @@ impl Agent {
         messages.extend(self.memory.messages());
         messages.extend(base[1..].iter().cloned());
         Ok(messages)
-    }
-
-    /// Run allowed calls concurrently; results in call order as (output, ok, ms).
-    pub(super) fn run_calls(
-        &self,
-        calls: &[ToolCall],
-        decisions: &[Decision],
-    ) -> Vec<(Value, bool, f64)> {
-        let timeout = self.policy.timeout;
-        let handles: Vec<_> = calls
-            .iter()
-            .zip(decisions)
-            .map(|(call, decision)| {
-                let tool = match decision {
-                    Decision::Refused(_) => None,
-                    _ => self.registry.get(&call.name).cloned(),
-                };
-                let args = call.arguments.clone();
-                let refused = match decision {
-                    Decision::Refused(r) => Some(r.clone()),
-                    _ => None,
-                };
-                self.runtime.spawn(async move {
-                    let start = Instant::now();
-                    let result = match (tool, refused) {
-                        (_, Some(reason)) => Err(ToolError::Refused(reason)),
-                        (None, None) => Err(ToolError::Failed("no such tool".into())),
-                        (Some(tool), None) => {
-                            let cx = ToolContext { timeout };
-                            match tokio::time::timeout(timeout, tool.call(args, &cx)).await {
-                                Ok(r) => r,
-                                Err(_) => Err(ToolError::Timeout(timeout)),
-                            }
-                        }
-                    };
-                    (result, start.elapsed())
-                })
-            })
-            .collect();
-        self.runtime.block_on(async {
-            let mut out = Vec::with_capacity(handles.len());
-            for h in handles {
-                let (result, took): (Result<Value, ToolError>, Duration) = match h.await {
-                    Ok(x) => x,
-                    // A panicking tool is a failed call, not a crashed agent.
-                    Err(e) => (
-                        Err(ToolError::Failed(format!("the tool crashed: {e}"))),
-                        Duration::ZERO,
-                    ),
-                };
-                let ms = took.as_secs_f64() * 1e3;
-                out.push(match result {
-                    Ok(mut v) => {
-                        let removed = self.policy.redact(&mut v);
-                        if removed > 0 {
-                            if let Value::Object(m) = &mut v {
-                                m.insert("hidden_by_policy".into(), json!(removed));
-                            }
-                        }
-                        (v, true, ms)
-                    }
-                    Err(e) => (json!({"error": e.to_string()}), false, ms),
-                });
-            }
-            out
-        })
     }
 }

@@ -232,12 +232,33 @@ impl TurnDecoder {
     /// Write `tokens` as if the model had (the grammar must allow them: see `allows`),
     /// and what the grammar forces after them.
     pub fn force(&mut self, backend: &dyn Backend, tokens: &[TokenId]) -> Result<(), DecodeError> {
+        self.force_then(backend, tokens, true)
+    }
+
+    /// Write `tokens` and nothing after them, even what the grammar forces: a shared
+    /// prefix of several continuations, one of which follows.
+    pub fn force_prefix(
+        &mut self,
+        backend: &dyn Backend,
+        tokens: &[TokenId],
+    ) -> Result<(), DecodeError> {
+        self.force_then(backend, tokens, false)
+    }
+
+    fn force_then(
+        &mut self,
+        backend: &dyn Backend,
+        tokens: &[TokenId],
+        then: bool,
+    ) -> Result<(), DecodeError> {
         let mut all = tokens.to_vec();
         if let Some(c) = self.constraint.as_mut() {
             for &t in tokens {
                 c.advance(t)?;
             }
-            all.extend_from_slice(c.take_forced()?);
+            if then {
+                all.extend_from_slice(c.take_forced()?);
+            }
         }
         self.stats.forced_tokens += all.len();
         self.append(backend, &all);

@@ -101,7 +101,7 @@ fn encode_traced(
         origin,
         pads: Vec::new(),
     };
-    encode_message(ifaces, &def, value, "", &mut w)?;
+    encode_message(ifaces, &def, value, "", 0, &mut w)?;
     Ok((w.buf, w.pads))
 }
 
@@ -110,8 +110,10 @@ fn encode_message(
     def: &MessageDef,
     value: &Value,
     path: &str,
+    depth: usize,
     w: &mut Writer,
 ) -> Result<(), CodecError> {
+    too_deep(path, depth)?;
     let empty = Map::new();
     let obj = match value {
         Value::Object(m) => m,
@@ -152,7 +154,7 @@ fn encode_message(
                 &default
             }
         };
-        encode_field(ifaces, field, v, &fpath, w)?;
+        encode_field(ifaces, field, v, &fpath, depth, w)?;
     }
     Ok(())
 }
@@ -162,10 +164,11 @@ fn encode_field(
     field: &Field,
     v: &Value,
     path: &str,
+    depth: usize,
     w: &mut Writer,
 ) -> Result<(), CodecError> {
     match field.shape {
-        Shape::Single => encode_elem(ifaces, field, v, path, w),
+        Shape::Single => encode_elem(ifaces, field, v, path, depth, w),
         Shape::Array(n) | Shape::Sequence { max: Some(n) } if !matches!(v, Value::Array(_)) => {
             Err(value_err(
                 path,
@@ -181,7 +184,7 @@ fn encode_field(
                 ));
             }
             for (i, item) in items.iter().enumerate() {
-                encode_elem(ifaces, field, item, &format!("{path}[{i}]"), w)?;
+                encode_elem(ifaces, field, item, &format!("{path}[{i}]"), depth, w)?;
             }
             Ok(())
         }
@@ -199,7 +202,7 @@ fn encode_field(
             }
             w.put_len(items.len());
             for (i, item) in items.iter().enumerate() {
-                encode_elem(ifaces, field, item, &format!("{path}[{i}]"), w)?;
+                encode_elem(ifaces, field, item, &format!("{path}[{i}]"), depth, w)?;
             }
             Ok(())
         }
@@ -211,12 +214,13 @@ fn encode_elem(
     field: &Field,
     v: &Value,
     path: &str,
+    depth: usize,
     w: &mut Writer,
 ) -> Result<(), CodecError> {
     match &field.base {
         BaseType::Message(name) => {
             let def = ifaces.message(name)?;
-            encode_message(ifaces, &def, v, path, w)
+            encode_message(ifaces, &def, v, path, depth + 1, w)
         }
         BaseType::Primitive(Primitive::String) => {
             let s = v
@@ -311,7 +315,7 @@ fn encode_primitive(p: Primitive, v: &Value, path: &str, w: &mut Writer) -> Resu
         Primitive::F32 | Primitive::F64 => {
             let f = match v {
                 Value::Number(n) => n.as_f64().unwrap_or(f64::NAN),
-                Value::Null => f64::NAN,
+                // A null is no number: sending it as NaN would slip past every bound.
                 other => {
                     return Err(value_err(
                         path,
@@ -333,8 +337,27 @@ fn encode_primitive(p: Primitive, v: &Value, path: &str, w: &mut Writer) -> Resu
     Ok(())
 }
 
+/// Nested messages deeper than this are refused: a type that contains itself (a peer
+/// may define one) would otherwise recurse without end.
+pub const MAX_DEPTH: usize = 32;
+
+fn too_deep(path: &str, depth: usize) -> Result<(), CodecError> {
+    if depth > MAX_DEPTH {
+        return Err(value_err(
+            path,
+            format!("messages nest more than {MAX_DEPTH} deep (a type that contains itself?)"),
+        ));
+    }
+    Ok(())
+}
+
 /// The value an absent field takes: its declared default, else zero / empty.
 fn field_default(ifaces: &Interfaces, field: &Field) -> Result<Value, CodecError> {
+    field_default_at(ifaces, field, 0)
+}
+
+fn field_default_at(ifaces: &Interfaces, field: &Field, depth: usize) -> Result<Value, CodecError> {
+    too_deep(&field.name, depth)?;
     if let Some(text) = &field.default {
         let text = text.trim();
         if let Ok(v) = serde_json::from_str::<Value>(text) {
@@ -348,28 +371,33 @@ fn field_default(ifaces: &Interfaces, field: &Field) -> Result<Value, CodecError
     }
     Ok(match field.shape {
         Shape::Sequence { .. } => Value::Array(Vec::new()),
-        Shape::Array(n) => Value::Array(vec![elem_zero(ifaces, &field.base)?; n]),
-        Shape::Single => elem_zero(ifaces, &field.base)?,
+        Shape::Array(n) => Value::Array(vec![elem_zero(ifaces, &field.base, depth)?; n]),
+        Shape::Single => elem_zero(ifaces, &field.base, depth)?,
     })
 }
 
-fn elem_zero(ifaces: &Interfaces, base: &BaseType) -> Result<Value, CodecError> {
+fn elem_zero(ifaces: &Interfaces, base: &BaseType, depth: usize) -> Result<Value, CodecError> {
     Ok(match base {
         BaseType::Primitive(Primitive::Bool) => Value::Bool(false),
         BaseType::Primitive(Primitive::String) => Value::String(String::new()),
         BaseType::Primitive(Primitive::F32 | Primitive::F64) => Value::from(0.0),
         BaseType::Primitive(_) => Value::from(0),
-        BaseType::Message(name) => template(ifaces, name)?,
+        BaseType::Message(name) => template_at(ifaces, name, depth + 1)?,
     })
 }
 
 /// A complete message of `type_name` with every field at its default: what the model
 /// is shown as the shape to fill in.
 pub fn template(ifaces: &Interfaces, type_name: &str) -> Result<Value, CodecError> {
+    template_at(ifaces, type_name, 0)
+}
+
+fn template_at(ifaces: &Interfaces, type_name: &str, depth: usize) -> Result<Value, CodecError> {
+    too_deep(type_name, depth)?;
     let def = ifaces.message(type_name)?;
     let mut out = Map::new();
     for field in &def.fields {
-        out.insert(field.name.clone(), field_default(ifaces, field)?);
+        out.insert(field.name.clone(), field_default_at(ifaces, field, depth)?);
     }
     Ok(Value::Object(out))
 }
@@ -431,15 +459,17 @@ pub fn decode(
         pos: 0,
         origin,
     };
-    decode_message(ifaces, &def, "", &mut r)
+    decode_message(ifaces, &def, "", 0, &mut r)
 }
 
 fn decode_message(
     ifaces: &Interfaces,
     def: &MessageDef,
     path: &str,
+    depth: usize,
     r: &mut Reader,
 ) -> Result<Value, CodecError> {
+    too_deep(path, depth)?;
     let mut out = Map::new();
     if def.fields.is_empty() {
         // The placeholder byte; tolerate its absence at the very end.
@@ -451,11 +481,11 @@ fn decode_message(
     for field in &def.fields {
         let fpath = join(path, &field.name);
         let v = match field.shape {
-            Shape::Single => decode_elem(ifaces, field, &fpath, r)?,
-            Shape::Array(n) => decode_items(ifaces, field, n, &fpath, r)?,
+            Shape::Single => decode_elem(ifaces, field, &fpath, depth, r)?,
+            Shape::Array(n) => decode_items(ifaces, field, n, &fpath, depth, r)?,
             Shape::Sequence { .. } => {
                 let n = r.len(&fpath)?;
-                decode_items(ifaces, field, n, &fpath, r)?
+                decode_items(ifaces, field, n, &fpath, depth, r)?
             }
         };
         out.insert(field.name.clone(), v);
@@ -468,11 +498,27 @@ fn decode_items(
     field: &Field,
     n: usize,
     path: &str,
+    depth: usize,
     r: &mut Reader,
 ) -> Result<Value, CodecError> {
+    // Every element takes at least one byte (an empty message its placeholder): more
+    // elements than bytes left is a corrupt payload or a lying definition.
+    if n > r.buf.len().saturating_sub(r.pos) + 1 {
+        return Err(CodecError::Short {
+            path: path.to_string(),
+            at: r.pos,
+            len: r.buf.len(),
+        });
+    }
     let mut items = Vec::with_capacity(n.min(1 << 16));
     for i in 0..n {
-        items.push(decode_elem(ifaces, field, &format!("{path}[{i}]"), r)?);
+        items.push(decode_elem(
+            ifaces,
+            field,
+            &format!("{path}[{i}]"),
+            depth,
+            r,
+        )?);
     }
     Ok(Value::Array(items))
 }
@@ -481,12 +527,13 @@ fn decode_elem(
     ifaces: &Interfaces,
     field: &Field,
     path: &str,
+    depth: usize,
     r: &mut Reader,
 ) -> Result<Value, CodecError> {
     let p = match &field.base {
         BaseType::Message(name) => {
             let def = ifaces.message(name)?;
-            return decode_message(ifaces, &def, path, r);
+            return decode_message(ifaces, &def, path, depth + 1, r);
         }
         BaseType::Primitive(p) => *p,
     };

@@ -42,6 +42,7 @@ pub struct FakeGraph {
     topics: BTreeMap<String, Vec<Value>>,
     graph: Graph,
     interfaces: Interfaces,
+    watchers: Mutex<Vec<(String, tokio::sync::mpsc::UnboundedSender<Value>)>>,
 }
 
 impl FakeGraph {
@@ -73,6 +74,15 @@ impl FakeGraph {
         self
     }
 
+    /// Deliver `message` on `topic` to everyone watching it.
+    pub fn inject(&self, topic: &str, message: Value) {
+        for (t, tx) in self.watchers.lock().expect("fake graph lock").iter() {
+            if t == topic {
+                let _ = tx.send(message.clone());
+            }
+        }
+    }
+
     pub fn sent(&self) -> Vec<Sent> {
         self.sent.lock().expect("fake graph lock").clone()
     }
@@ -81,6 +91,21 @@ impl FakeGraph {
 impl RosGraph for FakeGraph {
     fn graph(&self) -> BoxFuture<'_, Result<Graph, RosError>> {
         Box::pin(async move { Ok(self.graph.clone()) })
+    }
+
+    fn watch<'a>(
+        &'a self,
+        topic: &'a str,
+        _type_name: &'a str,
+    ) -> BoxFuture<'a, Result<super::Watch, RosError>> {
+        Box::pin(async move {
+            let (tx, rx) = tokio::sync::mpsc::unbounded_channel();
+            self.watchers
+                .lock()
+                .expect("fake graph lock")
+                .push((topic.to_string(), tx));
+            Ok(rx)
+        })
     }
 
     fn interfaces(&self) -> &Interfaces {
@@ -118,7 +143,7 @@ impl RosGraph for FakeGraph {
         topic: &'a str,
         type_name: &'a str,
         message: Value,
-    ) -> BoxFuture<'a, Result<(), RosError>> {
+    ) -> BoxFuture<'a, Result<super::Delivery, RosError>> {
         Box::pin(async move {
             self.sent
                 .lock()
@@ -128,7 +153,7 @@ impl RosGraph for FakeGraph {
                     type_name: type_name.to_string(),
                     message,
                 });
-            Ok(())
+            Ok(super::Delivery::to(topic))
         })
     }
 
@@ -138,7 +163,7 @@ impl RosGraph for FakeGraph {
         type_name: &'a str,
         request: Value,
         _timeout: Duration,
-    ) -> BoxFuture<'a, Result<Value, RosError>> {
+    ) -> BoxFuture<'a, Result<super::Reply, RosError>> {
         Box::pin(async move {
             let response = self
                 .services
@@ -150,7 +175,7 @@ impl RosGraph for FakeGraph {
                 type_name: type_name.to_string(),
                 request,
             });
-            Ok(response)
+            Ok(response.into())
         })
     }
 

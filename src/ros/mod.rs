@@ -9,20 +9,25 @@
 //!
 //! Layout:
 //! - `graph`: the joined graph (nodes, topics, services, actions) and its cache
+//! - `guard`: the boundary every tool goes through: deny-list, e-stop, motion limits,
+//!   mux, redaction, and the brake
 //! - `ros2`: the ROS 2 implementation over ros2-client (RustDDS), localhost-only by default
 //! - `sim`: the built-in turtlesim-compatible robot
 //! - `msg`: interface definitions (.msg/.srv/.action), the shipped bundle, lookup
 //! - `cdr`: CDR <-> JSON driven by those definitions
 //! - `fake`: an in-memory graph that records what was sent (tests)
 //! - `switch`: a graph whose target is replaced under the tools (a fresh robot per case)
+//! - `typedesc`: types learnt from a peer, verified by their hash
 
 pub mod cdr;
 pub mod fake;
 pub mod graph;
+pub mod guard;
 pub mod msg;
 pub mod ros2;
 pub mod sim;
 pub mod switch;
+pub mod typedesc;
 
 use std::future::Future;
 use std::pin::Pin;
@@ -53,6 +58,13 @@ pub enum RosError {
     NoAction(String),
     #[error("{0}: invalid ROS name")]
     BadName(String),
+    /// A name the operator's deny-list covers: the name itself is not repeated.
+    #[error("that name is off limits (the operator's deny-list); do not try it or anything like it again")]
+    OffLimits,
+    #[error("the e-stop is engaged ({0}): motion is refused until the operator resets it")]
+    Stopped(String),
+    #[error("refused by the motion limits: {0}")]
+    Limit(String),
     #[error("{0}")]
     Other(String),
 }
@@ -116,7 +128,7 @@ pub trait RosGraph: Send + Sync {
         topic: &'a str,
         type_name: &'a str,
         message: Value,
-    ) -> BoxFuture<'a, Result<(), RosError>>;
+    ) -> BoxFuture<'a, Result<Delivery, RosError>>;
     /// Call `service` and return its response.
     fn call_service<'a>(
         &'a self,
@@ -124,7 +136,7 @@ pub trait RosGraph: Send + Sync {
         type_name: &'a str,
         request: Value,
         timeout: Duration,
-    ) -> BoxFuture<'a, Result<Value, RosError>>;
+    ) -> BoxFuture<'a, Result<Reply, RosError>>;
     /// Send `goal` to `action` (type `pkg/action/Name`) and follow it for up to `wait`:
     /// its feedback, and its result if it ends in time (else it is `Running` and goes on).
     fn send_goal<'a>(
@@ -142,4 +154,73 @@ pub trait RosGraph: Send + Sync {
         goal_id: Option<&'a str>,
         timeout: Duration,
     ) -> BoxFuture<'a, Result<CancelOutcome, RosError>>;
+    /// Every message on `topic` (of `type_name`) from now on, as it arrives, until the
+    /// receiver is dropped.
+    fn watch<'a>(
+        &'a self,
+        topic: &'a str,
+        type_name: &'a str,
+    ) -> BoxFuture<'a, Result<Watch, RosError>>;
+    /// Get ready to publish on `topic` without publishing (the publisher exists and is
+    /// being discovered), so a later `publish_now` goes out at once.
+    fn advertise<'a>(
+        &'a self,
+        _topic: &'a str,
+        _type_name: &'a str,
+    ) -> BoxFuture<'a, Result<(), RosError>> {
+        Box::pin(async { Ok(()) })
+    }
+    /// Publish at once, without waiting for a subscriber to match: the brake cannot wait
+    /// for discovery.
+    fn publish_now<'a>(
+        &'a self,
+        topic: &'a str,
+        type_name: &'a str,
+        message: Value,
+    ) -> BoxFuture<'a, Result<Delivery, RosError>> {
+        self.publish(topic, type_name, message)
+    }
 }
+
+/// What went out when a message was published: where, and what the boundary changed.
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize)]
+pub struct Delivery {
+    /// The topic it went out on (the agent's input to a mux, when the operator's velocity
+    /// topic was asked for).
+    pub topic: String,
+    /// The message as sent, when the limits changed it.
+    pub sent: Option<Value>,
+    /// What the limits changed, if anything.
+    pub note: Option<String>,
+    /// The name of a higher-priority input the mux says is active (the operator's
+    /// teleop): this message is dropped until it ends.
+    pub overridden_by: Option<String>,
+}
+
+impl Delivery {
+    pub fn to(topic: &str) -> Delivery {
+        Delivery {
+            topic: topic.to_string(),
+            ..Delivery::default()
+        }
+    }
+}
+
+/// A service's response, and what the boundary changed in the request, if anything.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Reply {
+    pub response: Value,
+    pub note: Option<String>,
+}
+
+impl From<Value> for Reply {
+    fn from(response: Value) -> Reply {
+        Reply {
+            response,
+            note: None,
+        }
+    }
+}
+
+/// Messages of a watched topic, as they arrive.
+pub type Watch = tokio::sync::mpsc::UnboundedReceiver<Value>;

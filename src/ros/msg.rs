@@ -191,6 +191,10 @@ fn parse_base(token: &str, package: &str) -> Result<(BaseType, Option<usize>), S
     Ok((BaseType::Message(full), None))
 }
 
+/// Largest fixed array a definition may declare: a message of a billion zeros (a peer
+/// may claim one) would be allocated whole before a single byte is read.
+pub const MAX_FIXED_ARRAY: usize = 1 << 16;
+
 fn parse_shape(token: &str) -> Result<(&str, Shape), String> {
     let Some(open) = token.find('[') else {
         return Ok((token, Shape::Single));
@@ -205,11 +209,15 @@ fn parse_shape(token: &str) -> Result<(&str, Shape), String> {
             max: Some(max.parse().map_err(|_| format!("bad bound in {token}"))?),
         }
     } else {
-        Shape::Array(
-            inner
-                .parse()
-                .map_err(|_| format!("bad array size in {token}"))?,
-        )
+        let n: usize = inner
+            .parse()
+            .map_err(|_| format!("bad array size in {token}"))?;
+        if n > MAX_FIXED_ARRAY {
+            return Err(format!(
+                "fixed array of {n} elements in {token}: more than {MAX_FIXED_ARRAY}"
+            ));
+        }
+        Shape::Array(n)
     };
     Ok((&token[..open], shape))
 }
@@ -360,6 +368,27 @@ impl Interfaces {
     /// (`pkg/kind/Name`).
     pub fn add(&self, name: &str, text: &str) -> Result<(), MsgError> {
         self.inner.write().expect("interfaces lock").add(name, text)
+    }
+
+    /// Add definitions learnt from a peer (built by `typedesc` from a verified
+    /// description). A name already known, shipped or installed, is never replaced:
+    /// a peer cannot redefine `geometry_msgs/msg/Twist`. Returns how many were new.
+    pub fn learn(&self, defs: Vec<MessageDef>) -> usize {
+        let mut known = self.inner.write().expect("interfaces lock");
+        let mut added = 0;
+        for def in defs {
+            let name = normalize_type(&def.name);
+            if known.messages.contains_key(&name) {
+                continue;
+            }
+            known
+                .sources
+                .entry(name.clone())
+                .or_insert_with(|| def.text.clone());
+            known.messages.insert(name, Arc::new(def));
+            added += 1;
+        }
+        added
     }
 
     /// The message definition of `type_name` (any spelling).

@@ -32,6 +32,34 @@ impl SwitchGraph {
 }
 
 impl RosGraph for SwitchGraph {
+    fn watch<'a>(
+        &'a self,
+        topic: &'a str,
+        type_name: &'a str,
+    ) -> BoxFuture<'a, Result<super::Watch, RosError>> {
+        let g = self.get();
+        Box::pin(async move { g.watch(topic, type_name).await })
+    }
+
+    fn advertise<'a>(
+        &'a self,
+        topic: &'a str,
+        type_name: &'a str,
+    ) -> BoxFuture<'a, Result<(), RosError>> {
+        let g = self.get();
+        Box::pin(async move { g.advertise(topic, type_name).await })
+    }
+
+    fn publish_now<'a>(
+        &'a self,
+        topic: &'a str,
+        type_name: &'a str,
+        message: Value,
+    ) -> BoxFuture<'a, Result<super::Delivery, RosError>> {
+        let g = self.get();
+        Box::pin(async move { g.publish_now(topic, type_name, message).await })
+    }
+
     fn graph(&self) -> BoxFuture<'_, Result<Graph, RosError>> {
         let g = self.get();
         Box::pin(async move { g.graph().await })
@@ -57,7 +85,7 @@ impl RosGraph for SwitchGraph {
         topic: &'a str,
         type_name: &'a str,
         message: Value,
-    ) -> BoxFuture<'a, Result<(), RosError>> {
+    ) -> BoxFuture<'a, Result<super::Delivery, RosError>> {
         let g = self.get();
         Box::pin(async move { g.publish(topic, type_name, message).await })
     }
@@ -68,7 +96,7 @@ impl RosGraph for SwitchGraph {
         type_name: &'a str,
         request: Value,
         timeout: Duration,
-    ) -> BoxFuture<'a, Result<Value, RosError>> {
+    ) -> BoxFuture<'a, Result<super::Reply, RosError>> {
         let g = self.get();
         Box::pin(async move { g.call_service(service, type_name, request, timeout).await })
     }
@@ -117,9 +145,9 @@ mod tests {
                 Duration::from_secs(1),
             ))
         };
-        assert_eq!(call().unwrap()["from"], "a");
+        assert_eq!(call().unwrap().response["from"], "a");
         s.replace(b.clone());
-        assert_eq!(call().unwrap()["from"], "b");
+        assert_eq!(call().unwrap().response["from"], "b");
         assert_eq!((a.sent().len(), b.sent().len()), (1, 1));
     }
 }

@@ -225,7 +225,7 @@ impl Gate {
             turn.rewind(opening)?;
             let tails = [options[0][common..].to_vec(), options[1][common..].to_vec()];
             let both = [&options[0], &options[1]].map(|o| turn.allows(o));
-            turn.force(engine.backend, &options[0][..common])?;
+            turn.force_prefix(engine.backend, &options[0][..common])?;
             if !turn.flush_to(call_end, on_text) {
                 return Ok(());
             }

@@ -99,7 +99,13 @@ impl Request {
             // The parameter's declared default is what the call means when the request
             // says nothing, so it tells nothing either.
             let default = prop.and_then(default::declared).is_some_and(|d| d.is(v));
-            if kept || listed || default {
+            if kept || default {
+                continue;
+            }
+            // A value from a closed list is the grammar's as much as the model's: spelt by
+            // the request it grounds the call, otherwise it tells nothing.
+            if listed {
+                n.grounded += usize::from(self.spells(v) == Some(true));
                 continue;
             }
             match self.spells(v) {

@@ -9,8 +9,11 @@
 //! - `spec`: `ToolSpec` (name, description, schema), `ToolCall`, schema normalisation
 //! - `schema`: JSON schemas from Rust types (schemars), cleaned for grammars
 //! - `registry`: the type-erased `DynTool`, named packages, lookup
-//! - `policy`: deny-list, read-only, confirmation, argument limits, time limits
+//! - `policy`: the fence, the e-stop, read-only, confirmation, argument limits, time limits
+//! - `exec`: running calls after the policy (concurrent, time-limited, aborted on the
+//!   e-stop, outputs redacted)
 
+pub mod exec;
 pub mod policy;
 pub mod registry;
 pub mod schema;
@@ -31,6 +34,8 @@ pub enum Effect {
     Observes,
     /// Changes the robot or its world (uplink): publishing, calling, setting.
     Actuates,
+    /// Stops the robot (the e-stop): always allowed, never confirmed, never fenced.
+    Stops,
 }
 
 /// A failed call, as the model will read it: short, and saying what to do next.

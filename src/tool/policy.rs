@@ -1,16 +1,23 @@
 //! Policy: enforced in code on every call, never left to the prompt.
 //!
 //! A call actuates when its tool does, unless an `observes` rule of the policy file says
-//! this call only reads (a service known to be a query, say).
+//! this call only reads (a service known to be a query, say). A tool that stops
+//! (`Effect::Stops`) passes every rule: stopping needs no confirmation, is allowed
+//! read-only and behind the e-stop, and no deny pattern can forbid it.
 //!
-//! In order, a call is refused if: the tool is unknown; it actuates in read-only mode;
-//! its arguments do not match the schema; any string in them names something on the
-//! operator's deny-list (or a pattern the model added; it can add, never remove); a limit
-//! from the policy file is exceeded; or it actuates and the operator does not confirm.
-//! Listings pass through `redact`, so denied names are not shown either.
+//! In order, a call is refused if: the tool is unknown; it actuates while the e-stop is
+//! engaged; it actuates in read-only mode; its arguments do not match the schema; any
+//! string in them names something behind the fence (the operator's deny-list, or a
+//! pattern the model added; it can add, never remove; in any spelling of the name); a
+//! limit from the policy file is exceeded (a null where a limited number belongs is
+//! refused too); it breaks an `only` rule; or it actuates and the operator does not
+//! confirm. Refusals never quote a deny pattern or a denied name.
+//!
+//! The same fence and e-stop guard the ROS boundary (`ros::guard`), which also holds the
+//! motion limits of the `[motion]` table (`limits`) on every encoded message.
 
 use std::path::Path;
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
 use std::time::Duration;
 
 use regex::Regex;
@@ -18,6 +25,9 @@ use serde::Deserialize;
 use serde_json::Value;
 
 use super::{DynTool, Effect, ToolCall};
+use crate::estop::EStop;
+use crate::fence::{canonical, Fence, FenceError};
+use crate::limits::Motion;
 
 #[derive(Debug, thiserror::Error)]
 pub enum PolicyError {
@@ -25,6 +35,20 @@ pub enum PolicyError {
     Read { path: String, message: String },
     #[error("policy: invalid pattern {pattern:?}: {message}")]
     Pattern { pattern: String, message: String },
+    #[error("policy: {0}")]
+    Motion(String),
+}
+
+impl From<FenceError> for PolicyError {
+    fn from(e: FenceError) -> PolicyError {
+        match e {
+            FenceError::Pattern { pattern, message } => PolicyError::Pattern { pattern, message },
+            other => PolicyError::Pattern {
+                pattern: String::new(),
+                message: other.to_string(),
+            },
+        }
+    }
 }
 
 /// The outcome of checking one call.
@@ -35,6 +59,8 @@ pub enum Decision {
     Allowed,
     /// Actuates, and the operator said yes.
     Confirmed,
+    /// Ran, but the ROS boundary clamped what it sent to the limits (what it changed).
+    Clamped(String),
     /// Not run; the reason is what the model reads.
     Refused(String),
 }
@@ -117,11 +143,15 @@ pub struct PolicyFile {
     pub only: Vec<Only>,
     #[serde(default)]
     pub observes: Vec<Observes>,
+    /// Motion limits, enforced at the ROS boundary (defaults apply when absent).
+    #[serde(default)]
+    pub motion: Motion,
 }
 
 pub struct Policy {
-    deny: Vec<Regex>,
-    model_deny: Mutex<Vec<Regex>>,
+    fence: Arc<Fence>,
+    estop: Arc<EStop>,
+    pub motion: Motion,
     pub read_only: bool,
     pub auto_approve: bool,
     pub timeout: Duration,
@@ -135,7 +165,7 @@ pub struct Policy {
 impl std::fmt::Debug for Policy {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("Policy")
-            .field("deny", &self.deny)
+            .field("fence", &self.fence)
             .field("read_only", &self.read_only)
             .field("auto_approve", &self.auto_approve)
             .finish_non_exhaustive()
@@ -145,14 +175,7 @@ impl std::fmt::Debug for Policy {
 fn compile(p: &str) -> Result<Regex, PolicyError> {
     Regex::new(p).map_err(|e| PolicyError::Pattern {
         pattern: p.to_string(),
-        // The regex crate draws a multi-line caret diagram; its last line says what.
-        message: e
-            .to_string()
-            .lines()
-            .rfind(|l| !l.trim().is_empty())
-            .unwrap_or("invalid regex")
-            .trim_start_matches("error: ")
-            .to_string(),
+        message: crate::fence::regex_error(&e),
     })
 }
 
@@ -165,13 +188,11 @@ impl Default for Policy {
 
 impl Policy {
     pub fn from_file(file: PolicyFile, confirm: Arc<dyn Confirm>) -> Result<Policy, PolicyError> {
+        file.motion.validate().map_err(PolicyError::Motion)?;
         Ok(Policy {
-            deny: file
-                .deny
-                .iter()
-                .map(|p| compile(p))
-                .collect::<Result<_, _>>()?,
-            model_deny: Mutex::new(Vec::new()),
+            fence: Arc::new(Fence::new(&file.deny)?),
+            estop: EStop::new(),
+            motion: file.motion,
             read_only: file.read_only,
             auto_approve: file.auto_approve,
             timeout: Duration::from_secs_f64(file.timeout_s.unwrap_or(30.0).max(0.001)),
@@ -198,6 +219,21 @@ impl Policy {
                 .collect::<Result<_, PolicyError>>()?,
             confirm,
         })
+    }
+
+    /// Share `estop` (the process's one latch) instead of a latch of its own.
+    pub fn with_estop(mut self, estop: Arc<EStop>) -> Policy {
+        self.estop = estop;
+        self
+    }
+
+    /// The names off limits, shared with the ROS boundary.
+    pub fn fence(&self) -> &Arc<Fence> {
+        &self.fence
+    }
+
+    pub fn estop(&self) -> &Arc<EStop> {
+        &self.estop
     }
 
     /// Whether some calls of `tool` count as observing (an `observes` rule names it).
@@ -227,23 +263,15 @@ impl Policy {
         Policy::from_file(file, confirm)
     }
 
-    /// Add a deny pattern on the model's behalf (it can never remove one).
-    pub fn add_model_pattern(&self, pattern: &str) -> Result<(), PolicyError> {
-        let re = compile(pattern)?;
-        self.model_deny.lock().expect("policy lock").push(re);
-        Ok(())
+    /// Add a deny pattern on the model's behalf (it can never remove one, and one that
+    /// would fence off names in general is refused).
+    pub fn add_model_pattern(&self, pattern: &str) -> Result<(), FenceError> {
+        self.fence.add_model_pattern(pattern)
     }
 
-    /// The first deny pattern matching `name`, if any.
-    pub fn denied(&self, name: &str) -> Option<String> {
-        if let Some(re) = self.deny.iter().find(|re| re.is_match(name)) {
-            return Some(re.as_str().to_string());
-        }
-        let model = self.model_deny.lock().expect("policy lock");
-        model
-            .iter()
-            .find(|re| re.is_match(name))
-            .map(|re| re.as_str().to_string())
+    /// Whether `name` is behind the fence, in any spelling.
+    pub fn denied(&self, name: &str) -> bool {
+        self.fence.denies(name)
     }
 
     /// Whether this call changes the robot: its tool actuates and no `observes` rule
@@ -257,7 +285,16 @@ impl Policy {
         let Some(tool) = tool else {
             return Decision::Refused(format!("there is no tool named {}", call.name));
         };
+        if tool.effect() == Effect::Stops {
+            return Decision::Allowed;
+        }
         let actuates = self.actuates(tool.effect(), call);
+        if let (true, Some(e)) = (actuates, self.estop.engaged_by()) {
+            return Decision::Refused(format!(
+                "the e-stop is engaged ({}): {} is refused until the operator resets it; tell the operator",
+                e.source, call.name
+            ));
+        }
         if actuates && self.read_only {
             return Decision::Refused(format!(
                 "{} changes the robot and the agent is read-only; tell the operator it cannot be done",
@@ -267,37 +304,8 @@ impl Policy {
         if let Err(e) = tool.spec().validate(&call.arguments) {
             return Decision::Refused(format!("invalid arguments for {}: {e}", call.name));
         }
-        let mut strings = Vec::new();
-        collect_strings(&call.arguments, &mut strings);
-        for s in strings {
-            if let Some(p) = self.denied(s) {
-                return Decision::Refused(format!(
-                    "{s} is off limits (operator deny-list pattern {p:?}); do not try it again"
-                ));
-            }
-        }
-        for (re, limit) in &self.limits {
-            if re.is_match(&call.name) && matches_when(&limit.when, &call.arguments) {
-                if let Some(why) = violates(limit, &call.arguments) {
-                    return Decision::Refused(format!("{why}; retry within the limit"));
-                }
-            }
-        }
-        for (re, only) in &self.only {
-            if re.is_match(&call.name) && matches_when(&only.when, &call.arguments) {
-                let ok = only.arguments.iter().any(|allowed| {
-                    allowed
-                        .iter()
-                        .all(|(k, v)| call.arguments.get(k).is_some_and(|x| json_eq(x, v)))
-                });
-                if !ok {
-                    return Decision::Refused(format!(
-                        "{} is allowed only with these arguments: {}",
-                        call.name,
-                        serde_json::to_string(&only.arguments).unwrap_or_default()
-                    ));
-                }
-            }
+        if let Some(why) = self.rule_breach(call) {
+            return Decision::Refused(why);
         }
         if !actuates || self.auto_approve {
             return Decision::Allowed;
@@ -312,38 +320,51 @@ impl Policy {
         }
     }
 
-    /// Remove denied names from a tool's output: array items that are denied strings, or
-    /// objects whose name-like fields are denied. Returns how many were removed.
-    pub fn redact(&self, output: &mut Value) -> usize {
-        let mut removed = 0;
-        match output {
-            Value::Array(items) => {
-                let before = items.len();
-                items.retain(|item| !self.item_denied(item));
-                removed += before - items.len();
-                for item in items.iter_mut() {
-                    removed += self.redact(item);
-                }
-            }
-            Value::Object(map) => {
-                for v in map.values_mut() {
-                    removed += self.redact(v);
-                }
-            }
-            _ => {}
+    /// The first of the fence, `limit` and `only` rules the call breaks, as the model
+    /// reads it.
+    fn rule_breach(&self, call: &ToolCall) -> Option<String> {
+        let mut strings = Vec::new();
+        collect_strings(&call.arguments, &mut strings);
+        if strings.iter().any(|s| self.fence.denies(s)) {
+            return Some(
+                "that name is off limits (the operator's deny-list); do not try it or anything like it again".into(),
+            );
         }
-        removed
+        for (re, limit) in &self.limits {
+            if re.is_match(&call.name) && matches_when(&limit.when, &call.arguments) {
+                if let Some(why) = violates(limit, &call.arguments) {
+                    return Some(format!("{why}; retry within the limit"));
+                }
+            }
+        }
+        for (re, only) in &self.only {
+            if re.is_match(&call.name) && matches_when(&only.when, &call.arguments) {
+                let ok = only.arguments.iter().any(|allowed| {
+                    allowed
+                        .iter()
+                        .all(|(k, v)| call.arguments.get(k).is_some_and(|x| same(x, v)))
+                });
+                if !ok {
+                    return Some(format!(
+                        "{} is allowed only with these arguments: {}",
+                        call.name,
+                        serde_json::to_string(&only.arguments).unwrap_or_default()
+                    ));
+                }
+            }
+        }
+        None
     }
 
-    fn item_denied(&self, item: &Value) -> bool {
-        match item {
-            Value::String(s) => self.denied(s).is_some(),
-            Value::Object(map) => ["name", "topic", "node", "service", "action", "parameter"]
-                .iter()
-                .filter_map(|k| map.get(*k).and_then(Value::as_str))
-                .any(|s| self.denied(s).is_some()),
-            _ => false,
-        }
+    /// Hide what the fence covers in a tool's output: array items that are denied
+    /// names are dropped and every string is redacted. Returns how many were hidden.
+    pub fn redact(&self, output: &mut Value) -> usize {
+        self.fence.redact_json(output)
+    }
+
+    /// `text` with denied names redacted (answers, errors, anything shown).
+    pub fn redact_text<'a>(&self, text: &'a str) -> std::borrow::Cow<'a, str> {
+        self.fence.redact(text)
     }
 }
 
@@ -356,23 +377,53 @@ fn collect_strings<'a>(v: &'a Value, out: &mut Vec<&'a str>) {
     }
 }
 
-fn json_eq(a: &Value, b: &Value) -> bool {
-    match (a.as_f64(), b.as_f64()) {
-        (Some(x), Some(y)) => (x - y).abs() < 1e-9,
-        _ => a == b,
+/// Two argument values are the same: numbers by value, ROS names and type names in any
+/// spelling (`reset` and `/reset `, `geometry_msgs/Twist` and `geometry_msgs/msg/Twist`).
+fn same(a: &Value, b: &Value) -> bool {
+    match (a, b) {
+        (Value::String(x), Value::String(y)) => {
+            x == y
+                || type_key(x) == type_key(y)
+                || matches!((canonical(x), canonical(y)), (Ok(p), Ok(q)) if p == q)
+        }
+        _ => match (a.as_f64(), b.as_f64()) {
+            (Some(x), Some(y)) => (x - y).abs() < 1e-9,
+            _ => a == b,
+        },
     }
 }
 
+/// A ROS type name with its spelling taken out: `pkg/Name`, `pkg/msg/Name` and
+/// `pkg::msg::dds_::Name_` all give `pkg/Name`.
+fn type_key(t: &str) -> String {
+    let t = t.trim().trim_end_matches('_');
+    let parts: Vec<&str> = t
+        .split(['/', ':'])
+        .filter(|p| !p.is_empty() && !matches!(*p, "msg" | "srv" | "action" | "dds_"))
+        .collect();
+    parts.join("/")
+}
+
+/// A `when` table holds: every key given and the same (`same`). A limit whose `when`
+/// names `message_type` also holds when the call leaves the type out (the boundary
+/// reads it from the topic): leaving a field out must not dodge a limit.
 fn matches_when(when: &serde_json::Map<String, Value>, args: &Value) -> bool {
-    when.iter()
-        .all(|(k, v)| args.get(k).is_some_and(|x| json_eq(x, v)))
+    when.iter().all(|(k, v)| match args.get(k) {
+        Some(x) => same(x, v),
+        None => k == "message_type",
+    })
 }
 
 fn violates(limit: &Limit, args: &Value) -> Option<String> {
     let mut sq = 0.0;
     for p in &limit.paths {
-        let Some(x) = args.pointer(p).and_then(Value::as_f64) else {
-            continue;
+        let x = match args.pointer(p) {
+            // Absent fields are encoded as zero.
+            None => continue,
+            Some(v) => match v.as_f64() {
+                Some(x) if x.is_finite() => x,
+                _ => return Some(format!("{p} must be a finite number")),
+            },
         };
         if let Some(min) = limit.min {
             if x < min {

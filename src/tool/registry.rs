@@ -127,7 +127,7 @@ impl Registry {
             tools: self
                 .tools
                 .iter()
-                .filter(|(_, t)| t.effect() == Effect::Observes || keep(&t.spec().name))
+                .filter(|(_, t)| t.effect() != Effect::Actuates || keep(&t.spec().name))
                 .cloned()
                 .collect(),
         }

@@ -213,23 +213,31 @@ impl DynTool for Declared {
             match &self.action {
                 Action::Publish(p) => {
                     let message = fill(&p.message, &args).map_err(ToolError::InvalidArguments)?;
-                    self.ros
+                    let sent = self
+                        .ros
                         .publish(&p.topic, &p.type_name, message.clone())
                         .await
                         .map_err(|e| ToolError::Failed(e.to_string()))?;
-                    Ok(
-                        json!({"published": true, "topic": p.topic, "type": p.type_name, "message": message}),
-                    )
+                    let mut out = json!({"published": true, "topic": sent.topic, "type": p.type_name,
+                                         "message": sent.sent.unwrap_or(message)});
+                    if let Some(n) = sent.note {
+                        out["limited"] = json!(n);
+                    }
+                    Ok(out)
                 }
                 Action::Call(c) => {
                     let request = fill(&c.request, &args).map_err(ToolError::InvalidArguments)?;
                     let timeout = cx.timeout.min(Duration::from_secs(30));
-                    let response = self
+                    let reply = self
                         .ros
                         .call_service(&c.service, &c.type_name, request, timeout)
                         .await
                         .map_err(|e| ToolError::Failed(e.to_string()))?;
-                    Ok(json!({"service": c.service, "response": response}))
+                    let mut out = json!({"service": c.service, "response": reply.response});
+                    if let Some(n) = reply.note {
+                        out["limited"] = json!(n);
+                    }
+                    Ok(out)
                 }
             }
         })

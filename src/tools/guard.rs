@@ -1,5 +1,8 @@
 //! `policy_deny_add`: the model may add a name pattern to the deny-list for the rest of
-//! the session (never remove one: there is no tool for that).
+//! the session (never remove one: there is no tool for that). It changes what every later
+//! call may do, so the operator confirms it like any actuation (text injected in ROS data
+//! cannot fence the robot off on its own), and a pattern that would cover names in
+//! general is refused (`fence`).
 
 use std::sync::Arc;
 
@@ -26,7 +29,7 @@ pub struct DenyArgs {
 impl Tool for PolicyDenyAdd {
     type Args = DenyArgs;
     const NAME: &'static str = "policy_deny_add";
-    const EFFECT: Effect = Effect::Observes;
+    const EFFECT: Effect = Effect::Actuates;
 
     fn description(&self) -> String {
         "Add a regex of ROS names that no tool may touch for the rest of this session (e.g. when the operator says to leave something alone). Patterns cannot be removed.".into()
@@ -36,7 +39,7 @@ impl Tool for PolicyDenyAdd {
         self.policy
             .add_model_pattern(&a.pattern)
             .map_err(|e| ToolError::InvalidArguments(e.to_string()))?;
-        Ok(json!({"added": a.pattern}))
+        Ok(json!({"added": true}))
     }
 }
 
@@ -65,7 +68,7 @@ mod tests {
             &cx,
         ))
         .unwrap();
-        assert!(policy.denied("/camera/image").is_some());
+        assert!(policy.denied("/camera/image"));
         assert!(rt
             .block_on(t.call(
                 DenyArgs {

@@ -11,6 +11,25 @@ use crate::tool::{Effect, Tool, ToolContext, ToolError};
 
 /// Lines returned at most, whatever is asked.
 const LINE_CAP: usize = 200;
+/// Bytes read from the end of a file at most: a log of gigabytes is not read whole (the
+/// lines asked for are near its end).
+const TAIL_BYTES: u64 = 1 << 20;
+
+/// The last `TAIL_BYTES` of the file at `path`, from the first whole line in them.
+fn tail(path: &Path) -> std::io::Result<String> {
+    use std::io::{Read, Seek, SeekFrom};
+    let mut f = std::fs::File::open(path)?;
+    let len = f.metadata()?.len();
+    let start = len.saturating_sub(TAIL_BYTES);
+    f.seek(SeekFrom::Start(start))?;
+    let mut bytes = Vec::with_capacity((len - start) as usize);
+    f.take(TAIL_BYTES).read_to_end(&mut bytes)?;
+    let text = String::from_utf8_lossy(&bytes).into_owned();
+    Ok(match (start, text.find('\n')) {
+        (0, _) | (_, None) => text,
+        (_, Some(nl)) => text[nl + 1..].to_string(),
+    })
+}
 
 pub struct LogRead {
     dirs: Vec<PathBuf>,
@@ -111,8 +130,8 @@ impl Tool for LogRead {
 
     async fn call(&self, a: LogArgs, _: &ToolContext) -> Result<Value, ToolError> {
         let path = self.resolve(&a.file)?;
-        let text = std::fs::read_to_string(&path)
-            .map_err(|e| ToolError::Failed(format!("cannot read {}: {e}", a.file)))?;
+        let text =
+            tail(&path).map_err(|e| ToolError::Failed(format!("cannot read {}: {e}", a.file)))?;
         let want = (a.lines.unwrap_or(50) as usize).clamp(1, LINE_CAP);
         let matching: Vec<&str> = text
             .lines()

@@ -7,6 +7,7 @@
 //! - `declared`: tools defined in a TOML file, acting through a ROS graph
 //! - `expr`: the expression evaluator behind calc_eval
 //! - `guard`: policy_deny_add (the model may add deny patterns, never remove them)
+//! - `stop`: robot_stop (the e-stop as a tool)
 //! - `system`: system_time, system_wait
 //! - `log`: log_read
 //! - `ros`: ros_node_*, ros_topic_*, ros_service_*, ros_param_*, ros_interface_show, ros_log_read
@@ -18,6 +19,7 @@ pub mod expr;
 pub mod guard;
 pub mod log;
 pub mod ros;
+pub mod stop;
 pub mod system;
 pub mod turtle;
 

@@ -34,8 +34,38 @@ pub struct Turtle {
     name: String,
 }
 
-/// turtlesim holds a velocity command for one second.
-const HOLD: Duration = Duration::from_millis(1100);
+/// How often a motion command is repeated while the turtle moves (turtlesim drops a
+/// command after one second; a stop must not wait that long to be noticed).
+const TICK: Duration = Duration::from_millis(100);
+/// Default speeds: well inside the default motion limits.
+const SPEED: f64 = 0.5;
+const TURN_RATE: f64 = 1.0;
+
+/// How a motion went.
+struct Drive {
+    /// Seconds the command was held at the speed actually sent.
+    seconds: f64,
+    /// The speed actually sent (after the ROS boundary's limits).
+    speed: f64,
+    /// What the boundary said, if anything (a clamp, the mux).
+    note: Option<String>,
+    /// The operator's input took over the mux (the motion ended early).
+    overridden: bool,
+}
+
+impl Drive {
+    /// `out` with what the limits changed and whether the operator took over.
+    fn report(self, mut out: Value) -> Value {
+        if let Some(n) = self.note {
+            out["limited"] = json!(n);
+        }
+        if self.overridden {
+            out["overridden"] =
+                json!("the operator's input took over the mux: the motion ended early");
+        }
+        out
+    }
+}
 
 impl Turtle {
     async fn pose(&self) -> Result<Value, ToolError> {
@@ -60,18 +90,65 @@ impl Turtle {
                   "theta_deg": (p["theta"].as_f64().unwrap_or(0.0).to_degrees() * 10.0).round() / 10.0}))
     }
 
-    /// Drive for one command period, then report where the turtle ended up.
-    async fn drive(&self, linear: f64, angular: f64) -> Result<Value, ToolError> {
-        self.graph
-            .publish(
-                &format!("/{}/cmd_vel", self.name),
-                "geometry_msgs/msg/Twist",
-                json!({"linear": {"x": linear}, "angular": {"z": angular}}),
-            )
+    /// Command `linear` m/s and `angular` rad/s until `amount` (metres or radians, by
+    /// the speed actually sent) is covered, repeating the command every tick, then
+    /// command zero. Stops early when the operator's input takes over the mux.
+    async fn drive(&self, linear: f64, angular: f64, amount: f64) -> Result<Drive, ToolError> {
+        let topic = format!("/{}/cmd_vel", self.name);
+        let twist = |l: f64, a: f64| json!({"linear": {"x": l}, "angular": {"z": a}});
+        let start = std::time::Instant::now();
+        let mut sent = self
+            .graph
+            .publish(&topic, "geometry_msgs/msg/Twist", twist(linear, angular))
             .await
             .map_err(failed)?;
-        tokio::time::sleep(HOLD).await;
-        self.pose().await
+        // The speed that went out (the boundary may have clamped it) sets the duration.
+        let speed = match &sent.sent {
+            Some(m) if linear != 0.0 => m["linear"]["x"].as_f64().unwrap_or(linear),
+            Some(m) => m["angular"]["z"].as_f64().unwrap_or(angular),
+            None if linear != 0.0 => linear,
+            None => angular,
+        };
+        let (l, a) = match &sent.sent {
+            Some(m) => (
+                m["linear"]["x"].as_f64().unwrap_or(0.0),
+                m["angular"]["z"].as_f64().unwrap_or(0.0),
+            ),
+            None => (linear, angular),
+        };
+        let seconds = if speed.abs() > 1e-9 {
+            (amount / speed).abs()
+        } else {
+            0.0
+        };
+        let mut note = sent.note.clone();
+        let mut overridden = sent.overridden_by.is_some();
+        while !overridden && start.elapsed().as_secs_f64() + TICK.as_secs_f64() < seconds {
+            tokio::time::sleep(TICK).await;
+            sent = self
+                .graph
+                .publish(&topic, "geometry_msgs/msg/Twist", twist(l, a))
+                .await
+                .map_err(failed)?;
+            if sent.note.is_some() {
+                note = sent.note.clone();
+            }
+            overridden = sent.overridden_by.is_some();
+        }
+        let left = seconds - start.elapsed().as_secs_f64();
+        if left > 0.0 && !overridden {
+            tokio::time::sleep(Duration::from_secs_f64(left)).await;
+        }
+        self.graph
+            .publish(&topic, "geometry_msgs/msg/Twist", twist(0.0, 0.0))
+            .await
+            .map_err(failed)?;
+        Ok(Drive {
+            seconds: start.elapsed().as_secs_f64().min(seconds),
+            speed,
+            note,
+            overridden,
+        })
     }
 
     async fn call(
@@ -80,7 +157,7 @@ impl Turtle {
         ty: &str,
         request: Value,
         cx: &ToolContext,
-    ) -> Result<Value, ToolError> {
+    ) -> Result<crate::ros::Reply, ToolError> {
         self.graph
             .call_service(service, ty, request, cx.timeout)
             .await
@@ -93,6 +170,10 @@ pub struct MoveArgs {
     /// Meters to drive, -5 to 5 (negative drives backward).
     #[schemars(range(min = -5.0, max = 5.0))]
     pub distance: f64,
+    /// Speed in m/s, 0.05 to 1 (default 0.5); the robot's motion limits may lower it.
+    #[serde(default)]
+    #[schemars(range(min = 0.05, max = 1.0))]
+    pub speed: Option<f64>,
 }
 
 pub struct Move(Turtle);
@@ -106,8 +187,12 @@ impl Tool for Move {
     }
     async fn call(&self, a: MoveArgs, _: &ToolContext) -> Result<Value, ToolError> {
         let d = a.distance.clamp(-5.0, 5.0);
-        let pose = self.0.drive(d, 0.0).await?;
-        Ok(json!({"moved_m": d, "pose": pose}))
+        let speed = a.speed.unwrap_or(SPEED).clamp(0.05, 1.0).copysign(d);
+        let drive = self.0.drive(speed, 0.0, d).await?;
+        let moved = (drive.seconds * drive.speed * 1000.0).round() / 1000.0;
+        let out = json!({"requested_m": d, "moved_m": moved, "speed_m_s": drive.speed.abs(),
+                             "pose": self.0.pose().await?});
+        Ok(drive.report(out))
     }
 }
 
@@ -129,8 +214,12 @@ impl Tool for Rotate {
     }
     async fn call(&self, a: RotateArgs, _: &ToolContext) -> Result<Value, ToolError> {
         let deg = a.degrees.clamp(-180.0, 180.0);
-        let pose = self.0.drive(0.0, deg.to_radians()).await?;
-        Ok(json!({"turned_deg": deg, "pose": pose}))
+        let rate = TURN_RATE.copysign(deg);
+        let drive = self.0.drive(0.0, rate, deg.to_radians()).await?;
+        let turned = (drive.seconds * drive.speed).to_degrees();
+        let out = json!({"requested_deg": deg, "turned_deg": (turned * 10.0).round() / 10.0,
+                             "pose": self.0.pose().await?});
+        Ok(drive.report(out))
     }
 }
 

@@ -4,24 +4,29 @@
 //! `--robot sim` starts the built-in robot in this process and gives the agent the ROS
 //! and turtle tools; `--robot ros2` joins the ROS 2 graph already running here.
 
-use std::io::{BufRead, IsTerminal, Write};
+use std::io::{IsTerminal, Write};
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
-use std::time::{Duration, Instant};
 
 use anyhow::Context;
 use serde_json::json;
 
+use super::robot;
+pub use super::robot::{connect, Robot, RobotLink};
+use super::term::{clean, Input, TerminalConfirm};
 use crate::agent::prompt::RobotPrompt;
 use crate::agent::trace::Trace;
 use crate::agent::{Agent, AgentConfig, AnswerMode, Event};
 use crate::decode::Decoding;
-use crate::ros::ros2::{Ros2Graph, Ros2Options};
+use crate::estop::EStop;
+use crate::ros::ros2::Ros2Options;
 use crate::ros::sim::Sim;
 use crate::ros::RosGraph;
 use crate::tool::policy::{NoOperator, PolicyFile};
-use crate::tool::{Confirm, Policy, Registry, ToolCall};
+use crate::tool::{Confirm, Policy, Registry};
+
+const TURTLESIM_PROMPT: &str = include_str!("../../prompts/turtlesim.toml");
 
 #[derive(Debug, Clone)]
 pub struct AgentArgs {
@@ -39,71 +44,6 @@ pub struct AgentArgs {
     pub copy_bias: f32,
 }
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
-pub enum Robot {
-    None,
-    Sim,
-    Ros2,
-}
-
-/// What keeps the robot connection alive for the agent's lifetime.
-pub struct RobotLink {
-    pub graph: Option<Arc<Ros2Graph>>,
-    pub sim: Option<Sim>,
-}
-
-const TURTLESIM_PROMPT: &str = include_str!("../../prompts/turtlesim.toml");
-
-/// Join ROS 2 (and start the sim first when asked), then wait until the graph shows it;
-/// `verbose` reports the discovery on stderr.
-pub fn connect(robot: Robot, verbose: bool) -> anyhow::Result<RobotLink> {
-    if robot == Robot::None {
-        return Ok(RobotLink {
-            graph: None,
-            sim: None,
-        });
-    }
-    let opts = Ros2Options::from_env()?;
-    let start = Instant::now();
-    // The agent's participant first: RustDDS peers discover a publishing sim late.
-    let graph = Arc::new(Ros2Graph::start(
-        &opts,
-        &format!("_ferrosa_{}", std::process::id()),
-    )?);
-    let sim = if robot == Robot::Sim {
-        Some(Sim::start(&opts)?)
-    } else {
-        None
-    };
-    let rt = tokio::runtime::Builder::new_current_thread()
-        .enable_time()
-        .build()?;
-    let limit = Duration::from_secs(if robot == Robot::Sim { 15 } else { 4 });
-    let found = rt.block_on(async {
-        loop {
-            let g = graph.graph().await.unwrap_or_default();
-            let ready = match robot {
-                Robot::Sim => Sim::discovered_in(&g),
-                _ => !g.nodes.is_empty() && start.elapsed() > Duration::from_secs(2),
-            };
-            if ready || start.elapsed() > limit {
-                return (ready, g.nodes.len());
-            }
-            tokio::time::sleep(Duration::from_millis(50)).await;
-        }
-    });
-    match found {
-        (true, _) if !verbose => {}
-        (true, n) => eprintln!("robot: {n} ROS node(s) discovered in {} ms (domain {}, {:?})", start.elapsed().as_millis(), opts.domain_id, opts.range),
-        (false, _) if robot == Robot::Sim => anyhow::bail!("the built-in sim did not appear on ROS 2 within {limit:?}; run with FERROSA_LOG=rustdds=warn to see why"),
-        (false, _) => eprintln!("robot: no ROS 2 node found within {limit:?} (domain {}, {:?}); check ROS_DOMAIN_ID and ROS_AUTOMATIC_DISCOVERY_RANGE", opts.domain_id, opts.range),
-    }
-    Ok(RobotLink {
-        graph: Some(graph),
-        sim,
-    })
-}
-
 /// `ferrosa sim`: the robot alone, until Ctrl-C.
 pub fn sim() -> anyhow::Result<()> {
     let opts = Ros2Options::from_env()?;
@@ -119,54 +59,29 @@ pub fn sim() -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Asks on the terminal: "run turtle_move {...}? [y/N]".
-struct TerminalConfirm;
-
-impl Confirm for TerminalConfirm {
-    fn confirm(&self, call: &ToolCall) -> bool {
-        eprint!(
-            "\nallow {} {}? [y/N] ",
-            call.name,
-            serde_json::to_string(&call.arguments).unwrap_or_default()
-        );
-        let _ = std::io::stderr().flush();
-        let mut line = String::new();
-        std::io::stdin().lock().read_line(&mut line).is_ok()
-            && matches!(line.trim(), "y" | "Y" | "yes")
-    }
-}
-
-pub fn build(args: &AgentArgs) -> anyhow::Result<(Agent, RobotLink)> {
-    let confirm: Arc<dyn Confirm> = if std::io::stdin().is_terminal() {
-        Arc::new(TerminalConfirm)
-    } else {
-        Arc::new(NoOperator)
-    };
-    let link = connect(args.robot, true)?;
-    let graph = link.graph.clone().map(|g| g as Arc<dyn RosGraph>);
-    Ok((build_with(args, confirm, graph)?, link))
-}
-
-/// The agent over `graph` (the ROS tools, and the turtle's with `--robot sim`), with
-/// `confirm` asking about actuating calls.
-pub fn build_with(
+/// The tools, the policy and the robot prompt of `args`, over `graph` (raw: it is
+/// guarded here) with `confirm` asking about actuating calls and `estop` the process's
+/// e-stop. What `ask`, `chat` and `call` share.
+pub fn tools_and_policy(
     args: &AgentArgs,
     confirm: Arc<dyn Confirm>,
     graph: Option<Arc<dyn RosGraph>>,
-) -> anyhow::Result<Agent> {
+    estop: Arc<EStop>,
+) -> anyhow::Result<(Registry, Arc<Policy>, RobotPrompt)> {
     let mut policy = match &args.policy {
         Some(p) => Policy::load(p, confirm)?,
         None => Policy::from_file(PolicyFile::default(), confirm)?,
-    };
+    }
+    .with_estop(estop.clone());
     policy.auto_approve |= args.yes;
     policy.read_only |= args.read_only;
-
     let policy = Arc::new(policy);
     let mut registry = Registry::new();
     for p in crate::tools::standard() {
         registry.add(p);
     }
     registry.add(crate::tools::guard::package(policy.clone()));
+    registry.add(crate::tools::stop::package(estop));
     if !args.log_dirs.is_empty() {
         registry.add(crate::tools::logs(args.log_dirs.clone()));
     }
@@ -177,12 +92,62 @@ pub fn build_with(
         }
         None => RobotPrompt::default_robot(),
     };
-    if let Some(graph) = graph {
-        registry.add(crate::tools::ros::package(graph.clone()));
-        if args.robot == Robot::Sim {
-            registry.add(crate::tools::turtle::package(graph, "turtle1"));
-        }
+    if let Some(raw) = graph {
+        let guarded = robot::guard(raw, &policy, args.robot);
+        robot::add_ros_tools(&mut registry, guarded, args.robot);
     }
+    Ok((registry, policy, prompt))
+}
+
+/// A front end's agent and what it runs with: the robot link, the e-stop, the cancel
+/// flag, and the operator's input (when there is a terminal).
+pub struct Running {
+    pub agent: Agent,
+    pub robot: RobotLink,
+    pub estop: Arc<EStop>,
+    pub cancel: Arc<AtomicBool>,
+    pub input: Option<Arc<Input>>,
+}
+
+/// Connect to the robot and build the agent: confirmations are asked on the terminal
+/// (refused without one), `/stop` and Ctrl-C engage the e-stop.
+pub fn start(args: &AgentArgs) -> anyhow::Result<Running> {
+    let estop = EStop::new();
+    let cancel = Arc::new(AtomicBool::new(false));
+    let input = std::io::stdin()
+        .is_terminal()
+        .then(|| Input::start(estop.clone(), cancel.clone()));
+    let confirm: Arc<dyn Confirm> = match &input {
+        Some(input) => Arc::new(TerminalConfirm {
+            input: input.clone(),
+        }),
+        None => Arc::new(NoOperator),
+    };
+    let robot = connect(args.robot, true)?;
+    let graph = robot.graph.clone().map(|g| g as Arc<dyn RosGraph>);
+    let agent = build_with(args, confirm, graph, estop.clone())?.with_cancel(cancel.clone());
+    if let Some(g) = &robot.graph {
+        g.set_fence(agent.fence().clone());
+    }
+    install_ctrl_c(cancel.clone(), robot.graph.as_ref().map(|_| estop.clone()));
+    Ok(Running {
+        agent,
+        robot,
+        estop,
+        cancel,
+        input,
+    })
+}
+
+/// The agent over `graph` (the ROS tools, and the turtle's with `--robot sim`), with
+/// `confirm` asking about actuating calls and `estop` its e-stop.
+pub fn build_with(
+    args: &AgentArgs,
+    confirm: Arc<dyn Confirm>,
+    graph: Option<Arc<dyn RosGraph>>,
+    estop: Arc<EStop>,
+) -> anyhow::Result<Agent> {
+    let (registry, policy, prompt) = tools_and_policy(args, confirm, graph, estop)?;
     // Configuration errors first: loading the model is the slow part.
     let (resolved, _, model) = args.model.load()?;
     let family = resolved.family().unwrap_or("chatml").to_string();
@@ -200,20 +165,16 @@ pub fn build_with(
     Ok(agent)
 }
 
-/// Ctrl-C sets the agent's cancel flag instead of killing the process.
-fn install_ctrl_c(flag: Arc<AtomicBool>) {
-    std::thread::spawn(move || {
-        let Ok(rt) = tokio::runtime::Builder::new_current_thread()
-            .enable_all()
-            .build()
-        else {
-            return;
-        };
-        rt.block_on(async {
-            while tokio::signal::ctrl_c().await.is_ok() {
-                flag.store(true, Ordering::SeqCst);
+/// Ctrl-C cancels the current run and, with a robot, engages the e-stop (everything
+/// running is aborted and the robot braked); the process goes on.
+fn install_ctrl_c(flag: Arc<AtomicBool>, estop: Option<Arc<EStop>>) {
+    super::on_own_thread("ctrl-c", move || async move {
+        while tokio::signal::ctrl_c().await.is_ok() {
+            flag.store(true, Ordering::SeqCst);
+            if let Some(e) = &estop {
+                e.trigger("Ctrl-C");
             }
-        });
+        }
     });
 }
 
@@ -221,7 +182,7 @@ fn show(e: &Event, stream: bool) {
     let mut err = std::io::stderr();
     match e {
         Event::Token { text } if stream => {
-            let _ = write!(err, "{text}");
+            let _ = write!(err, "{}", clean(text));
             let _ = err.flush();
         }
         Event::ToolCall {
@@ -230,12 +191,13 @@ fn show(e: &Event, stream: bool) {
             decision,
             ..
         } => {
+            let d = serde_json::to_value(decision).unwrap_or_default();
             let _ = writeln!(
                 err,
-                "\n→ {name} {arguments} [{}]",
-                serde_json::to_value(decision)
-                    .map(|d| d["decision"].clone())
-                    .unwrap_or_default()
+                "\n→ {} {} [{}]",
+                clean(name),
+                clean(&arguments.to_string()),
+                clean(d["decision"].as_str().unwrap_or_default())
             );
         }
         Event::ToolResult {
@@ -245,24 +207,23 @@ fn show(e: &Event, stream: bool) {
             ok,
             ..
         } => {
-            let text = output.to_string();
+            let text = clean(&output.to_string());
             let short: String = text.chars().take(300).collect();
             let mark = if *ok { "←" } else { "✗" };
-            let _ = writeln!(err, "{mark} {name} ({ms:.0} ms): {short}");
+            let _ = writeln!(err, "{mark} {} ({ms:.0} ms): {short}", clean(name));
         }
         Event::Error { message } => {
-            let _ = writeln!(err, "\n! {message}");
+            let _ = writeln!(err, "\n! {}", clean(message));
         }
         _ => {}
     }
 }
 
 pub fn ask(args: &AgentArgs, query: &str, as_json: bool) -> anyhow::Result<()> {
-    let (mut agent, _robot) = build(args)?;
-    install_ctrl_c(agent.cancel_flag());
-    let result = agent.ask(query, &mut |e| {
+    let mut run = start(args)?;
+    let result = run.agent.ask(query, &mut |e| {
         if !as_json {
-            show(e, false);
+            show(e, true);
         }
     })?;
     if as_json {
@@ -283,55 +244,97 @@ pub fn ask(args: &AgentArgs, query: &str, as_json: bool) -> anyhow::Result<()> {
         });
         println!("{}", serde_json::to_string_pretty(&out)?);
     } else {
-        println!("{}", result.answer);
+        eprintln!();
+        println!("{}", clean(&result.answer));
     }
     Ok(())
 }
 
+const CHAT_HELP: &str = "/stop engages the e-stop (also while a run goes on; so does Ctrl-C), /reset releases it, /call NAME {json} runs one tool call through the policy, /tools lists the tools, /clear forgets the conversation, /trace shows the trace file, /quit leaves.";
+
 pub fn chat(args: &AgentArgs) -> anyhow::Result<()> {
-    let (mut agent, _robot) = build(args)?;
-    let cancel = agent.cancel_flag();
-    install_ctrl_c(cancel.clone());
+    let mut run = start(args)?;
+    // Without a terminal the chat still reads its input on its own thread.
+    let input = match run.input.clone() {
+        Some(i) => i,
+        None => Input::start(run.estop.clone(), run.cancel.clone()),
+    };
+    let (agent, estop, cancel) = (&mut run.agent, run.estop.clone(), run.cancel.clone());
     eprintln!(
-        "ferrosa chat: {} tools. /tools lists them, /clear forgets the conversation, /trace shows the trace file, /quit leaves. Ctrl-C stops a run.",
+        "ferrosa chat: {} tools. {CHAT_HELP}",
         agent.registry().len()
     );
-    let stdin = std::io::stdin();
     loop {
+        if let Some(e) = estop.engaged_by() {
+            eprintln!(
+                "\n[E-STOP engaged by {}: motion refused; /reset to release]",
+                clean(&e.source)
+            );
+        }
         eprint!("\n> ");
         let _ = std::io::stderr().flush();
-        let mut line = String::new();
-        if stdin.lock().read_line(&mut line)? == 0 {
+        let Some(line) = input.next_line() else {
+            break;
+        };
+        cancel.store(false, Ordering::SeqCst);
+        if !chat_command(agent, line.trim()) {
             break;
         }
-        cancel.store(false, Ordering::SeqCst);
-        let q = line.trim();
-        match q {
-            "" => continue,
-            "/quit" | "/exit" => break,
-            "/tools" => {
-                for t in agent.registry().tools() {
-                    let s = t.spec();
-                    eprintln!("{:<16} {:?}  {}", s.name, t.effect(), s.description);
-                }
-                continue;
-            }
-            "/clear" => {
-                agent.clear();
-                eprintln!("conversation cleared");
-                continue;
-            }
-            "/trace" => {
-                match agent.trace_path() {
-                    Some(p) => eprintln!("{}", p.display()),
-                    None => eprintln!("no trace (start with --trace-dir DIR)"),
-                }
-                continue;
-            }
-            _ => {}
-        }
-        let result = agent.ask(q, &mut |e| show(e, false))?;
-        println!("{}", result.answer);
     }
     Ok(())
+}
+
+/// One REPL line: a command, or a request for the agent. `false` to leave.
+fn chat_command(agent: &mut Agent, q: &str) -> bool {
+    match q {
+        "" => {}
+        "/quit" | "/exit" => return false,
+        // Engaged by the input thread the moment it was typed.
+        "/stop" | "/estop" => eprintln!("e-stop engaged: the robot is braked and motion refused"),
+        "/reset" => {
+            if agent.estop().reset() {
+                eprintln!("e-stop released: motion allowed again");
+            } else {
+                eprintln!("the e-stop was not engaged");
+            }
+        }
+        "/help" => eprintln!("{CHAT_HELP}"),
+        "/tools" => {
+            for t in agent.registry().tools() {
+                let s = t.spec();
+                eprintln!("{:<20} {:?}  {}", s.name, t.effect(), s.description);
+            }
+        }
+        "/clear" => {
+            agent.clear();
+            eprintln!("conversation cleared");
+        }
+        "/trace" => match agent.trace_path() {
+            Some(p) => eprintln!("{}", p.display()),
+            None => eprintln!("no trace (start with --trace-dir DIR)"),
+        },
+        _ if q.starts_with("/call ") => {
+            match super::term::parse_call(q.trim_start_matches("/call ")) {
+                Ok(call) => {
+                    let o = agent.call(&call);
+                    let mut shown = call.clone();
+                    agent.fence().redact_json(&mut shown.arguments);
+                    println!(
+                        "{}",
+                        clean(&super::term::report_call(&shown, &o).to_string())
+                    );
+                }
+                Err(e) => eprintln!("{e}"),
+            }
+        }
+        _ if q.starts_with('/') => eprintln!("unknown command {}; {CHAT_HELP}", clean(q)),
+        _ => match agent.ask(q, &mut |e| show(e, true)) {
+            Ok(r) => {
+                eprintln!();
+                println!("{}", clean(&r.answer));
+            }
+            Err(e) => eprintln!("error: {e}"),
+        },
+    }
+    true
 }

@@ -154,7 +154,12 @@ pub fn ros(args: &RosArgs) -> anyhow::Result<()> {
     for &mode in args.decoding.modes() {
         let mut agent_args = args.agent.clone();
         agent_args.decoding = mode;
-        let mut agent = build_with(&agent_args, operator.clone(), Some(switch.clone()))?;
+        let mut agent = build_with(
+            &agent_args,
+            operator.clone(),
+            Some(switch.clone()),
+            crate::estop::EStop::new(),
+        )?;
         model_name = format!(
             "{} ({})",
             args.agent.model.model.as_deref().unwrap_or("default"),
@@ -169,10 +174,11 @@ pub fn ros(args: &RosArgs) -> anyhow::Result<()> {
             }
             used = true;
             agent.clear();
+            // The operator releases an e-stop a case engaged before the next one.
+            agent.estop().reset();
             approve.store(case.confirm, Ordering::SeqCst);
-            let (mut calls, mut tokens, mut invalid) = (Vec::new(), 0usize, 0usize);
+            let (mut calls, mut invalid) = (Vec::new(), 0usize);
             let r = agent.ask(&case.query, &mut |e| match e {
-                Event::Token { .. } => tokens += 1,
                 Event::ToolCall {
                     name,
                     arguments,
@@ -190,6 +196,7 @@ pub fn ros(args: &RosArgs) -> anyhow::Result<()> {
                 Event::Error { message } if message.contains("did not parse") => invalid += 1,
                 _ => {}
             })?;
+            let tokens = r.timings.generated_tokens;
             let verdict = eval::ros::check(case, &calls, &r.answer);
             let model_s = r.timings.model_ms / 1e3;
             let result = CaseResult {

@@ -2,18 +2,25 @@
 //! and prints; none holds logic another front end would need.
 //!
 //! Layout:
-//! - `agent`: `ferrosa ask` and `ferrosa chat`
+//! - `agent`: `ferrosa ask` and `ferrosa chat` (the REPL)
+//! - `call`: `ferrosa call`, one tool call through the policy
+//! - `robot`: joining ROS 2, the sim, the guarded graph, the e-stop's ROS trigger
+//! - `term`: cleaning what is printed, the input thread, terminal confirmation
 //! - `choice`: the command line's names for the library's choices
 //! - `eval`: `ferrosa eval bfcl`
 //! - `generate`: `ferrosa generate`, streaming text from a model, with `--stats`
 //! - `models`: `ferrosa models list|fetch|verify`
 
 pub mod agent;
+pub mod call;
 pub mod choice;
 pub mod eval;
 pub mod generate;
 pub mod models;
+pub mod robot;
+pub mod term;
 
+use std::future::Future;
 use std::path::PathBuf;
 
 use crate::backend::{self, Backend, BackendKind, LoadOptions};
@@ -42,4 +49,24 @@ impl ModelArgs {
         let model = backend::load(self.backend, &opts)?;
         Ok((resolved, opts, model))
     }
+}
+
+/// Run `task` on a thread of its own (named `name`) with its own runtime: listeners that
+/// must react while the main thread is busy (Ctrl-C, the e-stop topic).
+pub(crate) fn on_own_thread<F>(name: &'static str, task: impl FnOnce() -> F + Send + 'static)
+where
+    F: Future<Output = ()>,
+{
+    std::thread::Builder::new()
+        .name(name.into())
+        .spawn(move || {
+            match tokio::runtime::Builder::new_current_thread()
+                .enable_all()
+                .build()
+            {
+                Ok(rt) => rt.block_on(task()),
+                Err(e) => tracing::error!("cannot start {name}'s runtime: {e}"),
+            }
+        })
+        .unwrap_or_else(|e| panic!("spawning {name}: {e}"));
 }

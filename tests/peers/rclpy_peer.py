@@ -10,6 +10,10 @@
     rclpy_peer.py drive   # finds ferrosa's /turtlesim, sends turtle1 forward at 1 m/s
                           # (10 Hz for 1 s; turtlesim holds the last for 1 s more), calls
                           # /clear; prints one JSON line: nodes, topics, services it saw
+    rclpy_peer.py estop   # as a teleop's e-stop button: once ferrosa follows
+                          # /ferrosa/estop, publishes false, then true (std_msgs/Bool,
+                          # 100 Hz for 0.3 s); prints one JSON line with the wall-clock
+                          # time of the first true
 """
 import json
 import sys
@@ -97,10 +101,30 @@ def drive():
                       "subscribers": pub.get_subscription_count(), "cleared": cleared}), flush=True)
 
 
+def estop():
+    from std_msgs.msg import Bool
+
+    node = Node("estop_button")
+    pub = node.create_publisher(Bool, "/ferrosa/estop", 10)
+    deadline = time.time() + 20
+    while time.time() < deadline and pub.get_subscription_count() == 0:
+        rclpy.spin_once(node, timeout_sec=0.05)
+    matched = pub.get_subscription_count()
+    # As a button's state topic does: released, then pressed. The first publish also
+    # warms rclpy's type support up, so the press below is timed on its own.
+    pub.publish(Bool(data=False))
+    time.sleep(0.2)
+    first = time.time()
+    for _ in range(30):
+        pub.publish(Bool(data=True))
+        time.sleep(0.01)
+    print(json.dumps({"published_at": first, "subscribers": matched}), flush=True)
+
+
 def _nodes(node):
     return sorted(("/" + ns.strip("/") + "/" + n).replace("//", "/") for n, ns in node.get_node_names_and_namespaces())
 
 
 if __name__ == "__main__":
     rclpy.init()
-    {"serve": serve, "drive": drive}[sys.argv[1]]()
+    {"serve": serve, "drive": drive, "estop": estop}[sys.argv[1]]()

@@ -7,7 +7,7 @@
 //! reply stays on script; a reply the grammar cannot produce shows up as a divergence.
 
 use std::collections::VecDeque;
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 
 use ferrosa::backend::bpe::Bpe;
 use ferrosa::backend::template::ChatTemplate;
@@ -30,6 +30,8 @@ pub struct Scripted {
     history: Vec<TokenId>,
     logits: Vec<f32>,
     context: usize,
+    /// Where every prompt the model was shown goes, when a test asks to see them.
+    probe: Option<Arc<Mutex<Vec<Vec<TokenId>>>>>,
 }
 
 impl Scripted {
@@ -82,11 +84,19 @@ impl Scripted {
             finished: false,
             history: Vec::new(),
             context: 8192,
+            probe: None,
         })
     }
 
     pub fn with_context(mut self, tokens: usize) -> Scripted {
         self.context = tokens;
+        self
+    }
+
+    /// Record the token history at the start of every assistant turn into `probe`.
+    #[allow(dead_code)]
+    pub fn with_probe(mut self, probe: Arc<Mutex<Vec<Vec<TokenId>>>>) -> Scripted {
+        self.probe = Some(probe);
         self
     }
 
@@ -150,6 +160,9 @@ impl Backend for Scripted {
         if start > keep || self.current.is_none() || self.finished || rewound {
             self.current = Some(self.replies.pop_front().unwrap_or_default());
             self.finished = false;
+            if let Some(p) = &self.probe {
+                p.lock().expect("probe lock").push(self.history.clone());
+            }
         }
         let reply = self.current.clone().unwrap_or_default();
         let written: Vec<u8> = self.history[start..]

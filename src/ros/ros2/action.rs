@@ -19,7 +19,7 @@ use ros2_client::qos::Durability as QDurability;
 use ros2_client::{ActionTypeName, ServiceMapping};
 use serde_json::{json, Value};
 
-use super::dds::{reliable_qos, ros_name, split_type, EndpointCache, Raw};
+use super::dds::{reliable_qos, ros_name, service_ready, split_type, EndpointCache, Raw};
 use crate::ros::cdr;
 use crate::ros::msg::normalize_type;
 use crate::ros::msg::Interfaces;
@@ -128,12 +128,15 @@ impl Actions {
             .await?;
         // Both services the goal needs: a result request sent before the server's reader
         // matches is lost, and the goal then looks as if it never ends.
-        let node = node.lock().await;
-        let ready = async {
-            client.goal_client().wait_for_service(&node).await;
-            client.result_client().wait_for_service(&node).await;
-        };
-        if tokio::time::timeout(timeout, ready).await.is_err() {
+        let start = Instant::now();
+        if !service_ready(node, client.goal_client(), timeout).await
+            || !service_ready(
+                node,
+                client.result_client(),
+                timeout.saturating_sub(start.elapsed()),
+            )
+            .await
+        {
             return Err(RosError::NoAction(action.to_string()));
         }
         Ok(client)
@@ -233,15 +236,9 @@ impl Actions {
         let (ty, kind) = action_type(type_name)?;
         let id = goal_id.map(parse_goal_id).transpose()?;
         let client = self.client(node, action, &ty, &kind, timeout).await?;
-        {
-            let node = node.lock().await;
-            let left = timeout.saturating_sub(start.elapsed());
-            if tokio::time::timeout(left, client.cancel_client().wait_for_service(&node))
-                .await
-                .is_err()
-            {
-                return Err(RosError::NoAction(action.to_string()));
-            }
+        let left = timeout.saturating_sub(start.elapsed());
+        if !service_ready(node, client.cancel_client(), left).await {
+            return Err(RosError::NoAction(action.to_string()));
         }
         let left = timeout
             .saturating_sub(start.elapsed())

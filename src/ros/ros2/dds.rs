@@ -202,6 +202,39 @@ pub(crate) fn dds_qos(q: &rustdds::QosPolicies) -> Qos {
     }
 }
 
+/// Wait up to `timeout` for `client` to see its server, holding the node's lock only a
+/// few milliseconds at a time: a wait for a slow service never keeps another task (the
+/// brake, above all) from the node.
+pub(crate) async fn service_ready<Q, A>(
+    node: &tokio::sync::Mutex<Node>,
+    client: &ros2_client::Client<Q, A>,
+    timeout: std::time::Duration,
+) -> bool
+where
+    Q: Message + 'static,
+    A: Message + 'static,
+{
+    let deadline = std::time::Instant::now() + timeout;
+    loop {
+        let ready = {
+            let node = node.lock().await;
+            tokio::time::timeout(
+                std::time::Duration::from_millis(5),
+                client.wait_for_service(&node),
+            )
+            .await
+            .is_ok()
+        };
+        if ready {
+            return true;
+        }
+        if std::time::Instant::now() >= deadline {
+            return false;
+        }
+        tokio::time::sleep(std::time::Duration::from_millis(25)).await;
+    }
+}
+
 /// Endpoints made on first use and kept, by (ROS name, type).
 pub(crate) struct EndpointCache<T> {
     map: Mutex<HashMap<(String, String), Arc<T>>>,

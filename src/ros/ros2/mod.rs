@@ -18,7 +18,7 @@ mod dds;
 
 pub(crate) use action::server_qos as action_server_qos;
 pub(crate) use dds::{background, context, reliable_qos, ros_name, split_type, Raw};
-use dds::{dds_qos, EndpointCache};
+use dds::{dds_qos, service_ready, EndpointCache};
 pub use dds::{DiscoveryRange, Ros2Options};
 
 use std::sync::{Arc, Mutex};
@@ -37,7 +37,9 @@ use super::graph::{
     Reliability,
 };
 use super::msg::normalize_type;
-use super::{BoxFuture, CancelOutcome, GoalOutcome, Interfaces, RosError, RosGraph, Sample};
+use super::{
+    typedesc, BoxFuture, CancelOutcome, GoalOutcome, Interfaces, RosError, RosGraph, Sample,
+};
 
 // `ros_discovery_info`, read with our own types (rmw_dds_common, Jazzy: 16-byte GIDs).
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -70,6 +72,7 @@ pub struct Ros2Graph {
     publishers: EndpointCache<ros2_client::Publisher<Raw>>,
     clients: EndpointCache<ros2_client::Client<Raw, Raw>>,
     actions: action::Actions,
+    fence: std::sync::OnceLock<Arc<crate::fence::Fence>>,
 }
 
 impl Ros2Graph {
@@ -135,6 +138,7 @@ impl Ros2Graph {
             publishers: EndpointCache::default(),
             clients: EndpointCache::default(),
             actions: action::Actions::default(),
+            fence: std::sync::OnceLock::new(),
         })
     }
 
@@ -185,11 +189,14 @@ impl Ros2Graph {
     }
 
     /// Learn `ty`, used on `topic`, from a node that publishes or subscribes to it: its
-    /// `~/get_type_description` service (Jazzy and newer) answers with the definitions of
-    /// the type and every type it nests, given the type hash from discovery.
-    async fn learn_type(&self, topic: &str, ty: &str, timeout: Duration) {
+    /// `~/get_type_description` service (Jazzy and newer) answers with the description of
+    /// the type and every type it nests; it is used only when it hashes to the type hash
+    /// the node announced (`typedesc`), and never replaces a type already known. Nodes
+    /// behind the fence are not asked.
+    async fn learn_type(&self, topic: &str, ty: &str, timeout: Duration) -> Result<(), RosError> {
         let g = self.snapshot();
         let mut asked = Vec::new();
+        let mut why = format!("no node on {topic} described {ty}");
         for e in g.publishers.iter().chain(&g.subscribers) {
             let (Some(node), Some(hash)) = (&e.node, &e.type_hash) else {
                 continue;
@@ -198,10 +205,13 @@ impl Ros2Graph {
                 continue;
             }
             asked.push(node.clone());
+            let service = format!("{}/get_type_description", node.trim_end_matches('/'));
+            if self.fence.get().is_some_and(|f| f.denies(&service)) {
+                continue;
+            }
             let request = serde_json::json!({
                 "type_name": ty, "type_hash": hash, "include_type_sources": true,
             });
-            let service = format!("{}/get_type_description", node.trim_end_matches('/'));
             let answer = self
                 .do_call(
                     &service,
@@ -213,31 +223,38 @@ impl Ros2Graph {
             let response = match answer {
                 Ok(r) if r["successful"] == true => r,
                 Ok(r) => {
-                    tracing::debug!("{service}: {}", r["failure_reason"]);
+                    why = format!("{service}: {}", r["failure_reason"]);
                     continue;
                 }
                 Err(e) => {
-                    tracing::debug!("{service}: {e}");
+                    why = e.to_string();
                     continue;
                 }
             };
-            for source in response["type_sources"].as_array().into_iter().flatten() {
-                let (Some(name), Some(text)) = (
-                    source["type_name"].as_str(),
-                    source["raw_file_contents"].as_str(),
-                ) else {
+            match typedesc::verified_definitions(&response["type_description"], hash) {
+                Ok(defs) => {
+                    self.interfaces.learn(defs);
+                }
+                Err(e) => {
+                    tracing::warn!(%service, "{e}");
+                    why = e.to_string();
                     continue;
-                };
-                if matches!(source["encoding"].as_str(), Some("msg" | "srv" | "action")) {
-                    if let Err(e) = self.interfaces.add(name, text) {
-                        tracing::debug!("{name} from {service}: {e}");
-                    }
                 }
             }
             if self.interfaces.message(ty).is_ok() {
-                return;
+                return Ok(());
             }
         }
+        Err(RosError::Decode {
+            type_name: ty.to_string(),
+            reason: why,
+        })
+    }
+
+    /// The fence applied to what this graph asks of other nodes by itself (type
+    /// descriptions); tools' requests meet it at `ros::guard`.
+    pub fn set_fence(&self, fence: Arc<crate::fence::Fence>) {
+        let _ = self.fence.set(fence);
     }
 
     async fn do_subscribe(
@@ -276,7 +293,7 @@ impl Ros2Graph {
             (None, None) => return Err(RosError::NoTopic(topic.to_string())),
         };
         if self.interfaces.message(&ty).is_err() {
-            self.learn_type(topic, &ty, Duration::from_secs(3)).await;
+            self.learn_type(topic, &ty, Duration::from_secs(3)).await?;
         }
         self.interfaces.message(&ty).map_err(|e| RosError::Decode {
             type_name: ty.clone(),
@@ -349,23 +366,17 @@ impl Ros2Graph {
         Ok(out)
     }
 
-    async fn do_publish(
+    /// The publisher for `topic` of type `ty`, made on first use (volatile: a late
+    /// subscriber must never receive an old command).
+    async fn publisher(
         &self,
         topic: &str,
-        type_name: &str,
-        message: Value,
-    ) -> Result<(), RosError> {
-        let ty = normalize_type(type_name);
-        let bytes =
-            cdr::encode(&self.interfaces, &ty, &message, 0).map_err(|e| RosError::Encode {
-                type_name: ty.clone(),
-                reason: e.to_string(),
-            })?;
+        ty: &str,
+    ) -> Result<Arc<ros2_client::Publisher<Raw>>, RosError> {
         let (publisher, _) = self
             .publishers
-            .get_or_make(&self.node, topic, &ty, |node| {
-                let (pkg, _, short) = split_type(&ty)?;
-                // Volatile: a late subscriber must never receive an old command.
+            .get_or_make(&self.node, topic, ty, |node| {
+                let (pkg, _, short) = split_type(ty)?;
                 let qos = reliable_qos(QDurability::Volatile, 10);
                 let failed = |e| RosError::Other(format!("publish {topic}: {e:?}"));
                 let t = node
@@ -374,14 +385,32 @@ impl Ros2Graph {
                 node.create_publisher::<Raw>(&t, Some(qos)).map_err(failed)
             })
             .await?;
-        // A volatile message sent before any subscriber matched is lost: wait for one.
+        Ok(publisher)
+    }
+
+    fn encode(&self, ty: &str, message: &Value) -> Result<Vec<u8>, RosError> {
+        cdr::encode(&self.interfaces, ty, message, 0).map_err(|e| RosError::Encode {
+            type_name: ty.to_string(),
+            reason: e.to_string(),
+        })
+    }
+
+    async fn do_publish(
+        &self,
+        topic: &str,
+        type_name: &str,
+        message: Value,
+        wait_for_subscriber: bool,
+    ) -> Result<super::Delivery, RosError> {
+        let ty = normalize_type(type_name);
+        let bytes = self.encode(&ty, &message)?;
+        let publisher = self.publisher(topic, &ty).await?;
+        // A volatile message sent before any subscriber matched is lost: wait for one
+        // (not when braking: a stop goes out at once to whoever is there).
         let timeout = Duration::from_secs(3);
         let until = Instant::now() + timeout;
-        loop {
-            let matched = publisher.get_subscription_count(&*self.node.lock().await);
-            if matched > 0 {
-                break;
-            }
+        while wait_for_subscriber && publisher.get_subscription_count(&*self.node.lock().await) == 0
+        {
             if Instant::now() >= until {
                 return Err(RosError::NoSubscriber {
                     topic: topic.to_string(),
@@ -393,7 +422,46 @@ impl Ros2Graph {
         publisher
             .async_publish(Raw(bytes))
             .await
-            .map_err(|e| RosError::Other(format!("publish {topic}: {e:?}")))
+            .map_err(|e| RosError::Other(format!("publish {topic}: {e:?}")))?;
+        Ok(super::Delivery::to(topic))
+    }
+
+    /// Every message of `topic` from now on, decoded, into a channel; best effort and
+    /// volatile, so it matches any publisher.
+    async fn do_watch(&self, topic: &str, type_name: &str) -> Result<super::Watch, RosError> {
+        let ty = normalize_type(type_name);
+        self.interfaces.message(&ty).map_err(|e| RosError::Decode {
+            type_name: ty.clone(),
+            reason: e.to_string(),
+        })?;
+        let (pkg, _, short) = split_type(&ty)?;
+        let qos = reliable_qos(QDurability::Volatile, 16).reliability(QReliability::BestEffort);
+        let sub = {
+            let mut node = self.node.lock().await;
+            let t = node
+                .create_topic(&ros_name(topic)?, MessageTypeName::new(&pkg, &short), &qos)
+                .map_err(|e| RosError::Other(format!("watch {topic}: {e:?}")))?;
+            node.create_subscription::<Raw>(&t, Some(qos))
+                .map_err(|e| RosError::Other(format!("watch {topic}: {e:?}")))?
+        };
+        let (tx, rx) = tokio::sync::mpsc::unbounded_channel();
+        let interfaces = self.interfaces.clone();
+        background().spawn(async move {
+            loop {
+                match sub.async_take().await {
+                    Ok((raw, _)) => match cdr::decode(&interfaces, &ty, &raw.0, 0) {
+                        Ok(v) => {
+                            if tx.send(v).is_err() {
+                                return;
+                            }
+                        }
+                        Err(e) => tracing::debug!("watch: {e}"),
+                    },
+                    Err(e) => tracing::debug!("watch: {e:?}"),
+                }
+            }
+        });
+        Ok(rx)
     }
 
     async fn do_call(
@@ -431,14 +499,8 @@ impl Ros2Graph {
                 .map_err(|e| RosError::Other(format!("client {service}: {e:?}")))
             })
             .await?;
-        {
-            let node = self.node.lock().await;
-            if tokio::time::timeout(timeout, client.wait_for_service(&node))
-                .await
-                .is_err()
-            {
-                return Err(RosError::NoService(service.to_string()));
-            }
+        if !service_ready(&self.node, &client, timeout).await {
+            return Err(RosError::NoService(service.to_string()));
         }
         if fresh {
             // We see the server, but the server may not see our reply reader yet: Fast DDS
@@ -500,8 +562,36 @@ impl RosGraph for Ros2Graph {
         topic: &'a str,
         type_name: &'a str,
         message: Value,
+    ) -> BoxFuture<'a, Result<super::Delivery, RosError>> {
+        Box::pin(self.do_publish(topic, type_name, message, true))
+    }
+
+    fn publish_now<'a>(
+        &'a self,
+        topic: &'a str,
+        type_name: &'a str,
+        message: Value,
+    ) -> BoxFuture<'a, Result<super::Delivery, RosError>> {
+        Box::pin(self.do_publish(topic, type_name, message, false))
+    }
+
+    fn advertise<'a>(
+        &'a self,
+        topic: &'a str,
+        type_name: &'a str,
     ) -> BoxFuture<'a, Result<(), RosError>> {
-        Box::pin(self.do_publish(topic, type_name, message))
+        Box::pin(async move {
+            self.publisher(topic, &normalize_type(type_name)).await?;
+            Ok(())
+        })
+    }
+
+    fn watch<'a>(
+        &'a self,
+        topic: &'a str,
+        type_name: &'a str,
+    ) -> BoxFuture<'a, Result<super::Watch, RosError>> {
+        Box::pin(self.do_watch(topic, type_name))
     }
 
     fn call_service<'a>(
@@ -510,8 +600,12 @@ impl RosGraph for Ros2Graph {
         type_name: &'a str,
         request: Value,
         timeout: Duration,
-    ) -> BoxFuture<'a, Result<Value, RosError>> {
-        Box::pin(self.do_call(service, type_name, request, timeout))
+    ) -> BoxFuture<'a, Result<super::Reply, RosError>> {
+        Box::pin(async move {
+            self.do_call(service, type_name, request, timeout)
+                .await
+                .map(super::Reply::from)
+        })
     }
 
     fn send_goal<'a>(

@@ -16,7 +16,7 @@
 mod rotate;
 mod world;
 
-use world::{normalize_angle, Shared, Turtle, World, PUBLISH_AFTER, STEP};
+use world::{normalize_angle, Command, Shared, Turtle, World, INPUTS, PUBLISH_AFTER, STEP};
 pub use world::{ARENA, CENTER};
 
 use std::collections::BTreeMap;
@@ -25,7 +25,7 @@ use std::time::{Duration, Instant};
 
 use ros2_client::log::LogLevel;
 use ros2_client::parameters::ParameterValue;
-use ros2_client::qos::Durability as QDurability;
+use ros2_client::qos::{Durability as QDurability, Reliability as QReliability};
 use ros2_client::{
     Context, MessageTypeName, Node, NodeName, NodeOptions, ServiceMapping, ServiceTypeName,
 };
@@ -158,6 +158,91 @@ impl Sim {
 }
 
 /// The integrator: turtlesim's update loop at 62.5 Hz.
+/// Follow one velocity input of `name`'s mux (`<name>/<topic>`, geometry_msgs/Twist).
+fn follow_velocity(
+    rt: &tokio::runtime::Handle,
+    shared: &Arc<Shared>,
+    node: &mut Node,
+    name: &str,
+    topic: &str,
+    input: usize,
+) -> Result<JoinHandle<()>, RosError> {
+    let qos = reliable_qos(QDurability::Volatile, 10);
+    let t = node
+        .create_topic(
+            &ros_name(&format!("/{name}/{topic}"))?,
+            message_type("geometry_msgs/msg/Twist")?,
+            &qos,
+        )
+        .map_err(|e| err(topic, e))?;
+    // Best effort reads what reliable and best-effort writers (teleop tools) both send.
+    let sub = node
+        .create_subscription::<Raw>(&t, Some(qos.reliability(QReliability::BestEffort)))
+        .map_err(|e| err(topic, e))?;
+    let (s, who) = (shared.clone(), name.to_string());
+    Ok(rt.spawn(async move {
+        loop {
+            let Ok((raw, _)) = sub.async_take().await else {
+                continue;
+            };
+            let Ok(twist) = cdr::decode(&s.interfaces, "geometry_msgs/msg/Twist", &raw.0, 0) else {
+                continue;
+            };
+            let mut world = s.world.lock().expect("world");
+            let Some(t) = world.turtles.get_mut(&who) else {
+                break;
+            };
+            t.inputs[input] = Some(Command {
+                linear: twist["linear"]["x"].as_f64().unwrap_or(0.0),
+                angular: twist["angular"]["z"].as_f64().unwrap_or(0.0),
+                at: Instant::now(),
+            });
+        }
+    }))
+}
+
+/// Publish which mux input drives `name` (`<name>/cmd_vel_mux/active`, std_msgs/String:
+/// "teleop", "agent" or "none"; latched), whenever it changes.
+fn report_mux(
+    rt: &tokio::runtime::Handle,
+    shared: &Arc<Shared>,
+    node: &mut Node,
+    name: &str,
+) -> Result<JoinHandle<()>, RosError> {
+    let qos = reliable_qos(QDurability::TransientLocal, 1);
+    let topic = format!("/{name}/cmd_vel_mux/active");
+    let t = node
+        .create_topic(
+            &ros_name(&topic)?,
+            message_type("std_msgs/msg/String")?,
+            &qos,
+        )
+        .map_err(|e| err("mux status", e))?;
+    let publisher = node
+        .create_publisher::<Raw>(&t, Some(qos))
+        .map_err(|e| err("mux status", e))?;
+    let (s, who) = (shared.clone(), name.to_string());
+    Ok(rt.spawn(async move {
+        let mut last: Option<&str> = None;
+        let mut tick = tokio::time::interval(STEP);
+        loop {
+            tick.tick().await;
+            let active = {
+                let world = s.world.lock().expect("world");
+                let Some(t) = world.turtles.get(&who) else {
+                    break;
+                };
+                t.active(Instant::now()).map_or("none", |i| INPUTS[i].1)
+            };
+            if last != Some(active) {
+                last = Some(active);
+                let msg = encode(&s, "std_msgs/msg/String", &json!({"data": active}));
+                let _ = publisher.async_publish(msg).await;
+            }
+        }
+    }))
+}
+
 async fn physics(shared: Arc<Shared>) {
     let mut tick = tokio::time::interval(STEP);
     let mut last = Instant::now();
@@ -218,24 +303,39 @@ fn add_turtle(
     name: &str,
     turtle: Turtle,
 ) -> Result<(), RosError> {
+    // In the world before its tasks start: each ends when it finds the turtle gone.
+    shared
+        .world
+        .lock()
+        .expect("world")
+        .turtles
+        .insert(name.to_string(), turtle);
+    match turtle_tasks(rt, shared, node, name) {
+        Ok(tasks) => {
+            let mut world = shared.world.lock().expect("world");
+            world.tasks.insert(name.to_string(), tasks);
+            Ok(())
+        }
+        Err(e) => {
+            shared.world.lock().expect("world").turtles.remove(name);
+            Err(e)
+        }
+    }
+}
+
+/// The tasks that serve one turtle (already in the world).
+fn turtle_tasks(
+    rt: &tokio::runtime::Handle,
+    shared: &Arc<Shared>,
+    node: &mut Node,
+    name: &str,
+) -> Result<Vec<JoinHandle<()>>, RosError> {
     let pose = publisher(node, &format!("/{name}/pose"), "turtlesim/msg/Pose")?;
     let color = publisher(
         node,
         &format!("/{name}/color_sensor"),
         "turtlesim/msg/Color",
     )?;
-    let qos = reliable_qos(QDurability::Volatile, 10);
-    let t = node
-        .create_topic(
-            &ros_name(&format!("/{name}/cmd_vel"))?,
-            message_type("geometry_msgs/msg/Twist")?,
-            &qos,
-        )
-        .map_err(|e| err("cmd_vel", e))?;
-    let cmd = node
-        .create_subscription::<Raw>(&t, Some(qos))
-        .map_err(|e| err("cmd_vel", e))?;
-
     let mut tasks = Vec::new();
     let (s, who) = (shared.clone(), name.to_string());
     tasks.push(rt.spawn(async move {
@@ -262,24 +362,10 @@ fn add_turtle(
             let _ = color.async_publish(color_msg).await;
         }
     }));
-    let (s, who) = (shared.clone(), name.to_string());
-    tasks.push(rt.spawn(async move {
-        loop {
-            let Ok((raw, _)) = cmd.async_take().await else {
-                continue;
-            };
-            let Ok(twist) = cdr::decode(&s.interfaces, "geometry_msgs/msg/Twist", &raw.0, 0) else {
-                continue;
-            };
-            let mut world = s.world.lock().expect("world");
-            let Some(t) = world.turtles.get_mut(&who) else {
-                break;
-            };
-            t.linear = twist["linear"]["x"].as_f64().unwrap_or(0.0);
-            t.angular = twist["angular"]["z"].as_f64().unwrap_or(0.0);
-            t.commanded = Some(Instant::now());
-        }
-    }));
+    for (input, (topic, _)) in INPUTS.iter().enumerate() {
+        tasks.push(follow_velocity(rt, shared, node, name, topic, input)?);
+    }
+    tasks.push(report_mux(rt, shared, node, name)?);
     for (svc, ty) in [
         ("set_pen", "turtlesim/srv/SetPen"),
         ("teleport_absolute", "turtlesim/srv/TeleportAbsolute"),
@@ -295,10 +381,7 @@ fn add_turtle(
         )?);
     }
     tasks.extend(rotate::serve(rt, shared, node, name)?);
-    let mut world = shared.world.lock().expect("world");
-    world.turtles.insert(name.to_string(), turtle);
-    world.tasks.insert(name.to_string(), tasks);
-    Ok(())
+    Ok(tasks)
 }
 
 /// Battery and diagnostics at 1 Hz.
@@ -523,8 +606,11 @@ mod tests {
     fn one_second_at_one_metre_per_second_moves_one_metre() {
         let start = Instant::now();
         let mut t = Turtle::at(CENTER, CENTER, 0.0);
-        t.linear = 1.0;
-        t.commanded = Some(start);
+        t.inputs[1] = Some(Command {
+            linear: 1.0,
+            angular: 0.0,
+            at: start,
+        });
         let mut now = start;
         for _ in 0..62 {
             now += STEP;
@@ -538,16 +624,44 @@ mod tests {
     }
 
     #[test]
+    fn the_operators_input_wins_over_the_agents() {
+        let now = Instant::now();
+        let mut t = Turtle::at(CENTER, CENTER, 0.0);
+        let command = |linear: f64, at: Instant| {
+            Some(Command {
+                linear,
+                angular: 0.0,
+                at,
+            })
+        };
+        t.inputs[1] = command(1.0, now);
+        t.inputs[0] = command(-0.5, now);
+        t.step(0.1, now);
+        assert_eq!((t.active(now), t.linear), (Some(0), -0.5));
+        // Once the operator's command is older than the hold, the agent's drives again.
+        t.inputs[1] = command(1.0, now + Duration::from_millis(1100));
+        let later = now + Duration::from_millis(1200);
+        t.step(0.1, later);
+        assert_eq!((t.active(later), t.linear), (Some(1), 1.0));
+    }
+
+    #[test]
     fn turning_wraps_and_walls_clamp() {
         let now = Instant::now();
         let mut t = Turtle::at(CENTER, CENTER, 3.0);
-        t.angular = 1.0;
-        t.commanded = Some(now);
+        t.inputs[1] = Some(Command {
+            linear: 0.0,
+            angular: 1.0,
+            at: now,
+        });
         t.step(0.5, now);
         assert!((t.theta - (3.5 - 2.0 * std::f64::consts::PI)).abs() < 1e-9);
         let mut t = Turtle::at(11.0, CENTER, 0.0);
-        t.linear = 2.0;
-        t.commanded = Some(now);
+        t.inputs[0] = Some(Command {
+            linear: 2.0,
+            angular: 0.0,
+            at: now,
+        });
         assert!(t.step(0.5, now));
         assert_eq!(t.x, ARENA);
     }

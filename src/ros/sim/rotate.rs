@@ -13,7 +13,7 @@ use ros2_client::{ActionTypeName, Message, Node, ServiceMapping};
 use serde::{Deserialize, Serialize};
 use tokio::task::JoinHandle;
 
-use super::world::{normalize_angle, Rotation, Shared, STEP};
+use super::world::{normalize_angle, Command, Rotation, Shared, AGENT, STEP};
 use crate::ros::ros2::{action_server_qos, ros_name};
 use crate::ros::RosError;
 
@@ -148,14 +148,17 @@ async fn execute(
                     match end {
                         Some(status) => {
                             world.rotations.remove(&who);
-                            t.angular = 0.0;
-                            t.linear = 0.0;
+                            t.inputs[AGENT] = None;
                             Next::End(status, turned)
                         }
                         None => {
-                            t.linear = 0.0;
-                            t.angular = if remaining < 0.0 { -1.0 } else { 1.0 };
-                            t.commanded = Some(Instant::now());
+                            // The action drives through the agent's input: the operator's
+                            // teleop takes over from it as from any agent command.
+                            t.inputs[AGENT] = Some(Command {
+                                linear: 0.0,
+                                angular: if remaining < 0.0 { -1.0 } else { 1.0 },
+                                at: Instant::now(),
+                            });
                             Next::Feedback(remaining)
                         }
                     }
@@ -172,6 +175,12 @@ async fn execute(
                 let _ = server.publish_feedback(exec, feedback).await;
             }
             Next::End(status, delta) => {
+                let how = match status {
+                    GoalEndStatus::Succeeded => "completed",
+                    GoalEndStatus::Canceled => "canceled",
+                    _ => "aborted",
+                };
+                shared.log(LogLevel::Info, &format!("Rotation goal {how}"));
                 let result = Outcome {
                     delta: delta as f32,
                 };

@@ -25,6 +25,20 @@ pub(super) const COMMAND_HOLD: Duration = Duration::from_secs(1);
 /// How long after start-up (or a spawn) a turtle's topics begin to publish.
 pub(super) const PUBLISH_AFTER: Duration = Duration::from_secs(2);
 
+/// The inputs of a turtle's velocity mux, highest priority first (twist_mux semantics:
+/// the highest-priority input that commanded within `COMMAND_HOLD` drives the turtle).
+pub(super) const INPUTS: [(&str, &str); 2] = [("cmd_vel", "teleop"), ("cmd_vel_agent", "agent")];
+/// The agent's input, in `INPUTS`.
+pub(super) const AGENT: usize = 1;
+
+/// One velocity command on one mux input.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct Command {
+    pub(super) linear: f64,
+    pub(super) angular: f64,
+    pub(super) at: Instant,
+}
+
 #[derive(Debug, Clone)]
 pub(super) struct Turtle {
     pub(super) x: f64,
@@ -32,7 +46,8 @@ pub(super) struct Turtle {
     pub(super) theta: f64,
     pub(super) linear: f64,
     pub(super) angular: f64,
-    pub(super) commanded: Option<Instant>,
+    /// The last command on each mux input (`INPUTS`).
+    pub(super) inputs: [Option<Command>; 2],
     pub(super) pen_on: bool,
 }
 
@@ -44,7 +59,7 @@ impl Turtle {
             theta,
             linear: 0.0,
             angular: 0.0,
-            commanded: None,
+            inputs: [None; 2],
             pen_on: true,
         }
     }
@@ -52,13 +67,12 @@ impl Turtle {
     /// One turtlesim update: turn, then move, then stay inside the arena.
     /// Returns true when the turtle hit the wall.
     pub(super) fn step(&mut self, dt: f64, now: Instant) -> bool {
-        if self
-            .commanded
-            .map(|t| now.duration_since(t) > COMMAND_HOLD)
-            .unwrap_or(true)
-        {
-            self.linear = 0.0;
-            self.angular = 0.0;
+        match self.active(now) {
+            Some(i) => {
+                let c = self.inputs[i].expect("an active input has a command");
+                (self.linear, self.angular) = (c.linear, c.angular);
+            }
+            None => (self.linear, self.angular) = (0.0, 0.0),
         }
         self.theta = normalize_angle(self.theta + self.angular * dt);
         self.x += self.theta.cos() * self.linear * dt;
@@ -67,6 +81,13 @@ impl Turtle {
         self.x = self.x.clamp(0.0, ARENA);
         self.y = self.y.clamp(0.0, ARENA);
         hit
+    }
+
+    /// The mux input driving the turtle now, if any.
+    pub(super) fn active(&self, now: Instant) -> Option<usize> {
+        self.inputs
+            .iter()
+            .position(|c| c.is_some_and(|c| now.duration_since(c.at) <= COMMAND_HOLD))
     }
 
     pub(super) fn pose(&self) -> Value {

@@ -226,3 +226,29 @@ pub(super) fn service_type(g: &Graph, service: &str) -> Result<String, ToolError
         )),
     }
 }
+
+/// A tool's output, with what the ROS boundary's limits changed in the request (a
+/// clamped speed) when they changed something: the model and the trace both see it.
+pub(crate) fn with_note(mut out: Value, note: Option<String>) -> Value {
+    if let Some(n) = note {
+        out["limited"] = json!(n);
+    }
+    out
+}
+
+/// What the mux did with a publish: the agent's input it went to, and whether the
+/// operator's own input holds the mux (the message is dropped meanwhile).
+pub(crate) fn with_mux(mut out: Value, asked: &str, d: &crate::ros::Delivery) -> Value {
+    if d.topic != asked {
+        out["mux"] = json!(format!(
+            "sent on {}, the agent's input; the operator's own input on {asked} takes priority",
+            d.topic
+        ));
+    }
+    if let Some(who) = &d.overridden_by {
+        out["overridden_by"] = json!(format!(
+            "the operator's input ({who}) holds the mux: this motion is dropped until it ends"
+        ));
+    }
+    out
+}

@@ -4,8 +4,8 @@ use schemars::JsonSchema;
 use serde::Deserialize;
 use serde_json::{json, Value};
 
-use super::base::{absolute, failed, require_node, NodeArgs, Ros};
-use crate::ros::RosError;
+use super::base::{absolute, failed, require_node, with_note, NodeArgs, Ros};
+use crate::ros::{Reply, RosError};
 use crate::tool::{Effect, Tool, ToolContext, ToolError};
 
 fn node_service(node: &str, which: &str) -> String {
@@ -19,7 +19,7 @@ async fn param_call(
     ty: &str,
     request: Value,
     cx: &ToolContext,
-) -> Result<Value, ToolError> {
+) -> Result<Reply, ToolError> {
     let node = absolute(node);
     let g = ros.snapshot().await?;
     require_node(&g, &node)?;
@@ -52,7 +52,8 @@ impl Tool for ParamList {
             json!({"prefixes": [], "depth": 0}),
             cx,
         )
-        .await?;
+        .await?
+        .response;
         let names = r["result"]["names"].clone();
         Ok(
             json!({"node": absolute(&a.node), "count": names.as_array().map_or(0, Vec::len), "parameters": names}),
@@ -103,7 +104,8 @@ impl Tool for ParamGet {
             json!({"names": [a.name]}),
             cx,
         )
-        .await?;
+        .await?
+        .response;
         let value = param_value(&r["values"][0]);
         if value.is_null() {
             return Err(ToolError::Failed(format!(
@@ -153,7 +155,8 @@ impl Tool for ParamSet {
             json!({"names": [a.name]}),
             cx,
         )
-        .await?;
+        .await?
+        .response;
         let kind = current["values"][0]["type"].as_u64().unwrap_or(0);
         let value = match (&a.value, kind) {
             (ParamInput::Bool(b), _) => json!({"type": 1, "bool_value": b}),
@@ -178,7 +181,7 @@ impl Tool for ParamSet {
             cx,
         )
         .await?;
-        let result = &r["results"][0];
+        let result = &r.response["results"][0];
         if result["successful"] != json!(true) {
             return Err(ToolError::Failed(format!(
                 "{} refused: {}",
@@ -186,8 +189,9 @@ impl Tool for ParamSet {
                 result["reason"].as_str().unwrap_or("no reason given")
             )));
         }
-        Ok(
+        Ok(with_note(
             json!({"node": absolute(&a.node), "name": a.name, "value": param_value(&value), "set": true}),
-        )
+            r.note,
+        ))
     }
 }

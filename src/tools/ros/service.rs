@@ -4,7 +4,7 @@ use schemars::JsonSchema;
 use serde::Deserialize;
 use serde_json::{json, Map, Value};
 
-use super::base::{absolute, failed, service_type, Ros};
+use super::base::{absolute, failed, service_type, with_note, Ros};
 use crate::tool::{Effect, Tool, ToolContext, ToolError};
 
 #[derive(Deserialize, JsonSchema)]
@@ -30,12 +30,15 @@ impl Tool for ServiceCall {
         let g = self.0.snapshot().await?;
         let ty = service_type(&g, &service)?;
         let request = Value::Object(a.request.unwrap_or_default());
-        let response = self
+        let reply = self
             .0
             .graph
             .call_service(&service, &ty, request, cx.timeout)
             .await
             .map_err(failed)?;
-        Ok(json!({"service": service, "type": ty, "response": response}))
+        Ok(with_note(
+            json!({"service": service, "type": ty, "response": reply.response}),
+            reply.note,
+        ))
     }
 }

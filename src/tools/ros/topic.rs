@@ -6,7 +6,7 @@ use schemars::JsonSchema;
 use serde::Deserialize;
 use serde_json::{json, Map, Value};
 
-use super::base::{absolute, failed, Ros};
+use super::base::{absolute, failed, with_mux, with_note, Ros};
 use crate::tool::{Effect, Tool, ToolContext, ToolError};
 
 #[derive(Deserialize, JsonSchema)]
@@ -154,13 +154,14 @@ impl Tool for TopicPublish {
             }
         };
         let message = Value::Object(a.message);
-        self.0
+        let sent = self
+            .0
             .graph
             .publish(&topic, &ty, message.clone())
             .await
             .map_err(failed)?;
-        Ok(
-            json!({"published": true, "topic": topic, "type": crate::ros::msg::normalize_type(&ty), "message": message}),
-        )
+        let out = json!({"published": true, "topic": sent.topic, "type": crate::ros::msg::normalize_type(&ty),
+                         "message": sent.sent.clone().unwrap_or(message)});
+        Ok(with_note(with_mux(out, &topic, &sent), sent.note))
     }
 }

@@ -1,0 +1,216 @@
+//! Running calls: the one path every call takes after the policy, whoever asked for it
+//! (the agent's model, `ferrosa call`, a front end). Allowed calls run concurrently,
+//! each under the policy's time limit; all of them are aborted the moment the e-stop is
+//! engaged or the run is cancelled (a call's future is dropped where it stands, so a
+//! motion loop stops sending). Every output, result or error, is redacted by the fence
+//! before anyone sees it, and a result the ROS boundary clamped is marked as such.
+
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use serde_json::{json, Value};
+
+use super::{Decision, Effect, Policy, Registry, ToolCall, ToolContext, ToolError};
+
+/// What came of one call.
+#[derive(Debug, Clone)]
+pub struct Outcome {
+    pub output: Value,
+    pub ok: bool,
+    pub ms: f64,
+    /// The decision as it stands after the call (`Clamped` when the boundary clamped it).
+    pub decision: Decision,
+}
+
+/// Runs calls (see the module header).
+pub struct Executor {
+    registry: Registry,
+    policy: Arc<Policy>,
+    runtime: tokio::runtime::Runtime,
+}
+
+impl Executor {
+    pub fn new(registry: Registry, policy: Arc<Policy>) -> std::io::Result<Executor> {
+        let runtime = tokio::runtime::Builder::new_multi_thread()
+            .worker_threads(2)
+            .enable_all()
+            .build()?;
+        Ok(Executor {
+            registry,
+            policy,
+            runtime,
+        })
+    }
+
+    pub fn registry(&self) -> &Registry {
+        &self.registry
+    }
+
+    pub fn policy(&self) -> &Arc<Policy> {
+        &self.policy
+    }
+
+    /// The policy's decision on one call.
+    pub fn decide(&self, call: &ToolCall) -> Decision {
+        let tool = self.registry.get(&call.name).map(|t| t.as_ref());
+        self.policy.check(tool, call)
+    }
+
+    /// One call through the policy and, if allowed, run: what `ferrosa call` does.
+    pub fn call(&self, call: &ToolCall, cancel: &Arc<AtomicBool>) -> Outcome {
+        let decision = self.decide(call);
+        self.run(std::slice::from_ref(call), &[decision], cancel)
+            .pop()
+            .expect("one call, one outcome")
+    }
+
+    /// Run the calls whose decision allows it, concurrently; outcomes in call order.
+    /// Refused calls come back as their refusal.
+    pub fn run(
+        &self,
+        calls: &[ToolCall],
+        decisions: &[Decision],
+        cancel: &Arc<AtomicBool>,
+    ) -> Vec<Outcome> {
+        let timeout = self.policy.timeout;
+        let handles: Vec<_> = calls
+            .iter()
+            .zip(decisions)
+            .map(|(call, decision)| {
+                let tool = match decision {
+                    Decision::Refused(_) => None,
+                    _ => self.registry.get(&call.name).cloned(),
+                };
+                let refused = match decision {
+                    Decision::Refused(r) => Some(r.clone()),
+                    _ => None,
+                };
+                let args = call.arguments.clone();
+                let estop = self.policy.estop().clone();
+                self.runtime.spawn(async move {
+                    let start = Instant::now();
+                    let result = match (tool, refused) {
+                        (_, Some(reason)) => Err(ToolError::Refused(reason)),
+                        (None, None) => Err(ToolError::Failed("no such tool".into())),
+                        (Some(tool), None) => {
+                            let cx = ToolContext { timeout };
+                            let moves = tool.effect() == Effect::Actuates;
+                            match tokio::time::timeout(timeout, tool.call(args, &cx)).await {
+                                Ok(r) => r,
+                                Err(_) => {
+                                    // Out of time while moving: leave the robot stopped.
+                                    if moves {
+                                        estop.halt("the time limit of a moving call");
+                                    }
+                                    Err(ToolError::Timeout(timeout))
+                                }
+                            }
+                        }
+                    };
+                    (result, start.elapsed())
+                })
+            })
+            .collect();
+        // A press of the e-stop (or the operator's cancel) during the run aborts every
+        // running call but a stop.
+        let aborts: Vec<_> = handles
+            .iter()
+            .zip(calls)
+            .filter(|(_, c)| {
+                self.registry
+                    .get(&c.name)
+                    .is_none_or(|t| t.effect() != Effect::Stops)
+            })
+            .map(|(h, _)| h.abort_handle())
+            .collect();
+        let estop = self.policy.estop().clone();
+        let results = self.runtime.block_on(async {
+            let mut all = std::pin::pin!(futures::future::join_all(handles));
+            let stop = async {
+                tokio::select! {
+                    _ = estop.pressed() => "the e-stop was engaged",
+                    _ = cancelled(cancel) => "the operator cancelled the run",
+                }
+            };
+            let (joined, why) = tokio::select! {
+                r = &mut all => (r, None),
+                why = stop => {
+                    aborts.iter().for_each(|a| a.abort());
+                    // A cancel without the e-stop still leaves the robot stopped.
+                    if !estop.is_engaged() {
+                        estop.halt("the operator cancelled the run");
+                    }
+                    ((&mut all).await, Some(why))
+                }
+            };
+            joined
+                .into_iter()
+                .map(|j| {
+                    j.map_err(|e| match why {
+                        Some(why) if e.is_cancelled() => why.to_string(),
+                        _ => e.to_string(),
+                    })
+                })
+                .collect::<Vec<_>>()
+        });
+        results
+            .into_iter()
+            .zip(decisions)
+            .map(|(r, d)| self.outcome(r, d.clone()))
+            .collect()
+    }
+
+    fn outcome(
+        &self,
+        r: Result<(Result<Value, ToolError>, Duration), String>,
+        decision: Decision,
+    ) -> Outcome {
+        let (result, took) = match r {
+            Ok(x) => x,
+            Err(why) if why.contains("e-stop") || why.contains("cancelled") => (
+                Err(ToolError::Failed(format!("stopped: {why}"))),
+                Duration::ZERO,
+            ),
+            // A panicking tool is a failed call, not a crashed agent.
+            Err(e) => (
+                Err(ToolError::Failed(format!("the tool crashed: {e}"))),
+                Duration::ZERO,
+            ),
+        };
+        let ms = took.as_secs_f64() * 1e3;
+        match result {
+            Ok(mut v) => {
+                let hidden = self.policy.redact(&mut v);
+                if hidden > 0 {
+                    if let Value::Object(m) = &mut v {
+                        m.insert("hidden_by_policy".into(), json!(hidden));
+                    }
+                }
+                let decision = match v.get("limited").and_then(Value::as_str) {
+                    Some(what) => Decision::Clamped(what.to_string()),
+                    None => decision,
+                };
+                Outcome {
+                    output: v,
+                    ok: true,
+                    ms,
+                    decision,
+                }
+            }
+            Err(e) => Outcome {
+                output: json!({"error": self.policy.redact_text(&e.to_string())}),
+                ok: false,
+                ms,
+                decision,
+            },
+        }
+    }
+}
+
+/// Resolves once `flag` is set (checked every 20 ms).
+async fn cancelled(flag: &AtomicBool) {
+    while !flag.load(Ordering::SeqCst) {
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+}

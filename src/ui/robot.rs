@@ -1,0 +1,139 @@
+//! The robot the front ends act on: joining ROS 2 (and starting the built-in sim), the
+//! guarded graph every tool goes through (`ros::guard`: the deny-list, the e-stop, the
+//! motion limits, the mux), the tools that come with it, and the e-stop's ROS trigger
+//! (`/ferrosa/estop`, std_msgs/msg/Bool: `true` engages it, from any node or teleop).
+
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use crate::estop::EStop;
+use crate::limits::Motion;
+use crate::ros::guard::Guarded;
+use crate::ros::ros2::{Ros2Graph, Ros2Options};
+use crate::ros::sim::{Sim, ARENA};
+use crate::ros::RosGraph;
+use crate::tool::{Policy, Registry};
+
+/// The topic any node publishes `true` on to engage the e-stop.
+pub const ESTOP_TOPIC: &str = "/ferrosa/estop";
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Robot {
+    None,
+    Sim,
+    Ros2,
+}
+
+/// What keeps the robot connection alive for the agent's lifetime.
+pub struct RobotLink {
+    pub graph: Option<Arc<Ros2Graph>>,
+    pub sim: Option<Sim>,
+}
+
+/// Join ROS 2 (and start the sim first when asked), then wait until the graph shows it;
+/// `verbose` reports the discovery on stderr.
+pub fn connect(robot: Robot, verbose: bool) -> anyhow::Result<RobotLink> {
+    if robot == Robot::None {
+        return Ok(RobotLink {
+            graph: None,
+            sim: None,
+        });
+    }
+    let opts = Ros2Options::from_env()?;
+    let start = Instant::now();
+    // The agent's participant first: RustDDS peers discover a publishing sim late.
+    let graph = Arc::new(Ros2Graph::start(
+        &opts,
+        &format!("_ferrosa_{}", std::process::id()),
+    )?);
+    let sim = if robot == Robot::Sim {
+        Some(Sim::start(&opts)?)
+    } else {
+        None
+    };
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_time()
+        .build()?;
+    let limit = Duration::from_secs(if robot == Robot::Sim { 15 } else { 4 });
+    let found = rt.block_on(async {
+        loop {
+            let g = graph.graph().await.unwrap_or_default();
+            let ready = match robot {
+                Robot::Sim => Sim::discovered_in(&g),
+                _ => !g.nodes.is_empty() && start.elapsed() > Duration::from_secs(2),
+            };
+            if ready || start.elapsed() > limit {
+                return (ready, g.nodes.len());
+            }
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        }
+    });
+    match found {
+        (true, _) if !verbose => {}
+        (true, n) => eprintln!("robot: {n} ROS node(s) discovered in {} ms (domain {}, {:?})", start.elapsed().as_millis(), opts.domain_id, opts.range),
+        (false, _) if robot == Robot::Sim => anyhow::bail!("the built-in sim did not appear on ROS 2 within {limit:?}; run with FERROSA_LOG=rustdds=warn to see why"),
+        (false, _) => eprintln!("robot: no ROS 2 node found within {limit:?} (domain {}, {:?}); check ROS_DOMAIN_ID and ROS_AUTOMATIC_DISCOVERY_RANGE", opts.domain_id, opts.range),
+    }
+    Ok(RobotLink {
+        graph: Some(graph),
+        sim,
+    })
+}
+
+/// The built-in sim's motion wiring, where the policy file says nothing: its velocity
+/// topic goes through its mux (the operator's `/turtle1/cmd_vel` over the agent's
+/// `/turtle1/cmd_vel_agent`), and absolute teleports stay in the arena.
+pub fn sim_motion(mut m: Motion) -> Motion {
+    if m.velocity_topics.is_empty() {
+        m.velocity_topics = vec!["/turtle1/cmd_vel".into()];
+    }
+    if m.mux.is_empty() {
+        m.mux
+            .insert("/turtle1/cmd_vel".into(), "/turtle1/cmd_vel_agent".into());
+    }
+    if m.mux_status.is_none() {
+        m.mux_status = Some("/turtle1/cmd_vel_mux/active".into());
+    }
+    if m.workspace.is_none() {
+        m.workspace = Some([0.0, 0.0, ARENA, ARENA]);
+    }
+    m
+}
+
+/// The graph the tools get: `raw` behind the policy's fence, e-stop and motion limits
+/// (with the sim's wiring when it is the sim). The ROS e-stop trigger is followed on
+/// `raw` from here on.
+pub fn guard(raw: Arc<dyn RosGraph>, policy: &Policy, robot: Robot) -> Arc<dyn RosGraph> {
+    let motion = match robot {
+        Robot::Sim => sim_motion(policy.motion.clone()),
+        _ => policy.motion.clone(),
+    };
+    follow_estop_topic(raw.clone(), policy.estop().clone());
+    Guarded::new(raw, policy.fence().clone(), policy.estop().clone(), motion)
+}
+
+/// Engage `estop` whenever a node publishes `true` on `/ferrosa/estop`.
+fn follow_estop_topic(raw: Arc<dyn RosGraph>, estop: Arc<EStop>) {
+    super::on_own_thread("estop-topic", move || async move {
+        let mut rx = match raw.watch(ESTOP_TOPIC, "std_msgs/msg/Bool").await {
+            Ok(rx) => rx,
+            Err(e) => {
+                tracing::error!("cannot follow {ESTOP_TOPIC}: {e}");
+                return;
+            }
+        };
+        while let Some(v) = rx.recv().await {
+            if v["data"] == true {
+                estop.trigger(&format!("a ROS node on {ESTOP_TOPIC}"));
+            }
+        }
+    });
+}
+
+/// The ROS tools over `graph` (already guarded), and the turtle's own for the sim.
+pub fn add_ros_tools(registry: &mut Registry, graph: Arc<dyn RosGraph>, robot: Robot) {
+    registry.add(crate::tools::ros::package(graph.clone()));
+    if robot == Robot::Sim {
+        registry.add(crate::tools::turtle::package(graph, "turtle1"));
+    }
+}

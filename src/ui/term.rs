@@ -1,0 +1,152 @@
+//! The operator's terminal: text from the model or a robot is cleaned before it is
+//! printed (no escape sequences, no control characters, no bidirectional overrides that
+//! would make an answer read otherwise than it is), and confirmations are asked on it.
+//!
+//! Input comes from one reader thread (`Input`), so the operator can type `/stop` while
+//! a run (or a confirmation question) is in progress: `/stop` engages the e-stop the
+//! moment it is read, every other line waits for whoever asks. Tool calls the operator types
+//! (`/call`, `ferrosa call`) are parsed and reported here.
+
+use std::io::{BufRead, Write};
+use std::sync::mpsc::{Receiver, Sender};
+use std::sync::{Arc, Mutex};
+
+use anyhow::Context;
+use serde_json::{json, Value};
+
+use crate::estop::EStop;
+use crate::tool::exec::Outcome;
+use crate::tool::{Confirm, ToolCall};
+
+/// `text` safe to print: escape sequences and control characters (but newlines and
+/// tabs) removed, bidirectional overrides and other invisible format characters dropped.
+pub fn clean(text: &str) -> String {
+    let mut out = String::with_capacity(text.len());
+    let mut chars = text.chars().peekable();
+    while let Some(c) = chars.next() {
+        match c {
+            // ESC [ ... final byte: a CSI sequence; ESC ] ... BEL/ST: an OSC sequence.
+            '\u{1b}' => match chars.peek() {
+                Some('[') => {
+                    chars.next();
+                    for d in chars.by_ref() {
+                        if ('@'..='~').contains(&d) {
+                            break;
+                        }
+                    }
+                }
+                Some(']') => {
+                    chars.next();
+                    while let Some(d) = chars.next() {
+                        if d == '\u{7}' || (d == '\u{1b}' && chars.peek() == Some(&'\\')) {
+                            break;
+                        }
+                    }
+                }
+                _ => {}
+            },
+            '\n' | '\t' => out.push(c),
+            c if c.is_control() => {}
+            '\u{200b}'..='\u{200f}'
+            | '\u{202a}'..='\u{202e}'
+            | '\u{2066}'..='\u{2069}'
+            | '\u{feff}' => {}
+            c => out.push(c),
+        }
+    }
+    out
+}
+
+/// Lines the operator types, read by one thread (see the module header).
+pub struct Input {
+    lines: Mutex<Receiver<String>>,
+}
+
+impl Input {
+    /// Start reading standard input. `/stop` (and `/estop`) trigger `estop` at once and
+    /// set `cancel`; every line (those too) is also passed on.
+    pub fn start(estop: Arc<EStop>, cancel: Arc<std::sync::atomic::AtomicBool>) -> Arc<Input> {
+        let (tx, rx): (Sender<String>, Receiver<String>) = std::sync::mpsc::channel();
+        std::thread::Builder::new()
+            .name("stdin".into())
+            .spawn(move || {
+                let stdin = std::io::stdin();
+                for line in stdin.lock().lines() {
+                    let Ok(line) = line else { break };
+                    if matches!(line.trim(), "/stop" | "/estop") {
+                        estop.trigger("the operator (/stop)");
+                        cancel.store(true, std::sync::atomic::Ordering::SeqCst);
+                    }
+                    if tx.send(line).is_err() {
+                        break;
+                    }
+                }
+            })
+            .expect("spawning the input thread");
+        Arc::new(Input {
+            lines: Mutex::new(rx),
+        })
+    }
+
+    /// The next line; `None` at the end of input.
+    pub fn next_line(&self) -> Option<String> {
+        self.lines.lock().expect("input lock").recv().ok()
+    }
+}
+
+/// Asks on the terminal: "allow turtle_move {...}? [y/N]", the answer read from `Input`.
+pub struct TerminalConfirm {
+    pub input: Arc<Input>,
+}
+
+impl Confirm for TerminalConfirm {
+    fn confirm(&self, call: &ToolCall) -> bool {
+        eprint!(
+            "\nallow {} {}? [y/N] ",
+            clean(&call.name),
+            clean(&serde_json::to_string(&call.arguments).unwrap_or_default())
+        );
+        let _ = std::io::stderr().flush();
+        self.input
+            .next_line()
+            .is_some_and(|l| matches!(l.trim(), "y" | "Y" | "yes"))
+    }
+}
+
+/// A call written as `NAME {json}` (the arguments may be left out for `{}`).
+pub fn parse_call(text: &str) -> anyhow::Result<ToolCall> {
+    let text = text.trim();
+    let (name, args) = text.split_once(char::is_whitespace).unwrap_or((text, "{}"));
+    let arguments: Value = serde_json::from_str(args.trim()).with_context(|| {
+        format!("the arguments of {name} are not JSON: write them as an object, e.g. '{{\"distance\": 1.0}}'")
+    })?;
+    if !arguments.is_object() {
+        anyhow::bail!(
+            "the arguments of {name} must be a JSON object, e.g. '{{\"distance\": 1.0}}'"
+        );
+    }
+    Ok(ToolCall {
+        name: name.to_string(),
+        arguments,
+    })
+}
+
+/// What `ferrosa call` prints for a call.
+pub fn report_call(call: &ToolCall, o: &Outcome) -> Value {
+    let decision = serde_json::to_value(&o.decision).unwrap_or_default();
+    json!({"name": call.name, "arguments": call.arguments, "decision": decision,
+           "output": o.output, "ok": o.ok, "ms": o.ms})
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn escape_sequences_controls_and_bidi_are_removed() {
+        assert_eq!(clean("ok\u{1b}[2J\u{1b}[31mred\u{1b}[0m"), "okred");
+        assert_eq!(clean("a\u{1b}]0;title\u{7}b"), "ab");
+        assert_eq!(clean("safe\u{202e}txt.exe\u{0}\r\n"), "safetxt.exe\n");
+        assert_eq!(clean("Größe 3 m"), "Größe 3 m");
+    }
+}
