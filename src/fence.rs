@@ -3,9 +3,10 @@
 //! redaction.
 //!
 //! A name is judged in every form it could be meant in: as written, trimmed, made
-//! absolute (`secret` and ` /secret/` are `/secret`), and, for logger names, with dots
-//! as slashes (`secret_node.worker` is `/secret_node/worker`). A pattern matching any
-//! form denies it. Redaction finds name-like words in any text (a log line, an error,
+//! absolute (`secret` and ` /secret/` are `/secret`), for logger names with dots as
+//! slashes (`secret_node.worker` is `/secret_node/worker`), in DDS spelling (`rt/secret`)
+//! or as a private name (`~/secret`), and by every name it lies under (`/secret/cmd` is
+//! under `/secret`). A pattern matching any form denies it. Redaction finds name-like words in any text (a log line, an error,
 //! an answer) and replaces the denied ones with `[off limits]`; in JSON, array items that
 //! are denied names (or objects named by one) are dropped and every string is redacted.
 //!
@@ -143,7 +144,19 @@ impl Fence {
                 }
                 n
             }
-            Value::Object(map) => map.values_mut().map(|x| self.redact_json(x)).sum(),
+            Value::Object(map) => {
+                let mut n = 0;
+                // Keys are text too (a map keyed by topic or node).
+                if map.keys().any(|k| matches!(self.redact(k), Cow::Owned(_))) {
+                    let old = std::mem::take(map);
+                    for (k, v) in old {
+                        let key = self.redact(&k).into_owned();
+                        n += usize::from(key != k);
+                        map.insert(key, v);
+                    }
+                }
+                n + map.values_mut().map(|x| self.redact_json(x)).sum::<usize>()
+            }
             _ => 0,
         }
     }
@@ -179,16 +192,26 @@ pub fn canonical(name: &str) -> Result<String, FenceError> {
     Ok(format!("/{}", parts.join("/")))
 }
 
-/// Every form `name` could be meant in (see the module header).
+/// Every form `name` could be meant in (see the module header), and every name it lies
+/// under (a denied node or namespace covers its own topics, services and parameters).
 fn variants(name: &str) -> Vec<String> {
     let mut out = vec![name.to_string()];
     let t = name.trim().trim_end_matches(['.', ',', ';', ':', '!', '?']);
     out.push(t.to_string());
+    // DDS spellings (`rt/secret`, `rq/secret/getRequest`) and private names (`~/secret`).
+    let dds = ["rt/", "rq/", "rr/", "rs/", "ra/", "~/", "~"]
+        .iter()
+        .find_map(|p| t.strip_prefix(p))
+        .map(|rest| {
+            rest.strip_suffix("Request")
+                .or_else(|| rest.strip_suffix("Reply"))
+                .unwrap_or(rest)
+        });
     let slashed = t.replace('.', "/");
-    for form in [t, slashed.as_str()] {
+    for form in [Some(t), Some(slashed.as_str()), dds].into_iter().flatten() {
         let parts: Vec<&str> = form.split('/').filter(|p| !p.is_empty()).collect();
-        if !parts.is_empty() {
-            out.push(format!("/{}", parts.join("/")));
+        for n in 1..=parts.len() {
+            out.push(format!("/{}", parts[..n].join("/")));
         }
     }
     out.sort();

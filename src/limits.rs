@@ -108,7 +108,10 @@ impl Motion {
                 self.teleport_relative(&mut out, &mut changes)
             }
             "turtlesim/srv/TeleportAbsolute_Request" => self.teleport_absolute(&out),
-            "rcl_interfaces/srv/SetParameters_Request" => self.parameters(&mut out, &mut changes),
+            "rcl_interfaces/srv/SetParameters_Request"
+            | "rcl_interfaces/srv/SetParametersAtomically_Request" => {
+                self.parameters(&mut out, &mut changes)
+            }
             _ => self.twists(&mut out, &mut changes),
         };
         if let Err(why) = r {
@@ -144,10 +147,18 @@ impl Motion {
         }
     }
 
-    /// Every Twist inside the message (a `linear` and an `angular` vector side by side).
+    /// Every Twist inside the message (a `linear` and an `angular` vector side by side),
+    /// in arrays and sequences too.
     fn twists(&self, v: &mut Value, changes: &mut Vec<String>) -> Result<(), String> {
-        let Value::Object(map) = v else {
-            return Ok(());
+        let map = match v {
+            Value::Object(map) => map,
+            Value::Array(items) => {
+                for x in items {
+                    self.twists(x, changes)?;
+                }
+                return Ok(());
+            }
+            _ => return Ok(()),
         };
         if is_vector(map.get("linear")) && is_vector(map.get("angular")) {
             for (key, max) in [("linear", self.linear_max), ("angular", self.angular_max)] {
@@ -198,25 +209,38 @@ impl Motion {
                 if !re.is_match(&name) {
                     continue;
                 }
-                for field in ["integer_value", "double_value"] {
-                    let Some(x) = p["value"][field].as_f64() else {
-                        continue;
+                let (lo, hi) = (
+                    rule.min.unwrap_or(f64::NEG_INFINITY),
+                    rule.max.unwrap_or(f64::INFINITY),
+                );
+                for field in [
+                    "integer_value",
+                    "double_value",
+                    "integer_array_value",
+                    "double_array_value",
+                ] {
+                    let slot = &mut p["value"][field];
+                    let values: Vec<&mut Value> = match slot {
+                        Value::Array(items) => items.iter_mut().collect(),
+                        Value::Number(_) => vec![slot],
+                        _ => continue,
                     };
-                    let lo = rule.min.unwrap_or(f64::NEG_INFINITY);
-                    let hi = rule.max.unwrap_or(f64::INFINITY);
-                    if (lo..=hi).contains(&x) {
-                        continue;
+                    for v in values {
+                        let Some(x) = v.as_f64() else { continue };
+                        if (lo..=hi).contains(&x) {
+                            continue;
+                        }
+                        if self.on_exceed == OnExceed::Block {
+                            return Err(format!("parameter {name} = {x} is outside [{lo}, {hi}]"));
+                        }
+                        let c = x.clamp(lo, hi);
+                        *v = if field.starts_with("integer") {
+                            (c.round() as i64).into()
+                        } else {
+                            c.into()
+                        };
+                        changes.push(format!("parameter {name} clamped from {x} to {c}"));
                     }
-                    if self.on_exceed == OnExceed::Block {
-                        return Err(format!("parameter {name} = {x} is outside [{lo}, {hi}]"));
-                    }
-                    let c = x.clamp(lo, hi);
-                    p["value"][field] = if field == "integer_value" {
-                        (c.round() as i64).into()
-                    } else {
-                        c.into()
-                    };
-                    changes.push(format!("parameter {name} clamped from {x} to {c}"));
                 }
             }
         }
@@ -244,6 +268,29 @@ pub fn carries_twist(message: &Value) -> bool {
         }
         Value::Array(items) => items.iter().any(carries_twist),
         _ => false,
+    }
+}
+
+/// `message` with every Twist in it (arrays included) at zero: what the brake sends
+/// on a topic after the last command that went out on it.
+pub fn zeroed(message: &Value) -> Value {
+    let mut out = message.clone();
+    zero_twists(&mut out);
+    out
+}
+
+fn zero_twists(v: &mut Value) {
+    match v {
+        Value::Object(map) => {
+            if is_vector(map.get("linear")) && is_vector(map.get("angular")) {
+                for key in ["linear", "angular"] {
+                    set_vector(map.get_mut(key).expect("checked above"), [0.0; 3]);
+                }
+            }
+            map.values_mut().for_each(zero_twists);
+        }
+        Value::Array(items) => items.iter_mut().for_each(zero_twists),
+        _ => {}
     }
 }
 
@@ -289,6 +336,49 @@ mod tests {
 
     fn twist(lx: f64, ly: f64, az: f64) -> Value {
         json!({"linear": {"x": lx, "y": ly, "z": 0.0}, "angular": {"x": 0.0, "y": 0.0, "z": az}})
+    }
+
+    #[test]
+    fn twists_in_arrays_are_bounded_and_zeroed() {
+        let m = Motion::default();
+        let msg = json!({"twist": [twist(0.5, 0.0, 0.0), twist(50.0, 0.0, 30.0)]});
+        let Verdict::Clamped(out, _) = m.check("pkg/msg/Many", &msg) else {
+            panic!("a Twist in an array went unchecked");
+        };
+        assert_eq!(out["twist"][1]["linear"]["x"], 1.0);
+        assert_eq!(out["twist"][1]["angular"]["z"], 1.5);
+        let zero = zeroed(&msg);
+        assert_eq!(zero["twist"][1], twist(0.0, 0.0, 0.0));
+        assert_eq!(zero["twist"].as_array().unwrap().len(), 2);
+    }
+
+    #[test]
+    fn parameter_limits_hold_for_atomic_sets_and_arrays() {
+        let m = Motion {
+            params: vec![ParamLimit {
+                name: "max_vel".into(),
+                min: None,
+                max: Some(1.0),
+            }],
+            on_exceed: OnExceed::Block,
+            ..Motion::default()
+        };
+        for (ty, value) in [
+            (
+                "rcl_interfaces/srv/SetParametersAtomically_Request",
+                json!({"type": 3, "double_value": 9.0}),
+            ),
+            (
+                "rcl_interfaces/srv/SetParameters_Request",
+                json!({"type": 8, "double_array_value": [0.5, 9.0]}),
+            ),
+        ] {
+            let req = json!({"parameters": [{"name": "max_vel_x", "value": value}]});
+            assert!(
+                matches!(m.check(ty, &req), Verdict::Refused(_)),
+                "{ty} {req}"
+            );
+        }
     }
 
     #[test]

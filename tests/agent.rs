@@ -407,7 +407,7 @@ fn actuation_runs_only_when_the_request_points_at_it() {
     // refused before it runs, and the model is told why.
     let script = [publish.clone(), answer("The turtle is at the centre.")];
     let mut a = agent(&script, vec![ros_like(&runs)], approve_all(), 8192);
-    let (r, _) = ask(&mut a, "tell me what the turtle is doing");
+    let (r, _) = ask(&mut a, "check on the turtle for me");
     assert_eq!(runs.load(Ordering::SeqCst), 0, "an unasked publish ran");
     assert!(
         matches!(&r.steps[0].decision, Decision::Refused(why) if why.contains("did not ask")),

@@ -189,9 +189,12 @@ const STOP_AT_START: &[&str] = &[
 
 /// Words that make a clause a negation.
 const NEGATIONS: &[&str] = &[
-    "not", "don", "dont", "never", "no", "without", "neither", "nor", "nothing", "nunca", "jamas",
-    "sin", "ni", "tampoco", "ne", "pas", "jamais", "sans", "aucun", "nicht", "kein", "keine",
-    "keinen", "nie", "niemals", "ohne", "non", "mai", "senza", "niente", "nao", "nem", "sem",
+    // "t" is what is left of "n't" ("can't", "shouldn't", "won't") once split at the
+    // apostrophe.
+    "not", "don", "dont", "t", "never", "no", "without", "neither", "nor", "nothing", "nunca",
+    "jamas", "sin", "ni", "tampoco", "ne", "pas", "jamais", "sans", "aucun", "nicht", "kein",
+    "keine", "keinen", "nie", "niemals", "ohne", "non", "mai", "senza", "niente", "nao", "nem",
+    "sem",
 ];
 
 /// Words that open a question about the world (not a request).
@@ -205,8 +208,67 @@ const QUESTION_WORDS: &[&str] = &[
 
 /// Words that cut a request into clauses.
 const CONJUNCTIONS: &[&str] = &[
-    "but", "then", "and", "or", "pero", "luego", "despues", "y", "mais", "puis", "et", "aber",
-    "dann", "und", "ma", "poi", "e", "mas", "depois",
+    "but", "then", "and", "or", "pero", "luego", "despues", "y", "o", "mais", "puis", "et", "ou",
+    "aber", "dann", "und", "oder", "ma", "poi", "e", "mas", "depois",
+];
+
+/// Conjunctions that join alternatives.
+const DISJUNCTIONS: &[&str] = &[
+    "or", "nor", "o", "ni", "ou", "oder", "weder", "noch", "oppure",
+];
+
+/// Words that turn a sentence around ("don't move, just turn"): a clause they open does
+/// not take the negation or the question of the clause before it.
+const CONTRASTS: &[&str] = &[
+    "but",
+    "then",
+    "just",
+    "only",
+    "instead",
+    "pero",
+    "luego",
+    "despues",
+    "solo",
+    "mais",
+    "puis",
+    "seulement",
+    "plutot",
+    "aber",
+    "dann",
+    "nur",
+    "sondern",
+    "stattdessen",
+    "ma",
+    "poi",
+    "invece",
+    "mas",
+    "depois",
+    "apenas",
+    "sino",
+];
+
+/// Verbs that ask to be told, not to act ("explain how to move it").
+const TELL: &[&str] = &[
+    "explain",
+    "tell",
+    "describe",
+    "show",
+    "teach",
+    "explica",
+    "dime",
+    "describe",
+    "explique",
+    "dis",
+    "decris",
+    "erklare",
+    "erklaer",
+    "sag",
+    "beschreibe",
+    "spiega",
+    "dimmi",
+    "descrivi",
+    "diga",
+    "descreva",
 ];
 
 /// How a clause treats an act.
@@ -260,44 +322,113 @@ pub fn acts_of(words: &[String]) -> Vec<Act> {
     acts
 }
 
-/// The clauses of `request`.
+/// The clauses of `request`. Within one sentence a negation or a question carries on
+/// into the clauses that follow ("don't move or turn", "is it moving or turning?",
+/// "do not move, rotate or teleport it") unless one opens with a contrast ("but",
+/// "just", "instead"): read this way a mistake blocks a motion, never allows one.
 pub fn clauses(request: &str) -> Vec<Clause> {
     let mut out = Vec::new();
-    for part in request.split(['.', ',', ';', '!', '?', ':', '\n']) {
-        let question_mark = request
-            .get(request.find(part).map_or(0, |i| i + part.len())..)
-            .is_some_and(|rest| rest.starts_with('?'));
-        let mut current: Vec<String> = Vec::new();
-        let words = folded_words(part);
-        for w in words {
-            if CONJUNCTIONS.contains(&w.as_str()) {
-                push_clause(&mut out, std::mem::take(&mut current), question_mark);
-            } else {
-                current.push(w);
+    for sentence in request.split_inclusive(['.', ';', '!', '?', '\n']) {
+        let question_mark = sentence.trim_end().ends_with('?');
+        let mut carried: Option<Mood> = None;
+        // Clauses joined by "or": a negation anywhere among them governs them all
+        // ("bewege oder drehe sie nicht").
+        let mut alternatives = out.len();
+        for part in sentence.split([',', ':']) {
+            let mut current: Vec<String> = Vec::new();
+            let mut contrast = false;
+            for w in folded_words(part) {
+                if CONJUNCTIONS.contains(&w.as_str()) {
+                    carried = push_clause(
+                        &mut out,
+                        std::mem::take(&mut current),
+                        question_mark,
+                        carried,
+                        contrast,
+                    );
+                    forbid_alternatives(&mut out, alternatives);
+                    if !DISJUNCTIONS.contains(&w.as_str()) {
+                        alternatives = out.len();
+                    }
+                    contrast = CONTRASTS.contains(&w.as_str());
+                } else {
+                    if current.is_empty() && CONTRASTS.contains(&w.as_str()) {
+                        contrast = true;
+                    }
+                    current.push(w);
+                }
             }
+            carried = push_clause(&mut out, current, question_mark, carried, contrast);
+            forbid_alternatives(&mut out, alternatives);
         }
-        push_clause(&mut out, current, question_mark);
     }
     out
 }
 
-fn push_clause(out: &mut Vec<Clause>, words: Vec<String>, question_mark: bool) {
+/// When the newest clause forbids, so do the alternatives before it (from `from` on).
+fn forbid_alternatives(out: &mut [Clause], from: usize) {
+    if out.last().is_some_and(|c| c.mood == Mood::Forbidden) {
+        for c in out.iter_mut().skip(from) {
+            if c.mood == Mood::Asked {
+                c.mood = Mood::Forbidden;
+            }
+        }
+    }
+}
+
+/// Add the clause of `words`; the mood the next clause of the sentence may take on.
+fn push_clause(
+    out: &mut Vec<Clause>,
+    words: Vec<String>,
+    question_mark: bool,
+    carried: Option<Mood>,
+    contrast: bool,
+) -> Option<Mood> {
     if words.is_empty() {
-        return;
+        return carried;
     }
     let acts = acts_of(&words);
     let negated = words.iter().any(|w| NEGATIONS.contains(&w.as_str()));
-    let asks_about = words
-        .first()
-        .is_some_and(|w| QUESTION_WORDS.contains(&w.as_str()));
-    let mood = if negated {
+    // A question word before the first act ("how do I move", "explain how to move").
+    let first_act = words
+        .iter()
+        .position(|w| !acts_of(std::slice::from_ref(w)).is_empty())
+        .unwrap_or(words.len());
+    let asks_about = words[..first_act]
+        .iter()
+        .any(|w| QUESTION_WORDS.contains(&w.as_str()) || TELL.contains(&w.as_str()))
+        && !words
+            .first()
+            .is_some_and(|w| STOP_AT_START.contains(&w.as_str()));
+    let inherited = carried.filter(|_| !contrast);
+    let mood = if negated || inherited == Some(Mood::Forbidden) {
         Mood::Forbidden
-    } else if asks_about || (question_mark && acts.is_empty()) {
+    } else if asks_about
+        || inherited == Some(Mood::Questioned)
+        || (question_mark && acts.is_empty())
+    {
         Mood::Questioned
     } else {
         Mood::Asked
     };
+    // "Avoid moving": avoiding is an act of its own (fencing a name off); what it is
+    // said of is forbidden.
+    if acts.contains(&Act::Fence) && acts.len() > 1 && mood == Mood::Asked {
+        let others: Vec<Act> = acts.iter().copied().filter(|a| *a != Act::Fence).collect();
+        out.push(Clause {
+            words: words.clone(),
+            acts: others,
+            mood: Mood::Forbidden,
+        });
+        out.push(Clause {
+            words,
+            acts: vec![Act::Fence],
+            mood: Mood::Asked,
+        });
+        return Some(Mood::Forbidden);
+    }
     out.push(Clause { words, acts, mood });
+    (mood != Mood::Asked).then_some(mood)
 }
 
 /// Acts the request asks for (in some clause, and forbidden in none).
@@ -342,6 +473,37 @@ mod tests {
         assert_eq!(asked("stop the turtle now"), [Act::Stop]);
         assert!(asks_to_stop("STOP!") && asks_to_stop("halt") && !asks_to_stop("don't stop"));
         assert!(!asks_to_stop("why did it stop?"));
+    }
+
+    #[test]
+    fn negations_and_questions_reach_every_act_they_govern() {
+        for q in [
+            "don't move or turn the turtle",
+            "do not move, rotate or teleport it",
+            "it shouldn't move",
+            "you can't turn it",
+            "is it moving or turning?",
+            "explain how to move the turtle",
+            "tell me how to turn it",
+            "avoid moving the turtle",
+            "bewege oder drehe die Schildkröte nicht",
+        ] {
+            let acts = asked(q);
+            assert!(
+                !acts.contains(&Act::Move) && !acts.contains(&Act::Turn),
+                "{q}: {acts:?}"
+            );
+        }
+        assert_eq!(asked("don't move, just turn left"), [Act::Turn]);
+        assert_eq!(asked("don't turn but move forward 1 m"), [Act::Move]);
+        assert_eq!(
+            asked("move forward, then turn left"),
+            [Act::Move, Act::Turn]
+        );
+        assert_eq!(
+            asked("Bewege die Schildkröte 1 Meter vorwärts"),
+            [Act::Move]
+        );
     }
 
     #[test]

@@ -109,8 +109,10 @@ impl Run<'_> {
             };
             let verdicts = self.guards.check(&mut calls, &self.offered);
             if verdicts.iter().all(|v| *v == Verdict::Skip) {
+                let mut record = json!({"step": step, "calls": calls});
+                self.agent.exec.policy().redact(&mut record);
                 if let Some(t) = &mut self.agent.trace {
-                    t.record("repeat", json!({"step": step, "calls": calls}));
+                    t.record("repeat", record);
                 }
                 continue;
             }

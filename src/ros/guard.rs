@@ -15,8 +15,15 @@
 //!   be sent, clamping or refusing (`limits`);
 //! - sends the agent's motion to its lower-priority mux input when the operator's
 //!   velocity topic was asked for, and says when the operator's input is active;
-//! - remembers every velocity topic it sent motion on and every goal still running, so
-//!   the e-stop's brake can zero the one and cancel the other (`brake`).
+//! - refuses a message whose type is not the one the graph announces for its topic (the
+//!   limits read fields by name: a Wrench has the bytes of a Twist) and any type that is
+//!   not a message (`pkg/srv/X` would go out as `pkg/msg/X`);
+//! - treats the names under a denied name as denied too (a denied node's own topics,
+//!   services and parameters);
+//! - remembers every velocity topic it sent motion on (with the last command) and every
+//!   goal that may still run, so the e-stop's brake can zero the one (the last command
+//!   with every Twist at zero, sent again after 100 and 300 ms, so a command already on
+//!   its way cannot win) and cancel the other (`brake`).
 
 use std::collections::BTreeMap;
 use std::sync::{Arc, Mutex, Weak};
@@ -45,8 +52,10 @@ const READ_ONLY_SERVICES: &[&str] = &[
 /// What the e-stop's brake needs: where motion went, and goals that may still run.
 #[derive(Default)]
 struct Sent {
-    /// Velocity topic → its type.
-    velocity: BTreeMap<String, String>,
+    /// Velocity topic → its type and the last command sent on it.
+    velocity: BTreeMap<String, (String, Option<Value>)>,
+    /// (topic, type) pairs checked against the graph's announced types.
+    typed: std::collections::BTreeSet<(String, String)>,
     /// Goals sent and not known to have ended.
     goals: Vec<Goal>,
     /// Numbers the goals, so a send that returns removes its own.
@@ -105,7 +114,7 @@ impl Guarded {
             for t in &g.motion.velocity_topics {
                 let topic = g.motion.mux.get(t).cloned().unwrap_or_else(|| t.clone());
                 sent.velocity
-                    .insert(topic, "geometry_msgs/msg/Twist".to_string());
+                    .insert(topic, ("geometry_msgs/msg/Twist".to_string(), None));
             }
         }
         g.prepare();
@@ -120,7 +129,7 @@ impl Guarded {
             .expect("guard lock")
             .velocity
             .iter()
-            .map(|(t, ty)| (t.clone(), ty.clone()))
+            .map(|(t, (ty, _))| (t.clone(), ty.clone()))
             .collect();
         let me = self.clone();
         self.rt.spawn(async move {
@@ -153,12 +162,20 @@ impl Guarded {
         };
         let inner = self.inner.clone();
         let ifaces = self.inner.interfaces().clone();
-        for (topic, ty) in velocity {
+        for (topic, (ty, last)) in velocity {
             let inner = inner.clone();
-            let zero = cdr::template(&ifaces, &ty).unwrap_or(Value::Null);
+            let zero = match &last {
+                Some(m) => crate::limits::zeroed(m),
+                None => cdr::template(&ifaces, &ty).unwrap_or(Value::Null),
+            };
             self.rt.spawn(async move {
-                if let Err(e) = inner.publish_now(&topic, &ty, zero).await {
-                    tracing::warn!(%topic, "brake: {e}");
+                for wait in [0, 100, 200] {
+                    if wait > 0 {
+                        tokio::time::sleep(Duration::from_millis(wait)).await;
+                    }
+                    if let Err(e) = inner.publish_now(&topic, &ty, zero.clone()).await {
+                        tracing::warn!(%topic, "brake: {e}");
+                    }
                 }
             });
         }
@@ -176,13 +193,47 @@ impl Guarded {
         }
     }
 
-    /// `raw` in canonical form, unless the fence covers it.
+    /// `raw` in canonical form, unless the fence covers it (or a name it lies under: a
+    /// denied node's `/arm_driver/cmd`).
     fn name(&self, raw: &str) -> Result<String, RosError> {
         let name = canonical(raw).map_err(|_| RosError::BadName(raw.trim().to_string()))?;
         if self.fence.denies(raw) || self.fence.denies(&name) {
             return Err(RosError::OffLimits);
         }
         Ok(name)
+    }
+
+    /// Refuse `ty` on `topic` when it is not a message type, or when the graph announces
+    /// the topic with other types. Checked once per (topic, type).
+    async fn check_type(&self, topic: &str, ty: &str) -> Result<(), RosError> {
+        if !ty.contains("/msg/") {
+            return Err(RosError::Other(format!(
+                "{ty} is not a message type: publish a pkg/msg/Name type"
+            )));
+        }
+        let key = (topic.to_string(), ty.to_string());
+        if self.sent.lock().expect("guard lock").typed.contains(&key) {
+            return Ok(());
+        }
+        let g = self.inner.graph().await?;
+        let announced: std::collections::BTreeSet<String> = g
+            .publishers
+            .iter()
+            .chain(&g.subscribers)
+            .filter(|e| e.topic == topic)
+            .map(|e| normalize_type(&e.type_name))
+            .collect();
+        if !announced.is_empty() && !announced.contains(ty) {
+            let list: Vec<&str> = announced.iter().map(String::as_str).collect();
+            return Err(RosError::Other(format!(
+                "{topic} carries {}, not {ty}: publish with that type",
+                list.join(", ")
+            )));
+        }
+        if !announced.is_empty() {
+            self.sent.lock().expect("guard lock").typed.insert(key);
+        }
+        Ok(())
     }
 
     fn stopped(&self) -> Result<(), RosError> {
@@ -228,16 +279,19 @@ impl Guarded {
         let (message, clamp) = self.limited(&ty, &message)?;
         // The agent's motion goes to its own, lower-priority input of the mux.
         let out = self.motion.mux.get(&topic).unwrap_or(&topic).clone();
+        self.check_type(&out, &ty).await?;
         let mut overridden_by = None;
         if crate::limits::carries_twist(&message) {
             self.sent
                 .lock()
                 .expect("guard lock")
                 .velocity
-                .insert(out.clone(), ty.clone());
+                .insert(out.clone(), (ty.clone(), Some(message.clone())));
             let active = self.mux_active.lock().expect("guard lock").clone();
             overridden_by = active.filter(|a| !matches!(a.as_str(), "" | "none" | "agent"));
         }
+        // Again, right before it goes: the checks above may have waited on the graph.
+        self.stopped()?;
         let mut d = if now {
             self.inner.publish_now(&out, &ty, message.clone()).await?
         } else {
@@ -305,9 +359,13 @@ impl Guarded {
                 (Ok(o), Some(at)) if o.status == GoalStatus::Running => {
                     sent.goals[at].id = Some(o.goal_id.clone());
                 }
-                (_, Some(at)) => {
+                (Ok(_), Some(at)) => {
                     sent.goals.remove(at);
                 }
+                // An error may come after the server took the goal (a late acceptance, a
+                // lost result): the record stays, and the brake cancels every goal of
+                // the action.
+                (Err(_), Some(_)) => {}
                 // The brake took it meanwhile.
                 (_, None) => {}
             }

@@ -26,7 +26,14 @@ pub enum TypeDescError {
         field: String,
         reason: String,
     },
+    #[error("{0} is too large to use: more than {MAX_LEAVES} values in one message, or it contains itself")]
+    TooLarge(String),
 }
+
+/// The most values (scalars and strings, every fixed array counted in full, a sequence
+/// as one element) one learnt message may hold: a peer's type must not make a template
+/// or an encoding allocate without bound.
+pub const MAX_LEAVES: u64 = 1 << 20;
 
 /// The RIHS01 hash of a `type_description_interfaces/msg/TypeDescription` (as JSON): a
 /// SHA-256 of its fields without default values, written as Python's `json.dumps` writes
@@ -121,7 +128,50 @@ pub fn verified_definitions(
     {
         defs.push(definition(r)?);
     }
+    let mut sizes = std::collections::BTreeMap::new();
+    leaves(&defs, &defs[0].name, &mut Vec::new(), &mut sizes)
+        .filter(|n| *n <= MAX_LEAVES)
+        .ok_or_else(|| TypeDescError::TooLarge(defs[0].name.clone()))?;
     Ok(defs)
+}
+
+/// How many values a message of type `name` holds (see `MAX_LEAVES`), from `defs`;
+/// `None` past the budget, for a type that contains itself, or one `defs` lacks (a
+/// shipped type nested in a learnt one counts as one value: it is bounded already).
+fn leaves(
+    defs: &[MessageDef],
+    name: &str,
+    path: &mut Vec<String>,
+    memo: &mut std::collections::BTreeMap<String, u64>,
+) -> Option<u64> {
+    if let Some(n) = memo.get(name) {
+        return Some(*n);
+    }
+    if path.iter().any(|p| p == name) {
+        return None;
+    }
+    let Some(def) = defs.iter().find(|d| d.name == name) else {
+        return Some(1);
+    };
+    path.push(name.to_string());
+    let mut total: u64 = 0;
+    for f in &def.fields {
+        let one = match &f.base {
+            BaseType::Message(m) => leaves(defs, m, path, memo)?,
+            BaseType::Primitive(_) => 1,
+        };
+        let count = match f.shape {
+            Shape::Array(n) => n as u64,
+            Shape::Single | Shape::Sequence { .. } => 1,
+        };
+        total = total.checked_add(one.checked_mul(count)?)?;
+        if total > MAX_LEAVES {
+            return None;
+        }
+    }
+    path.pop();
+    memo.insert(name.to_string(), total.max(1));
+    Some(total.max(1))
 }
 
 /// The message definition one individual description gives.
@@ -256,13 +306,43 @@ mod tests {
     }
 
     #[test]
-    fn huge_fixed_arrays_and_unencodable_fields_are_refused() {
+    fn huge_or_self_containing_types_and_unencodable_fields_are_refused() {
         let mut d = description();
         d["type_description"]["fields"][1]["type"]["capacity"] = json!(1_000_000_000u64);
         let hash = rihs01(&d).unwrap();
         assert!(matches!(
             verified_definitions(&d, &hash),
             Err(TypeDescError::Unsupported { .. })
+        ));
+        // Each array within bounds, their product not: 65,536 × 65,536 values.
+        let big = |name: &str, nested: &str| json!({"type_name": name, "fields": [field("a", 49, 65_536, nested)]});
+        let d = json!({"type_description": big("evil/msg/Outer", "evil/msg/Inner"),
+                       "referenced_type_descriptions": [{"type_name": "evil/msg/Inner", "fields": [field("v", 59, 65_536, "")]}]});
+        let hash = rihs01(&d).unwrap();
+        assert!(matches!(
+            verified_definitions(&d, &hash),
+            Err(TypeDescError::TooLarge(_))
+        ));
+        // A binary tree of types: 2^31 leaves from 31 small definitions.
+        let level = |k: usize| {
+            let below = format!("evil/msg/T{}", k - 1);
+            json!({"type_name": format!("evil/msg/T{k}"), "fields": [field("l", 1, 0, &below), field("r", 1, 0, &below)]})
+        };
+        let mut refs: Vec<Value> = (1..31).map(level).collect();
+        refs.push(json!({"type_name": "evil/msg/T0", "fields": [field("v", 11, 0, "")]}));
+        let d = json!({"type_description": level(31), "referenced_type_descriptions": refs});
+        let hash = rihs01(&d).unwrap();
+        assert!(matches!(
+            verified_definitions(&d, &hash),
+            Err(TypeDescError::TooLarge(_))
+        ));
+        // A type that contains itself.
+        let d = json!({"type_description": {"type_name": "evil/msg/Loop", "fields": [field("next", 1, 0, "evil/msg/Loop")]},
+                       "referenced_type_descriptions": []});
+        let hash = rihs01(&d).unwrap();
+        assert!(matches!(
+            verified_definitions(&d, &hash),
+            Err(TypeDescError::TooLarge(_))
         ));
         let mut w = description();
         w["type_description"]["fields"][0]["type"]["type_id"] = json!(18);

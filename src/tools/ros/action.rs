@@ -132,7 +132,7 @@ pub struct ActionCancel(pub(super) Ros);
 impl Tool for ActionCancel {
     type Args = CancelArgs;
     const NAME: &'static str = "ros_action_cancel";
-    const EFFECT: Effect = Effect::Actuates;
+    const EFFECT: Effect = Effect::Stops;
     fn description(&self) -> String {
         "Cancel a running ROS action goal, or every goal of an action.".into()
     }
