@@ -1583,6 +1583,21 @@ fn the_gate_reads_negation_questions_and_other_languages() {
     suite("gate", cases);
 }
 
+/// Whether a zero velocity went out (the brake runs on the ROS runtime: waits up to 2 s).
+fn braked(st: &Stack) -> bool {
+    let t = Instant::now();
+    let brake = || {
+        st.graph
+            .sent()
+            .iter()
+            .any(|x| matches!(x, Sent::Publish { message, .. } if !nonzero(message)))
+    };
+    while !brake() && t.elapsed() < Duration::from_secs(2) {
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    brake()
+}
+
 #[test]
 fn stop_in_any_language_stops_without_asking() {
     // No --yes and an operator who refuses everything: stopping needs neither.
@@ -1599,18 +1614,7 @@ fn stop_in_any_language_stops_without_asking() {
     ] {
         let mut st = stack(&s, &[call("robot_stop", json!({})), answer("Stopped.")]);
         let run = st.ask(request, request);
-        // The brake goes out on the ROS runtime as the e-stop engages.
-        let t = Instant::now();
-        let brake = || {
-            st.graph
-                .sent()
-                .iter()
-                .any(|x| matches!(x, Sent::Publish { message, .. } if !nonzero(message)))
-        };
-        while !brake() && t.elapsed() < Duration::from_secs(2) {
-            std::thread::sleep(Duration::from_millis(5));
-        }
-        let braked = brake();
+        let braked = braked(&st);
         let own = if !st.estop.is_engaged() {
             Err(run.fail("the e-stop was not engaged"))
         } else if !braked {
@@ -1623,16 +1627,31 @@ fn stop_in_any_language_stops_without_asking() {
         cases.push((run, own));
     }
     // The model may stop on its own too, always offered, never confirmed.
-    let mut st = stack(&s, &[call("robot_stop", json!({})), answer("Stopped.")]);
+    // The model may stop the robot on its own judgement: it brakes at once. A stop the
+    // request did not ask for does not latch (a small model reaches for the tool it is
+    // always shown), and the tool is not offered again in that run.
+    let mut st = stack(
+        &s,
+        &[
+            call("robot_stop", json!({})),
+            call("ros_node_list", json!({})),
+            answer("Stopped."),
+        ],
+    );
     let run = st.ask(
         "the model stops",
         "something smells like smoke near the turtle",
     );
-    let own = run.ran("robot_stop").and(if st.estop.is_engaged() {
-        Ok(())
-    } else {
-        Err(run.fail("robot_stop did not engage the e-stop"))
-    });
+    let own = run
+        .ran("robot_stop")
+        .and(run.ran("ros_node_list"))
+        .and(if !braked(&st) {
+            Err(run.fail("robot_stop did not brake"))
+        } else if st.estop.is_engaged() {
+            Err(run.fail("a stop nobody asked for latched the e-stop"))
+        } else {
+            Ok(())
+        });
     cases.push((run, own));
     suite("stop", cases);
 }

@@ -96,6 +96,7 @@ impl Agent {
             copy_from: queries,
             answer_only: false,
             step_first_token: None,
+            stop_withdrawn: false,
         }
         .run()
     }

@@ -18,6 +18,7 @@ use std::time::Instant;
 use serde_json::json;
 
 use super::answer::{self, ANSWER_CHARS, ANSWER_TOOL};
+use super::config::STOP_TOOL;
 use super::guard::{Guards, Verdict};
 use super::memory::truncate_output;
 use super::{Agent, AgentError, Event, Finish, RunResult, StepRecord, Timings};
@@ -60,6 +61,9 @@ pub(super) struct Run<'a> {
     pub answer_only: bool,
     /// When this step's first token came (ms since the query).
     pub step_first_token: Option<f64>,
+    /// The model called `robot_stop` on a request that asked no stop: the robot was
+    /// braked (not latched) and the tool is not offered again this run.
+    pub stop_withdrawn: bool,
 }
 
 impl Run<'_> {
@@ -128,6 +132,19 @@ impl Run<'_> {
             Some(vec![ANSWER_TOOL.to_string()])
         } else {
             self.guards.narrow(&self.offered)
+        };
+        let allowed = match allowed {
+            Some(names) if self.stop_withdrawn => {
+                Some(names.into_iter().filter(|n| n != STOP_TOOL).collect())
+            }
+            None if self.stop_withdrawn => Some(
+                self.offered
+                    .iter()
+                    .map(|s| s.name.clone())
+                    .filter(|n| n != STOP_TOOL)
+                    .collect(),
+            ),
+            other => other,
         };
         let t_model = Instant::now();
         let result = self.turn(allowed);
@@ -250,7 +267,30 @@ impl Run<'_> {
         }
         let (calls, decisions): (Vec<ToolCall>, Vec<Decision>) = shown.into_iter().unzip();
         let t_tools = Instant::now();
-        let outcomes = self.agent.exec.run(&calls, &decisions, &self.agent.cancel);
+        // A stop the request did not ask for (a small model reaches for the tool it was
+        // always shown) still brakes the robot, but does not latch the e-stop: the
+        // operator's words, `/stop`, Ctrl-C and the ROS topic latch it.
+        let unasked =
+            |c: &ToolCall| c.name == STOP_TOOL && !super::concepts::asks_to_stop(self.query);
+        let (run_calls, run_decisions): (Vec<ToolCall>, Vec<Decision>) = calls
+            .iter()
+            .zip(&decisions)
+            .filter(|(c, _)| !unasked(c))
+            .map(|(c, d)| (c.clone(), d.clone()))
+            .unzip();
+        let mut ran = self
+            .agent
+            .exec
+            .run(&run_calls, &run_decisions, &self.agent.cancel)
+            .into_iter();
+        let mut outcomes = Vec::with_capacity(calls.len());
+        for (c, d) in calls.iter().zip(&decisions) {
+            if unasked(c) {
+                outcomes.push(self.brake_unasked(d.clone()));
+            } else if let Some(o) = ran.next() {
+                outcomes.push(o);
+            }
+        }
         self.timings.tools_ms += t_tools.elapsed().as_secs_f64() * 1e3;
         self.scratch.push(ChatMessage::new(
             Role::Assistant,
@@ -258,6 +298,22 @@ impl Run<'_> {
         ));
         for (i, (call, o)) in calls.into_iter().zip(outcomes).enumerate() {
             self.observe(step, i, call, o);
+        }
+    }
+
+    /// `robot_stop` on a request that asked no stop: brake without latching, and offer
+    /// the tool no more this run.
+    fn brake_unasked(&mut self, decision: Decision) -> Outcome {
+        let t = Instant::now();
+        let estop = self.agent.exec.policy().estop().clone();
+        estop.halt("the agent (robot_stop, not asked by the operator)");
+        self.stop_withdrawn = true;
+        Outcome {
+            output: serde_json::json!({"braked": true, "latched": false,
+                "summary": "The robot was braked. The operator's request did not ask to stop, so motion is not locked: go on with what the operator asked."}),
+            ok: true,
+            ms: t.elapsed().as_secs_f64() * 1e3,
+            decision,
         }
     }
 
