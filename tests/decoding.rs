@@ -870,3 +870,51 @@ fn a_list_of_calls_ending_in_forced_values_goes_on_and_closes() {
     assert_eq!(names, ["weather", "weather"]);
     assert_eq!(args, [json!({"city": "Paris"}), json!({"city": "Lyon"})]);
 }
+
+/// A list that reaches its longest length on a call whose end the grammar writes itself:
+/// the grammar forces the call's close and the list's close together, the turn stops at
+/// the call's close, and the grammar must not keep what the turn did not (else deciding
+/// whether the list goes on rewinds a grammar that is ahead of the text).
+#[test]
+fn a_full_list_closed_by_forced_tokens_stays_in_step_with_the_grammar() {
+    let cities = ["Paris", "Lyon", "Nice", "Metz", "Brest"];
+    let specs = vec![
+        ToolSpec::new(
+            "weather",
+            "Weather in a city.",
+            json!({"type": "object", "properties": {"city": {"type": "string", "enum": cities}}, "required": ["city"]}),
+        )
+        .unwrap(),
+        ferrosa::agent::answer_spec(),
+    ];
+    let model = ByText::new(move |text| {
+        let asked = !text.contains("N/A");
+        let turn = text.rsplit("assistant\n").next().unwrap_or("");
+        let calls = turn.matches("\"city\"").count();
+        let weather = if asked { -0.5 } else { -1.5 };
+        if let Some(next) = after(
+            turn,
+            "{\"name\": \"",
+            &[("weather\"", weather), ("reply\"", -2.0)],
+        ) {
+            return next;
+        }
+        // One letter: the enum forces the rest of the city and the call's close.
+        let city = &cities[calls.clamp(1, 5) - 1][..1];
+        if let Some(next) = after(turn, "\"city\": \"", &[(city, -0.1)]) {
+            return next;
+        }
+        if turn.ends_with("}}") {
+            let more = if asked { -0.2 } else { -3.0 };
+            return vec![(",\n".into(), more), ("\n]</tool_call>".into(), -1.0)];
+        }
+        vec![("<|im_end|>".into(), 0.0)]
+    });
+    let request = "weather in Paris, Lyon, Nice, Metz and Brest";
+    let (names, args) = driven(model, &specs, request, true);
+    let cities: Vec<Value> = cities.iter().map(|c| json!({ "city": c })).collect();
+    assert_eq!(names.len(), args.len());
+    assert!(names.iter().all(|n| n == "weather"), "{names:?}");
+    assert_eq!(args, cities[..names.len()], "the calls follow the script");
+    assert!(names.len() > 1, "the list went on: {args:?}");
+}

@@ -168,12 +168,18 @@ pub fn generate(
     )?;
     // Tokens forced at the start were evaluated with the prompt; they reach the caller
     // now, once the model has actually seen them.
-    for &f in &forced {
+    for (i, &f) in forced.iter().enumerate() {
         if stats.time_to_first_token.is_zero() {
             stats.time_to_first_token = start.elapsed();
         }
         push_text(scan, &vocab, f);
-        let _ = on_token(f, scan);
+        if on_token(f, scan).is_break() {
+            // The caller has what it waited for: the rest is not the turn's.
+            if let Some(c) = constraint.as_deref_mut() {
+                c.rollback(forced.len() - i - 1)?;
+            }
+            return Ok((Finish::Stopped, stats));
+        }
     }
     let gen_start = Instant::now();
     let mut pending: Vec<TokenId> = Vec::with_capacity(64);
@@ -229,19 +235,38 @@ pub fn generate(
         pending.push(tok);
         if let Some(c) = constraint.as_deref_mut() {
             let t = Instant::now();
-            let forced = c.commit(tok)?;
+            let forced = c.commit(tok)?.to_vec();
             stats.constraint_time += t.elapsed();
-            for &f in forced {
+            // The grammar has taken every forced token; those the turn does not keep
+            // are rolled back, so grammar and text stay token for token the same (a
+            // rewind relies on it).
+            let mut kept = 0;
+            let mut stopped = false;
+            for &f in &forced {
                 if stats.generated_tokens >= hard_limit {
                     break;
                 }
+                kept += 1;
                 stats.generated_tokens += 1;
                 stats.forced_tokens += 1;
                 pending.push(f);
                 push_text(scan, &vocab, f);
                 if on_token(f, scan).is_break() {
-                    break 'gen Finish::Stopped;
+                    stopped = true;
+                    break;
                 }
+            }
+            if kept < forced.len() {
+                tracing::debug!(
+                    kept,
+                    forced = forced.len(),
+                    stopped,
+                    "forced tokens past the turn's end rolled back"
+                );
+            }
+            c.rollback(forced.len() - kept)?;
+            if stopped {
+                break 'gen Finish::Stopped;
             }
             // A finished grammar allows only end-of-generation: no need to ask the model.
             if c.is_stopped() {
@@ -292,7 +317,10 @@ fn prefill<'b>(
     let mut forced = Vec::new();
     if let Some(c) = constraint {
         let t = Instant::now();
-        forced.extend(c.forced_at_start()?.iter().take(limit));
+        let all = c.forced_at_start()?.to_vec();
+        let kept = all.len().min(limit);
+        forced.extend_from_slice(&all[..kept]);
+        c.rollback(all.len() - kept)?;
         stats.constraint_time += t.elapsed();
         stats.forced_at_start = forced.len();
         stats.forced_tokens += forced.len();
