@@ -918,3 +918,65 @@ fn a_full_list_closed_by_forced_tokens_stays_in_step_with_the_grammar() {
     assert_eq!(args, cities[..names.len()], "the calls follow the script");
     assert!(names.len() > 1, "the list went on: {args:?}");
 }
+
+// The sampler alone: greedy, seeded top-k / top-p, and masked tokens never drawn.
+#[test]
+fn greedy_takes_the_max_and_skips_masked() {
+    let mut s = Sampler::new(SamplerConfig::default(), 4);
+    assert_eq!(s.sample(&[0.1, 3.0, 2.0, -1.0]), Some(1));
+    assert_eq!(s.sample(&[0.1, f32::NEG_INFINITY, 2.0, -1.0]), Some(2));
+    assert_eq!(s.sample(&[f32::NEG_INFINITY; 3]), None);
+}
+
+#[test]
+fn seeded_sampling_repeats_and_respects_top_k() {
+    let cfg = SamplerConfig {
+        temperature: 1.0,
+        top_k: 2,
+        top_p: 1.0,
+        seed: 7,
+    };
+    let logits = [1.0, 1.0, 0.9, -5.0, 0.0];
+    let run = |cfg| {
+        let mut s = Sampler::new(cfg, 5);
+        (0..200)
+            .map(|_| s.sample(&logits).unwrap())
+            .collect::<Vec<_>>()
+    };
+    let a = run(cfg);
+    assert_eq!(a, run(cfg));
+    assert!(a.iter().all(|&t| t == 0 || t == 1), "top-k 2 kept others");
+    assert!(a.contains(&0) && a.contains(&1));
+}
+
+#[test]
+fn top_p_drops_the_tail() {
+    let cfg = SamplerConfig {
+        temperature: 1.0,
+        top_k: 0,
+        top_p: 0.5,
+        seed: 1,
+    };
+    let mut s = Sampler::new(cfg, 3);
+    // p(0) ≈ 0.98: the nucleus at 0.5 is token 0 alone.
+    for _ in 0..100 {
+        assert_eq!(s.sample(&[5.0, 1.0, 0.0]), Some(0));
+    }
+}
+
+#[test]
+fn sampling_never_picks_a_masked_token() {
+    let cfg = SamplerConfig {
+        temperature: 2.0,
+        top_k: 0,
+        top_p: 1.0,
+        seed: 3,
+    };
+    let mut s = Sampler::new(cfg, 4);
+    for _ in 0..500 {
+        let t = s
+            .sample(&[0.0, f32::NEG_INFINITY, 0.0, f32::NEG_INFINITY])
+            .unwrap();
+        assert!(t == 0 || t == 2);
+    }
+}

@@ -150,12 +150,6 @@ pub fn generate(
         hook,
         scan,
     } = steer;
-    if prompt.is_empty() {
-        return Err(DecodeError::Backend(BackendError::Eval {
-            backend: backend.name(),
-            reason: "empty prompt".into(),
-        }));
-    }
     let start = Instant::now();
     let hard_limit = max_tokens + constraint.as_ref().map_or(0, |_| close::OVERRUN);
     let vocab = backend.vocab().clone();
@@ -237,25 +231,18 @@ pub fn generate(
             let t = Instant::now();
             let forced = c.commit(tok)?.to_vec();
             stats.constraint_time += t.elapsed();
+            let (kept, stopped) = emit_forced(
+                &forced,
+                hard_limit,
+                &mut stats,
+                &mut pending,
+                scan,
+                &vocab,
+                &mut on_token,
+            );
             // The grammar has taken every forced token; those the turn does not keep
             // are rolled back, so grammar and text stay token for token the same (a
             // rewind relies on it).
-            let mut kept = 0;
-            let mut stopped = false;
-            for &f in &forced {
-                if stats.generated_tokens >= hard_limit {
-                    break;
-                }
-                kept += 1;
-                stats.generated_tokens += 1;
-                stats.forced_tokens += 1;
-                pending.push(f);
-                push_text(scan, &vocab, f);
-                if on_token(f, scan).is_break() {
-                    stopped = true;
-                    break;
-                }
-            }
             if kept < forced.len() {
                 tracing::debug!(
                     kept,
@@ -291,6 +278,34 @@ pub fn generate(
     Ok((finish, stats))
 }
 
+/// Pass the tokens the grammar forced after a sampled one to the turn, up to the hard
+/// limit or until the caller breaks: how many the turn kept, and whether it stopped.
+fn emit_forced(
+    forced: &[TokenId],
+    hard_limit: usize,
+    stats: &mut GenerationStats,
+    pending: &mut Vec<TokenId>,
+    scan: &mut JsonScan,
+    vocab: &Vocab,
+    on_token: &mut impl FnMut(TokenId, &JsonScan) -> ControlFlow<()>,
+) -> (usize, bool) {
+    let mut kept = 0;
+    for &f in forced {
+        if stats.generated_tokens >= hard_limit {
+            break;
+        }
+        kept += 1;
+        stats.generated_tokens += 1;
+        stats.forced_tokens += 1;
+        pending.push(f);
+        push_text(scan, vocab, f);
+        if on_token(f, scan).is_break() {
+            return (kept, true);
+        }
+    }
+    (kept, false)
+}
+
 /// Evaluate what of `prompt` the cache lacks, with the tokens the grammar forces before
 /// any sampling in the same batch: the logits after them, those forced tokens, and the
 /// statistics so far.
@@ -301,6 +316,12 @@ fn prefill<'b>(
     limit: usize,
     constraint: Option<&mut Constraint>,
 ) -> Result<(&'b mut [f32], Vec<TokenId>, GenerationStats), DecodeError> {
+    if prompt.is_empty() {
+        return Err(DecodeError::Backend(BackendError::Eval {
+            backend: backend.name(),
+            reason: "empty prompt".into(),
+        }));
+    }
     let start = Instant::now();
     let keep = session.reusable(prompt);
     let mut stats = GenerationStats {
