@@ -115,7 +115,8 @@ fn main() {
         decoding: Decoding::Constrained,
         answer_mode: AnswerMode::Tool,
         robot: Robot::Sim,
-        copy_bias: 0.0,
+        copy_bias: ferrosa::ui::agent::DEFAULT_COPY_BIAS,
+        calibrated_choice: true,
     };
     header::print(
         "ferrosa agent benchmark",

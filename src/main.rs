@@ -9,7 +9,9 @@ use ferrosa::agent::AnswerMode;
 use ferrosa::decode::{Decoding, SamplerConfig};
 use ferrosa::models::fetch::FetchOptions;
 use ferrosa::ui;
-use ferrosa::ui::choice::{AnswerModeArg, BackendArg, DecodingArg, EnvelopeArg, ToolChoiceArg};
+use ferrosa::ui::choice::{
+    AnswerModeArg, BackendArg, DecodingArg, EnvelopeArg, PickArg, ToolChoiceArg,
+};
 
 #[derive(Parser)]
 #[command(
@@ -174,10 +176,14 @@ struct AgentOpts {
     /// process), ros2 (the ROS 2 graph already running on this machine).
     #[arg(long, value_enum, default_value_t = ui::agent::Robot::None)]
     robot: ui::agent::Robot,
-    /// Logit bonus for argument values that copy what the operator said or a tool
-    /// returned (0: off).
-    #[arg(long, default_value_t = 0.0)]
+    /// Logit bonus for argument values that copy what the operator said, a tool
+    /// returned or the robot's graph names (0: off).
+    #[arg(long, default_value_t = ui::agent::DEFAULT_COPY_BIAS)]
     copy_bias: f32,
+    /// How a step's tool is chosen: calibrated (the tool the request raised most over a
+    /// content-free request) or likeliest (the model's likeliest name).
+    #[arg(long, value_enum, default_value_t = PickArg::Calibrated)]
+    pick: PickArg,
 }
 
 impl AgentOpts {
@@ -201,6 +207,7 @@ impl AgentOpts {
             answer_mode: self.answer_mode.into(),
             robot: self.robot,
             copy_bias: self.copy_bias,
+            calibrated_choice: self.pick == PickArg::Calibrated,
         }
     }
 }
@@ -226,10 +233,13 @@ enum EvalCommand {
         out: PathBuf,
         #[arg(long, default_value_t = 6)]
         max_steps: usize,
-        /// Logit bonus for argument values that copy the request or a tool's result
-        /// (0: off).
-        #[arg(long, default_value_t = 0.0)]
+        /// Logit bonus for argument values that copy the request, a tool's result or
+        /// the robot's graph names (0: off).
+        #[arg(long, default_value_t = ui::agent::DEFAULT_COPY_BIAS)]
         copy_bias: f32,
+        /// How a step's tool is chosen (see `chat --help`).
+        #[arg(long, value_enum, default_value_t = PickArg::Calibrated)]
+        pick: PickArg,
         #[arg(long, value_enum, default_value_t = BackendArg::Llama)]
         backend: BackendArg,
         #[arg(short, long)]
@@ -387,6 +397,7 @@ fn main() -> ExitCode {
                     out,
                     max_steps,
                     copy_bias,
+                    pick,
                     backend,
                     threads,
                 },
@@ -410,6 +421,7 @@ fn main() -> ExitCode {
                 answer_mode: AnswerMode::Tool,
                 robot: ui::agent::Robot::Sim,
                 copy_bias,
+                calibrated_choice: pick == PickArg::Calibrated,
             },
             suite,
             decoding,

@@ -301,6 +301,7 @@ fn stack(setup: &Setup, script: &[String]) -> Stack {
         answer_mode: Default::default(),
         robot: Robot::Sim,
         copy_bias: 0.0,
+        calibrated_choice: false,
     };
     let operator = Arc::new(Operator {
         approves: setup.approves,

@@ -46,6 +46,10 @@ pub struct AgentConfig {
     /// Logit bonus for argument values that copy what the operator said or a tool
     /// returned this run (see `strategy::copy`); 0 turns it off.
     pub copy_bias: f32,
+    /// Which tool a step calls is decided by what the request raised in the model's
+    /// likelihoods over a content-free request (`strategy::choice`), not by the
+    /// likeliest name alone.
+    pub calibrated_choice: bool,
     pub sampler: SamplerConfig,
 }
 
@@ -64,6 +68,7 @@ impl AgentConfig {
             always_on: vec![ANSWER_TOOL.to_string(), STOP_TOOL.to_string()],
             output_chars: 1500,
             copy_bias: 0.0,
+            calibrated_choice: true,
             sampler: SamplerConfig::default(),
         }
     }

@@ -3,8 +3,11 @@
 //! before the model is asked, and judge (or edit) the calls it made after.
 //!
 //! - `Grounded`: optional arguments nobody asked for are dropped (`strategy::ground`).
-//! - `NoRepeat`: a call already made this run is not made again; a turn of nothing but
-//!   repeats leaves the next step only the answer.
+//! - `NoRepeat`: a call already made this run (whether it succeeded, was refused or
+//!   failed) is not made again; a turn of nothing but repeats leaves the next step only
+//!   the answer.
+//! - `FollowError`: after a call fails with an error that names a tool ("call
+//!   ros_topic_list to see the topics"), the next step offers that tool and the answer.
 //! - `AskedFor`: an actuating call runs only when the operator's request points at it
 //!   (`intent`); tools it cannot point at are not offered.
 //!
@@ -63,6 +66,7 @@ impl Guards {
         let mut guards: Vec<Box<dyn Guard>> = vec![
             Box::new(Grounded(Grounding::new(said.iter().copied()))),
             Box::new(NoRepeat::default()),
+            Box::new(FollowError::default()),
         ];
         if let Some(asked) = asked {
             guards.push(Box::new(AskedFor {
@@ -178,11 +182,67 @@ impl Guard for NoRepeat {
         verdicts
     }
 
-    fn observe(&mut self, call: &ToolCall, done: bool, _: &str) {
-        if done {
-            self.done.push((call.name.clone(), call.arguments.clone()));
+    fn observe(&mut self, call: &ToolCall, _: bool, _: &str) {
+        // A failed call fails the same way again: it is as done as one that ran.
+        self.done.push((call.name.clone(), call.arguments.clone()));
+    }
+}
+
+/// The next step an error names. A small model that reads "no topic /x; call
+/// ros_topic_list to see the topics" tends to try /x again or give up; the step after a
+/// failure offers the tools the error names (with the answer), once.
+#[derive(Default)]
+struct FollowError {
+    /// The text of the last failure, until the step after it.
+    error: Option<String>,
+}
+
+impl Guard for FollowError {
+    fn name(&self) -> &'static str {
+        "follow-error"
+    }
+
+    fn narrow(&self, offered: &[ToolSpec]) -> Option<Vec<String>> {
+        let error = self.error.as_deref()?;
+        let named: Vec<String> = offered
+            .iter()
+            .filter(|s| s.name != super::answer::ANSWER_TOOL && names_tool(error, &s.name))
+            .map(|s| s.name.clone())
+            .collect();
+        if named.is_empty() {
+            return None;
+        }
+        Some(
+            named
+                .into_iter()
+                .chain([super::answer::ANSWER_TOOL.to_string()])
+                .collect(),
+        )
+    }
+
+    fn check(&mut self, calls: &mut [ToolCall], _: &[ToolSpec]) -> Vec<Verdict> {
+        self.error = None;
+        vec![Verdict::Pass; calls.len()]
+    }
+
+    fn observe(&mut self, _: &ToolCall, done: bool, shown: &str) {
+        if !done {
+            self.error = Some(shown.to_string());
         }
     }
+}
+
+/// `text` names `tool` as a word of its own.
+fn names_tool(text: &str, tool: &str) -> bool {
+    text.match_indices(tool).any(|(i, _)| {
+        let word = |c: char| c.is_alphanumeric() || c == '_';
+        let before = text[..i].chars().next_back().is_none_or(|c| !word(c));
+        let after = text[i + tool.len()..]
+            .chars()
+            .next()
+            .is_none_or(|c| !word(c));
+        before && after
+    })
 }
 
 /// What the actuation guard needs to know of the tools.
@@ -255,5 +315,67 @@ pub fn same_value(a: &Value, b: &Value) -> bool {
                     .all(|(k, v)| y.get(k).is_some_and(|w| same_value(v, w)))
         }
         _ => a == b,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use serde_json::json;
+
+    use super::*;
+
+    fn spec(name: &str) -> ToolSpec {
+        ToolSpec::new(name, "", json!({"type": "object", "properties": {}})).unwrap()
+    }
+
+    fn call(name: &str, arguments: Value) -> ToolCall {
+        ToolCall {
+            name: name.into(),
+            arguments,
+        }
+    }
+
+    #[test]
+    fn a_failed_call_is_not_made_again() {
+        let mut g = Guards::standard("read the battery", &[], None);
+        let offered = [spec("ros_topic_echo"), spec("reply")];
+        let c = call("ros_topic_echo", json!({"topic": "/Battery_Level"}));
+        assert_eq!(
+            g.check(&mut [c.clone()], &offered),
+            [Verdict::Pass],
+            "first time"
+        );
+        g.observe(&c, false, "{\"error\": \"no topic /Battery_Level\"}");
+        assert_eq!(g.check(&mut [c], &offered), [Verdict::Skip]);
+        // A turn of nothing but repeats: only the answer is left.
+        assert_eq!(g.narrow(&offered), Some(vec!["reply".to_string()]));
+    }
+
+    #[test]
+    fn the_step_after_an_error_offers_the_tools_it_names() {
+        let mut g = Guards::standard("read the battery", &[], None);
+        let offered = [
+            spec("ros_topic_echo"),
+            spec("ros_topic_list"),
+            spec("ros_topic_list_all"),
+            spec("reply"),
+        ];
+        let c = call("ros_topic_echo", json!({"topic": "/x"}));
+        g.check(&mut [c.clone()], &offered);
+        g.observe(
+            &c,
+            false,
+            "no topic /x; call ros_topic_list to see the topics",
+        );
+        assert_eq!(
+            g.narrow(&offered),
+            Some(vec!["ros_topic_list".to_string(), "reply".to_string()])
+        );
+        // Once: the step after that is free again.
+        g.check(&mut [call("ros_topic_list", json!({}))], &offered);
+        assert_eq!(g.narrow(&offered), None);
+        // A call that ran (or was refused) names no next step.
+        g.observe(&c, true, "see ros_topic_list");
+        assert_eq!(g.narrow(&offered), None);
     }
 }

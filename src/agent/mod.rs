@@ -31,6 +31,7 @@ pub mod answer;
 pub mod concepts;
 pub mod config;
 pub mod event;
+pub mod facts;
 pub mod guard;
 pub mod intent;
 pub mod memory;
@@ -50,7 +51,7 @@ pub use answer::{answer_spec, ANSWER_TOOL};
 pub use config::{AgentConfig, AnswerMode};
 pub use event::Event;
 pub use outcome::{AgentError, Finish, RunResult, StepRecord, Timings};
-pub use state::Agent;
+pub use state::{Agent, NameSource};
 
 impl Agent {
     /// Answer `query`: reason, act and observe until an answer, the step limit or
@@ -93,6 +94,8 @@ impl Agent {
             timings: Timings::default(),
             answer: String::new(),
             last_observation: String::new(),
+            last_summary: None,
+            last_ok: false,
             copy_from: queries,
             answer_only: false,
             step_first_token: None,

@@ -15,10 +15,11 @@ use std::ops::ControlFlow;
 use std::sync::atomic::Ordering;
 use std::time::Instant;
 
-use serde_json::json;
+use serde_json::{json, Value};
 
 use super::answer::{self, ANSWER_CHARS, ANSWER_TOOL};
 use super::config::STOP_TOOL;
+use super::facts;
 use super::guard::{Guards, Verdict};
 use super::memory::truncate_output;
 use super::{Agent, AgentError, Event, Finish, RunResult, StepRecord, Timings};
@@ -54,6 +55,10 @@ pub(super) struct Run<'a> {
     pub answer: String,
     /// What the last tool returned, as shown.
     pub last_observation: String,
+    /// The summary of the run's last result, and whether that call succeeded: what an
+    /// answer is held to (`facts::grounded`).
+    pub last_summary: Option<String>,
+    pub last_ok: bool,
     /// What argument values may be copied from: what the operator said, what tools
     /// returned.
     pub copy_from: Vec<String>,
@@ -214,10 +219,11 @@ impl Run<'_> {
             }
         };
         if let Some(a) = turn.calls.iter().find(|c| c.name == ANSWER_TOOL) {
-            self.answer = answer::tidy(
+            let said = answer::tidy(
                 a.arguments["text"].as_str().unwrap_or_default(),
                 ANSWER_CHARS,
             );
+            self.answer = facts::grounded(&said, self.last_summary.as_deref(), self.last_ok);
             return Ok(Thought::Done(Finish::Answer));
         }
         if turn.calls.is_empty() {
@@ -324,6 +330,16 @@ impl Run<'_> {
             ms,
             decision,
         } = o;
+        let output = if ok {
+            facts::with_summary(output)
+        } else {
+            output
+        };
+        self.last_summary = output
+            .get("summary")
+            .and_then(Value::as_str)
+            .map(str::to_string);
+        self.last_ok = ok;
         self.emit(Event::ToolResult {
             step,
             index,
@@ -410,7 +426,7 @@ impl Run<'_> {
                 .collect()
         });
         let sources: Vec<&str> = self.copy_from.iter().map(String::as_str).collect();
-        let mut pipeline = self.agent.pipeline(&sources);
+        let mut pipeline = self.agent.pipeline(&sources, self.scratch.is_empty());
         let req = self.agent.request(
             &messages,
             &self.offered,

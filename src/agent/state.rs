@@ -21,7 +21,8 @@ use crate::chat::{ChatMessage, Role};
 use crate::decode::envelope::{Envelope, ToolChoice};
 use crate::decode::turn::{render_prompt, with_tools, TurnRequest};
 use crate::decode::{DecodeError, Decoding, Grammars, Session};
-use crate::strategy::copy::{defaults, CopyBias, CopyIndex};
+use crate::strategy::choice::Calibrated;
+use crate::strategy::copy::{defaults, CopyBias, CopyIndex, Scoped};
 use crate::strategy::guard::LoopGuard;
 use crate::strategy::Pipeline;
 use crate::tool::exec::Executor;
@@ -42,7 +43,13 @@ pub struct Agent {
     pub(super) memory: Memory,
     pub(super) trace: Option<Trace>,
     pub(super) cancel: Arc<AtomicBool>,
+    /// The names the robot holds now, by the argument that takes them (`with_names`).
+    pub(super) names: Option<NameSource>,
 }
+
+/// The names a robot holds, each with the argument key that takes it (`"topic"`,
+/// `"/turtle1/pose"`), read when a turn's copy bias is built.
+pub type NameSource = Arc<dyn Fn() -> Vec<(String, String)> + Send + Sync>;
 
 /// Tokens `text` takes in a prompt (a guess from its length if it cannot be tokenized).
 fn token_count(backend: &dyn Backend, text: &str) -> usize {
@@ -100,6 +107,7 @@ impl Agent {
             memory: Memory::default(),
             trace: None,
             cancel: Arc::new(AtomicBool::new(false)),
+            names: None,
         })
     }
 
@@ -110,6 +118,14 @@ impl Agent {
 
     pub fn trace_path(&self) -> Option<&std::path::Path> {
         self.trace.as_ref().map(|t| t.path())
+    }
+
+    /// Let argument values lean towards the names `names` returns, each for the
+    /// parameters of its key (with the copy bias on): a topic argument towards the
+    /// robot's topics, a node argument towards its nodes.
+    pub fn with_names(mut self, names: NameSource) -> Agent {
+        self.names = Some(names);
+        self
     }
 
     /// Use `cancel` as the run's cancel flag (one the front end also sets).
@@ -219,16 +235,26 @@ impl Agent {
         }
     }
 
-    /// The strategies of a step's turn: the copy bias (with its array guard) when on.
-    pub(super) fn pipeline(&self, sources: &[&str]) -> Pipeline {
+    /// The strategies of a step's turn: the calibrated tool choice (on a run's first
+    /// step, `first`: after a result the question is whether to answer, which the
+    /// content-free request says nothing about) and the copy bias (with its array
+    /// guard), each when on.
+    pub(super) fn pipeline(&self, sources: &[&str], first: bool) -> Pipeline {
         let mut p = Pipeline::new();
+        if first && self.config.calibrated_choice && self.config.decoding == Decoding::Constrained {
+            p = p.with(Calibrated { lists: false });
+        }
         if self.config.copy_bias > 0.0 && self.config.decoding == Decoding::Constrained {
             let vocab = self.backend.vocab();
             let offered = self.exec.registry().specs();
+            let mut scoped = defaults(&offered);
+            if let Some(names) = &self.names {
+                scoped.extend(graph_names(&offered, &names()));
+            }
             let index = CopyIndex::new(
                 vocab,
                 sources,
-                &defaults(&offered),
+                &scoped,
                 self.config.copy_bias,
                 Some(ANSWER_TOOL),
             );
@@ -277,4 +303,29 @@ impl Agent {
         messages.extend(base[1..].iter().cloned());
         Ok(messages)
     }
+}
+
+/// One source per name and per offered parameter of the name's key: each name is a
+/// candidate for the arguments of its kind only, and those arguments lean towards the
+/// robot's names alone (a request's "background_r" is no node name). A name the robot
+/// does not have can still be written: the bias is a nudge.
+fn graph_names(offered: &[ToolSpec], names: &[(String, String)]) -> Vec<Scoped> {
+    let mut out = Vec::new();
+    for spec in offered {
+        let Some(props) = spec.parameters["properties"].as_object() else {
+            continue;
+        };
+        for (key, value) in names {
+            if props.get(key).is_some_and(|p| p["type"] == "string") {
+                out.push(Scoped {
+                    tool: spec.name.clone(),
+                    key: key.clone(),
+                    text: value.clone(),
+                    literal: false,
+                    exclusive: true,
+                });
+            }
+        }
+    }
+    out
 }

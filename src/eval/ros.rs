@@ -1,10 +1,12 @@
 //! The ROS task suite: full agent episodes scored by what the agent did. A case is one
 //! JSON line:
 //!
-//! `{"id", "query", "expect_calls": [{"name", "arguments"?}], "forbid_calls"?: [names],
-//!   "answer_contains"?: [strings], "confirm"?: bool, "category"?: string}`
+//! `{"id", "query", "expect_calls": [{"name", "arguments"?}], "expect_any"?: [calls],
+//!   "forbid_calls"?: [names], "answer_contains"?: [strings], "confirm"?: bool,
+//!   "category"?: string}`
 //!
-//! Every expected call must have been made (in any order, among any others), its expected
+//! Every expected call must have been made (in any order, among any others), and at
+//! least one of `expect_any` when it is given (a request two tools answer), its expected
 //! arguments a subset of the call's with BFCL's normalisation (strings case- and
 //! punctuation-insensitive, so `turtle1/pose` is `/turtle1/pose`; numbers equal up to
 //! rounding, an int for a float); no call may name a forbidden tool (`"*"` forbids every call); the
@@ -12,6 +14,10 @@
 //! whatever the policy decided: asking to move the robot unasked is the failure.
 //! `confirm` says whether the operator approves actuating calls. The category is the id
 //! without its trailing number (`motion-03` is `motion`) unless given.
+//!
+//! The suite has two halves, to tune on one and report the other: within each category,
+//! in file order, the 1st, 3rd, 5th… case is in the tuning half and the others in the
+//! report half (`halves`).
 
 use std::path::Path;
 
@@ -36,6 +42,8 @@ pub struct RosCase {
     pub query: String,
     #[serde(default)]
     pub expect_calls: Vec<ExpectCall>,
+    #[serde(default)]
+    pub expect_any: Vec<ExpectCall>,
     #[serde(default)]
     pub forbid_calls: Vec<String>,
     #[serde(default)]
@@ -108,8 +116,42 @@ pub fn subset_matches(got: &Value, want: &Value) -> bool {
     }
 }
 
+/// Which half of the suite each case is in (see the module header), in order.
+pub fn halves(cases: &[RosCase]) -> Vec<Half> {
+    let mut seen: std::collections::HashMap<String, usize> = Default::default();
+    cases
+        .iter()
+        .map(|c| {
+            let n = seen.entry(c.category()).or_default();
+            *n += 1;
+            if *n % 2 == 1 {
+                Half::Tune
+            } else {
+                Half::Report
+            }
+        })
+        .collect()
+}
+
+/// The half of the suite a case is in.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Half {
+    Tune,
+    Report,
+}
+
 /// Score an episode: the calls the model made (every step, in order) and its answer.
 pub fn check(case: &RosCase, calls: &[ToolCall], answer: &str) -> Verdict {
+    let made = |want: &ExpectCall| {
+        let wanted = Value::Object(want.arguments.clone());
+        calls
+            .iter()
+            .any(|c| c.name == want.name && subset_matches(&c.arguments, &wanted))
+    };
+    if !case.expect_any.is_empty() && !case.expect_any.iter().any(made) {
+        let names: Vec<&str> = case.expect_any.iter().map(|w| w.name.as_str()).collect();
+        return Verdict::Fail(format!("none of {} called as expected", names.join(", ")));
+    }
     for want in &case.expect_calls {
         let wanted = Value::Object(want.arguments.clone());
         let same_name: Vec<&ToolCall> = calls.iter().filter(|c| c.name == want.name).collect();
@@ -215,6 +257,31 @@ mod tests {
         let none = case(json!({"id": "chat-01", "query": "hi", "forbid_calls": ["*"]}));
         assert!(check(&none, &[], "hello").passed());
         assert!(!check(&none, &[call("system_time", json!({}))], "hello").passed());
+    }
+
+    #[test]
+    fn one_of_several_expected_calls_is_enough() {
+        let c = case(
+            json!({"id": "status-01", "query": "battery?", "expect_any": [
+            {"name": "robot_status"},
+            {"name": "ros_topic_echo", "arguments": {"topic": "/battery_state"}}]}),
+        );
+        assert!(check(&c, &[call("robot_status", json!({}))], "").passed());
+        let echo = call("ros_topic_echo", json!({"topic": "/battery_state"}));
+        assert!(check(&c, &[echo], "").passed());
+        let other = call("ros_topic_echo", json!({"topic": "/diagnostics"}));
+        assert!(!check(&c, &[other], "").passed());
+        assert!(!check(&c, &[], "").passed());
+    }
+
+    #[test]
+    fn halves_alternate_within_each_category() {
+        let cases: Vec<RosCase> = ["a-1", "a-2", "b-1", "a-3", "b-2"]
+            .iter()
+            .map(|id| case(json!({"id": id, "query": "q"})))
+            .collect();
+        use Half::*;
+        assert_eq!(halves(&cases), [Tune, Report, Tune, Tune, Report]);
     }
 
     #[test]

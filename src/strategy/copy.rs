@@ -54,6 +54,8 @@ pub struct CopyIndex {
     sources: Vec<Vec<u8>>,
     /// Per source: the one tool parameter it is for (a declared default), or any.
     scope: Vec<Option<(Vec<u8>, Vec<u8>)>>,
+    /// Parameters (tool, key) whose sources are their scoped ones alone.
+    exclusive: Vec<(Vec<u8>, Vec<u8>)>,
     /// Declared defaults that are JSON literals (`true`, `false`): the parameter, and
     /// the tokens that start the literal (with or without a space before it).
     literals: Vec<(Vec<u8>, Vec<u8>, Vec<TokenId>)>,
@@ -84,8 +86,12 @@ impl CopyIndex {
         let mut texts: Vec<Vec<u8>> = Vec::new();
         let mut scope = Vec::new();
         let mut literals = Vec::new();
+        let mut exclusive = Vec::new();
         for d in defaults {
             let place = (d.tool.as_bytes().to_vec(), d.key.as_bytes().to_vec());
+            if d.exclusive && !exclusive.contains(&place) {
+                exclusive.push(place.clone());
+            }
             if d.literal {
                 let starts: Vec<TokenId> = (0..vocab.len() as TokenId)
                     .filter(|&t| {
@@ -155,6 +161,7 @@ impl CopyIndex {
         CopyIndex {
             sources: texts,
             scope,
+            exclusive,
             literals,
             at,
             string_enders,
@@ -184,11 +191,17 @@ impl CopyIndex {
                 }
             }
         }
+        let only_scoped = self
+            .exclusive
+            .iter()
+            .any(|(tool, key)| cx.tool == tool.as_slice() && cx.key == key.as_slice());
         for (s, text) in self.sources.iter().enumerate() {
-            if let Some((tool, key)) = &self.scope[s] {
-                if cx.tool != tool.as_slice() || cx.key != key.as_slice() {
-                    continue;
+            match &self.scope[s] {
+                Some((tool, key)) if cx.tool != tool.as_slice() || cx.key != key.as_slice() => {
+                    continue
                 }
+                None if only_scoped => continue,
+                _ => {}
             }
             let mut ends = false;
             let starts = (0..text.len()).filter(|&p| word_start(text, p));
@@ -260,6 +273,10 @@ pub struct Scoped {
     pub text: String,
     /// A JSON literal (`true`, `false`), not a string's or number's text.
     pub literal: bool,
+    /// The parameter's only candidates (with the other exclusive sources for it): what
+    /// the request or a result spells is not favoured there. The names a robot holds
+    /// are exclusive for the arguments that take them; a declared default is not.
+    pub exclusive: bool,
 }
 
 /// The declared defaults of the required top-level parameters of `specs` (see
@@ -287,6 +304,7 @@ pub fn defaults(specs: &[ToolSpec]) -> Vec<Scoped> {
                 key: key.clone(),
                 literal: value.is_boolean(),
                 text,
+                exclusive: false,
             });
         }
     }
@@ -422,5 +440,28 @@ mod tests {
         assert!(favoured(&index, &v, &call("opt")).is_empty());
         let other = "[{\"name\": \"h\", \"arguments\": {\"unit\": ";
         assert!(favoured(&index, &v, other).is_empty());
+    }
+
+    #[test]
+    fn exclusive_sources_are_a_parameters_only_candidates() {
+        let v = vocab(&[
+            "\"", "\"/", "\"back", "ground", "/", "turtle", "sim", "\"turtle",
+        ]);
+        let names = [Scoped {
+            tool: "get".into(),
+            key: "node".into(),
+            text: "/turtlesim".into(),
+            literal: false,
+            exclusive: true,
+        }];
+        let index = CopyIndex::new(&v, &["background of /turtlesim"], &names, 3.0, None);
+        let call = |key: &str| format!("[{{\"name\": \"get\", \"arguments\": {{\"{key}\": ");
+        // The node leans towards the robot's node, not towards other words of the request.
+        let node = favoured(&index, &v, &call("node"));
+        assert!(node.contains(&"\"/".into()), "{node:?}");
+        assert!(!node.contains(&"\"back".into()), "{node:?}");
+        // Another parameter copies the request as before.
+        let name = favoured(&index, &v, &call("name"));
+        assert!(name.contains(&"\"back".into()), "{name:?}");
     }
 }

@@ -17,7 +17,7 @@ pub use super::robot::{connect, Robot, RobotLink};
 use super::term::{clean, Input, TerminalConfirm};
 use crate::agent::prompt::RobotPrompt;
 use crate::agent::trace::Trace;
-use crate::agent::{Agent, AgentConfig, AnswerMode, Event};
+use crate::agent::{Agent, AgentConfig, AnswerMode, Event, NameSource};
 use crate::decode::Decoding;
 use crate::estop::EStop;
 use crate::ros::ros2::Ros2Options;
@@ -42,6 +42,7 @@ pub struct AgentArgs {
     pub answer_mode: AnswerMode,
     pub robot: Robot,
     pub copy_bias: f32,
+    pub calibrated_choice: bool,
 }
 
 /// `ferrosa sim`: the robot alone, until Ctrl-C.
@@ -147,7 +148,7 @@ pub fn build_with(
     graph: Option<Arc<dyn RosGraph>>,
     estop: Arc<EStop>,
 ) -> anyhow::Result<Agent> {
-    let (registry, policy, prompt) = tools_and_policy(args, confirm, graph, estop)?;
+    let (registry, policy, prompt) = tools_and_policy(args, confirm, graph.clone(), estop)?;
     // Configuration errors first: loading the model is the slow part.
     let (resolved, _, model) = args.model.load()?;
     let family = resolved.family().unwrap_or("chatml").to_string();
@@ -156,7 +157,12 @@ pub fn build_with(
     config.decoding = args.decoding;
     config.answer_mode = args.answer_mode;
     config.copy_bias = args.copy_bias;
+    config.calibrated_choice = args.calibrated_choice;
     let mut agent = Agent::new(model, registry, policy, prompt.render(), config)?;
+    if let Some(g) = graph {
+        let fence = agent.fence().clone();
+        agent = agent.with_names(robot_names(g, fence));
+    }
     if let Some(dir) = &args.trace_dir {
         let trace = Trace::create(dir)
             .with_context(|| format!("cannot create a trace in {}", dir.display()))?;
@@ -164,6 +170,41 @@ pub fn build_with(
     }
     Ok(agent)
 }
+
+/// The robot's nodes, topics, services, actions and their types, keyed by the argument
+/// that takes each, the fenced ones left out. The graph is a snapshot of what discovery
+/// has seen: a graph that cannot answer at once gives no names (the bias is a nudge; a
+/// run never waits for it).
+fn robot_names(graph: Arc<dyn RosGraph>, fence: Arc<crate::fence::Fence>) -> NameSource {
+    Arc::new(move || {
+        let mut cx = std::task::Context::from_waker(std::task::Waker::noop());
+        let std::task::Poll::Ready(Ok(g)) = graph.graph().as_mut().poll(&mut cx) else {
+            return Vec::new();
+        };
+        let mut out = std::collections::BTreeSet::new();
+        for n in &g.nodes {
+            out.insert(("node", n.clone()));
+        }
+        for (kind, entries) in [("topic", g.topics()), ("service", g.services())] {
+            for (name, types) in entries {
+                out.insert((kind, name));
+                out.extend(types.into_iter().map(|t| ("type", t)));
+            }
+        }
+        for a in g.actions() {
+            out.insert(("action", a.action));
+            out.insert(("type", a.type_name));
+        }
+        out.into_iter()
+            .filter(|(_, name)| !fence.denies(name))
+            .map(|(k, name)| (k.to_string(), name))
+            .collect()
+    })
+}
+
+/// The agent's copy bias unless told otherwise (see `strategy::copy`; the README has
+/// the ROS suite with it and without).
+pub const DEFAULT_COPY_BIAS: f32 = 3.0;
 
 /// Ctrl-C cancels the current run and, with a robot, engages the e-stop (everything
 /// running is aborted and the robot braked); the process goes on.

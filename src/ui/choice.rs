@@ -80,6 +80,15 @@ impl From<EnvelopeArg> for Envelope {
     }
 }
 
+/// How an agent step picks its tool.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum PickArg {
+    /// The tool the request raised most over a content-free request.
+    Calibrated,
+    /// The model's likeliest tool name.
+    Likeliest,
+}
+
 impl From<ToolChoiceArg> for ToolChoice {
     fn from(a: ToolChoiceArg) -> ToolChoice {
         match a {

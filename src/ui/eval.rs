@@ -237,13 +237,44 @@ pub fn ros(args: &RosArgs) -> anyhow::Result<()> {
         b if b > 0.0 => format!(" | copy bias {b}"),
         _ => String::new(),
     };
+    let pick = if args.agent.calibrated_choice {
+        "calibrated"
+    } else {
+        "likeliest"
+    };
     println!(
-        "model {model_name} | suite {}{copy} | {} cases per mode\n",
+        "model {model_name} | suite {}{copy} | tool pick {pick} | {} cases per mode\n",
         args.suite.display(),
         cases.len()
     );
     let overall = eval::summarize_overall(&results);
-    print!("{}", eval::markdown(&[summaries, overall].concat()));
+    // Each half on its own (see `eval::ros::halves`): tune on one, report the other.
+    let halves = eval::ros::halves(&cases);
+    let mut by_half = Vec::new();
+    for (half, label) in [
+        (eval::ros::Half::Tune, "tune half"),
+        (eval::ros::Half::Report, "report half"),
+    ] {
+        let ids: std::collections::HashSet<&str> = cases
+            .iter()
+            .zip(&halves)
+            .filter(|(_, h)| **h == half)
+            .map(|(c, _)| c.id.as_str())
+            .collect();
+        let part: Vec<CaseResult> = results
+            .iter()
+            .filter(|r| ids.contains(r.id.as_str()))
+            .cloned()
+            .collect();
+        for mut s in eval::summarize_overall(&part) {
+            s.category = label.into();
+            by_half.push(s);
+        }
+    }
+    print!(
+        "{}",
+        eval::markdown(&[summaries, by_half, overall].concat())
+    );
     eprintln!("per-case results: {}", jsonl.display());
     Ok(())
 }

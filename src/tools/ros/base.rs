@@ -27,10 +27,111 @@ impl Ros {
         self.graph.graph().await.map_err(failed)
     }
 
-    /// The type of `topic`, or a "no topic" error with near names.
-    pub(super) async fn topic_type(&self, topic: &str) -> Result<String, ToolError> {
+    /// For a tool that only reads: `topic` as asked when it exists, else the one topic
+    /// its words name best (`resolve_loose`), with a note saying so; else a "no topic"
+    /// error with near names.
+    pub(super) async fn read_topic(&self, topic: &str) -> Result<Resolved, ToolError> {
         let g = self.snapshot().await?;
-        g.topic_type(topic).ok_or_else(|| no_topic(topic, &g))
+        if let Some(ty) = g.topic_type(topic) {
+            return Ok(Resolved {
+                topic: topic.to_string(),
+                type_name: ty,
+                note: None,
+            });
+        }
+        let topics = g.topics();
+        let Some(found) = resolve_loose(topic, &topics) else {
+            return Err(no_topic(topic, &g));
+        };
+        let type_name = g.topic_type(&found).ok_or_else(|| no_topic(topic, &g))?;
+        Ok(Resolved {
+            note: Some(format!(
+                "no topic {topic}; read {found} ({type_name}), the topic whose name and type match it best"
+            )),
+            topic: found,
+            type_name,
+        })
+    }
+}
+
+/// A topic a reading tool resolved from what the model wrote.
+pub(super) struct Resolved {
+    pub topic: String,
+    pub type_name: String,
+    /// Set when the topic is not the one asked for, but the nearest match.
+    pub note: Option<String>,
+}
+
+/// The words of a ROS name or type: lowercase runs of letters and digits, camel case
+/// split ("BatteryState" → "battery", "state"); words under three characters dropped.
+fn name_words(name: &str) -> Vec<String> {
+    let mut words = Vec::new();
+    let mut cur = String::new();
+    let mut prev_lower = false;
+    for c in name.chars() {
+        if !c.is_alphanumeric() {
+            words.push(std::mem::take(&mut cur));
+            prev_lower = false;
+            continue;
+        }
+        if c.is_uppercase() && prev_lower {
+            words.push(std::mem::take(&mut cur));
+        }
+        prev_lower = c.is_lowercase() || c.is_ascii_digit();
+        cur.extend(c.to_lowercase());
+    }
+    words.push(cur);
+    words.retain(|w| w.chars().count() >= 3);
+    words
+}
+
+/// The one topic whose name and type share the most words with `wanted`, a word of its
+/// name counting twice one of its type only ("battery" →
+/// `/battery_state`, "Battery_Level" → the topic of type `BatteryState`, "pose" →
+/// `/turtle1/pose`), a word matching when one is a prefix of the other ("diag" and
+/// "diagnostics"); `None` when no topic shares a word or two share the most.
+pub(super) fn resolve_loose(
+    wanted: &str,
+    topics: &BTreeMap<String, BTreeSet<String>>,
+) -> Option<String> {
+    let asked = name_words(wanted);
+    if asked.is_empty() {
+        return None;
+    }
+    let mut scored: Vec<(usize, &String)> = topics
+        .iter()
+        .map(|(name, types)| {
+            let in_name = name_words(name);
+            // The package ("sensor_msgs") says little; the type's own name says what
+            // the topic carries.
+            let in_type: Vec<String> = types
+                .iter()
+                .flat_map(|t| name_words(t.rsplit('/').next().unwrap_or(t)))
+                .collect();
+            let meets = |words: &[String], a: &str| {
+                words
+                    .iter()
+                    .any(|w| w.starts_with(a) || a.starts_with(w.as_str()))
+            };
+            // A word the name has counts twice one only the type has.
+            let hits: usize = asked
+                .iter()
+                .map(|a| match (meets(&in_name, a), meets(&in_type, a)) {
+                    (true, _) => 2,
+                    (false, true) => 1,
+                    _ => 0,
+                })
+                .sum();
+            (hits, name)
+        })
+        .filter(|(hits, _)| *hits > 0)
+        .collect();
+    scored.sort_by_key(|b| std::cmp::Reverse(b.0));
+    match scored.as_slice() {
+        [(best, name), rest @ ..] if rest.first().is_none_or(|(next, _)| next < best) => {
+            Some((*name).clone())
+        }
+        _ => None,
     }
 }
 
@@ -251,4 +352,44 @@ pub(crate) fn with_mux(mut out: Value, asked: &str, d: &crate::ros::Delivery) ->
         ));
     }
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn graph(items: &[(&str, &str)]) -> BTreeMap<String, BTreeSet<String>> {
+        items
+            .iter()
+            .map(|(n, t)| (n.to_string(), BTreeSet::from([t.to_string()])))
+            .collect()
+    }
+
+    #[test]
+    fn a_loose_name_resolves_to_the_one_topic_its_words_name() {
+        let g = graph(&[
+            ("/battery_state", "sensor_msgs/msg/BatteryState"),
+            ("/diagnostics", "diagnostic_msgs/msg/DiagnosticArray"),
+            ("/turtle1/pose", "turtlesim/msg/Pose"),
+            ("/turtle1/cmd_vel", "geometry_msgs/msg/Twist"),
+            ("/turtle1/cmd_vel_agent", "geometry_msgs/msg/Twist"),
+            ("/power", "sensor_msgs/msg/BatteryState"),
+        ]);
+        let r = |w: &str| resolve_loose(w, &g);
+        assert_eq!(r("/Battery_Level").as_deref(), Some("/battery_state"));
+        assert_eq!(r("/diag").as_deref(), Some("/diagnostics"));
+        assert_eq!(r("pose").as_deref(), Some("/turtle1/pose"));
+        assert_eq!(r("/turtle/pose").as_deref(), Some("/turtle1/pose"));
+        // Two topics equally near, or none: no guess.
+        assert_eq!(r("/cmd_vel"), None);
+        assert_eq!(r("/temperature"), None);
+        assert_eq!(r("/"), None);
+    }
+
+    #[test]
+    fn words_split_at_punctuation_and_camel_case() {
+        assert_eq!(name_words("BatteryState"), ["battery", "state"]);
+        assert_eq!(name_words("/turtle1/cmd_vel"), ["turtle1", "cmd", "vel"]);
+        assert_eq!(name_words("Battery_Level"), ["battery", "level"]);
+    }
 }

@@ -6,8 +6,8 @@ use std::collections::BTreeSet;
 use serde_json::{json, Value};
 
 use super::base::{
-    absolute, no_topic, require_node, service_type, typed, Filter, ListArgs, NodeArgs, Ros,
-    ServiceArgs, TopicArgs,
+    absolute, no_topic, require_node, resolve_loose, service_type, typed, Filter, ListArgs,
+    NodeArgs, Ros, ServiceArgs, TopicArgs,
 };
 use crate::ros::cdr;
 use crate::tool::{Effect, Tool, ToolContext, ToolError};
@@ -103,12 +103,14 @@ impl Tool for TopicInfo {
         "A topic's type, publishers and subscribers (by node) and their QoS.".into()
     }
     async fn call(&self, a: TopicArgs, _: &ToolContext) -> Result<Value, ToolError> {
-        let topic = absolute(&a.topic);
+        let asked = absolute(&a.topic);
         let g = self.0.snapshot().await?;
         let topics = g.topics();
-        let Some(types) = topics.get(&topic) else {
-            return Err(no_topic(&topic, &g));
+        let topic = match topics.contains_key(&asked) {
+            true => asked.clone(),
+            false => resolve_loose(&asked, &topics).ok_or_else(|| no_topic(&asked, &g))?,
         };
+        let types = &topics[&topic];
         let side = |eps: &[crate::ros::graph::TopicEndpoint]| -> Vec<Value> {
             eps.iter()
                 .filter(|e| e.topic == topic)
@@ -116,11 +118,18 @@ impl Tool for TopicInfo {
                 .collect()
         };
         let (p, s) = (side(&g.publishers), side(&g.subscribers));
-        Ok(json!({
-            "topic": topic, "type": types.iter().cloned().collect::<Vec<_>>().join(", "),
+        let type_name = types.iter().cloned().collect::<Vec<_>>().join(", ");
+        let mut out = json!({
+            "topic": topic, "type": type_name,
             "publisher_count": p.len(), "subscriber_count": s.len(),
             "publishers": p, "subscribers": s,
-        }))
+        });
+        if topic != asked {
+            out["resolved"] = json!(format!(
+                "no topic {asked}; described {topic} ({type_name}), the topic whose name and type match it best"
+            ));
+        }
+        Ok(out)
     }
 }
 

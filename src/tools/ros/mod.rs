@@ -12,6 +12,7 @@
 //! - `param`: parameters (through the node's `rcl_interfaces` services)
 //! - `iface`: interface definitions and `/rosout` logs
 //! - `action`: actions (list, send a goal, cancel)
+//! - `status`: the robot's health (battery, diagnostics, nodes) in one call
 
 mod action;
 mod base;
@@ -19,6 +20,7 @@ mod graph;
 mod iface;
 mod param;
 mod service;
+mod status;
 mod topic;
 
 use std::sync::Arc;
@@ -53,6 +55,7 @@ pub fn package(graph: Arc<dyn RosGraph>) -> Package {
         .with(action::ActionList(g()))
         .with(action::ActionSendGoal(g()))
         .with(action::ActionCancel(g()))
+        .with(status::RobotStatus(g()))
 }
 
 #[cfg(test)]
@@ -165,11 +168,18 @@ mod tests {
         )
         .unwrap();
         assert_eq!(hz["rate_hz"], 1.0);
-        let err = run(&TopicEcho(ros.clone()), json!({"topic": "/turtle1/pos"})).unwrap_err();
+        // A loose name reads the one topic it names, and says so.
+        let near = run(&TopicEcho(ros.clone()), json!({"topic": "/turtle1/pos"})).unwrap();
+        assert_eq!(near["topic"], "/turtle1/pose");
         assert!(
-            err.to_string().contains("did you mean /turtle1/pose"),
-            "{err}"
+            near["resolved"]
+                .as_str()
+                .unwrap()
+                .contains("no topic /turtle1/pos"),
+            "{near}"
         );
+        let err = run(&TopicEcho(ros.clone()), json!({"topic": "/xyz"})).unwrap_err();
+        assert!(err.to_string().starts_with("no topic /xyz"), "{err}");
     }
 
     #[test]

@@ -6,7 +6,7 @@ use schemars::JsonSchema;
 use serde::Deserialize;
 use serde_json::{json, Map, Value};
 
-use super::base::{absolute, failed, with_mux, with_note, Ros};
+use super::base::{absolute, failed, with_mux, with_note, Resolved, Ros};
 use crate::tool::{Effect, Tool, ToolContext, ToolError};
 
 #[derive(Deserialize, JsonSchema)]
@@ -49,11 +49,14 @@ impl Tool for TopicEcho {
         "Read the latest messages on a topic (e.g. a pose, a battery state), as JSON.".into()
     }
     async fn call(&self, a: EchoArgs, cx: &ToolContext) -> Result<Value, ToolError> {
-        let topic = absolute(&a.topic);
         let count = a.count.unwrap_or(1).clamp(1, 20) as usize;
         let window =
             Duration::from_secs_f64(a.timeout_s.unwrap_or(3.0).clamp(0.1, 10.0)).min(cx.timeout);
-        let ty = self.0.topic_type(&topic).await?;
+        let Resolved {
+            topic,
+            type_name: ty,
+            note: resolved,
+        } = self.0.read_topic(&absolute(&a.topic)).await?;
         let samples = self
             .0
             .graph
@@ -74,6 +77,9 @@ impl Tool for TopicEcho {
                 "no message within {:.1} s; the publisher may be idle",
                 window.as_secs_f64()
             ));
+        }
+        if let Some(r) = resolved {
+            out["resolved"] = json!(r);
         }
         Ok(out)
     }
@@ -99,10 +105,13 @@ impl Tool for TopicHz {
         "Measure how often a topic publishes (messages per second).".into()
     }
     async fn call(&self, a: HzArgs, cx: &ToolContext) -> Result<Value, ToolError> {
-        let topic = absolute(&a.topic);
         let window =
             Duration::from_secs_f64(a.window_s.unwrap_or(2.0).clamp(0.5, 10.0)).min(cx.timeout);
-        let ty = self.0.topic_type(&topic).await?;
+        let Resolved {
+            topic,
+            type_name: ty,
+            note: resolved,
+        } = self.0.read_topic(&absolute(&a.topic)).await?;
         let samples = self
             .0
             .graph
@@ -115,10 +124,12 @@ impl Tool for TopicHz {
             }
             _ => 0.0,
         };
-        Ok(
-            json!({"topic": topic, "messages": samples.len(), "window_s": window.as_secs_f64(),
-                  "rate_hz": (rate * 100.0).round() / 100.0}),
-        )
+        let mut out = json!({"topic": topic, "messages": samples.len(), "window_s": window.as_secs_f64(),
+                  "rate_hz": (rate * 100.0).round() / 100.0});
+        if let Some(r) = resolved {
+            out["resolved"] = json!(r);
+        }
+        Ok(out)
     }
 }
 

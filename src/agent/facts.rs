@@ -1,0 +1,357 @@
+//! What a tool returned, in one line, and whether an answer says it.
+//!
+//! Every result the model reads carries a `summary`: the tool's own when it writes one
+//! (listings, status), else one made here from the result's values ("node /turtlesim,
+//! name background_r, value 69"; for messages read from a topic, the newest message's
+//! fields). A small model copies a line far more reliably than it reads nested JSON.
+//!
+//! An answer is held to the run's last result: when that call succeeded and the answer
+//! states none of its facts (the numbers and names in its summary), the answer is that
+//! summary; a sentence said twice in a row is said once. Nothing here reads the
+//! operator's language: facts are numbers and names, compared as written.
+//!
+//! Cost: one walk of each result (bounded by `MAX_ITEMS`); one scan of the answer.
+
+use serde_json::Value;
+
+/// Values a made summary holds at most.
+const MAX_ITEMS: usize = 12;
+/// Characters a made summary holds at most.
+const MAX_CHARS: usize = 300;
+/// Keys whose values say nothing an operator asked about.
+const NOISE: &[&str] = &[
+    "header",
+    "stamp",
+    "covariance",
+    "filters",
+    "qos",
+    "definition",
+    "example",
+    "t",
+    "window_s",
+];
+
+/// `output` with a `summary` first when it had none; an output that is not an object,
+/// or has nothing to say, is left as it is.
+pub fn with_summary(mut output: Value) -> Value {
+    if output.get("summary").is_some_and(Value::is_string) {
+        return output;
+    }
+    let Some(line) = summarize(&output) else {
+        return output;
+    };
+    let Value::Object(fields) = &mut output else {
+        return output;
+    };
+    let mut ordered = serde_json::Map::new();
+    ordered.insert("summary".into(), Value::String(line));
+    ordered.append(fields);
+    Value::Object(ordered)
+}
+
+/// One line of `output`'s values: "key value, key value, …" (nested keys joined by
+/// dots; of a list of messages, the newest one).
+pub fn summarize(output: &Value) -> Option<String> {
+    let Value::Object(fields) = output else {
+        return None;
+    };
+    let mut items = Vec::new();
+    for (key, value) in fields {
+        if key == "messages" {
+            if let Some(last) = value.as_array().and_then(|a| a.last()) {
+                leaves(last, "", &mut items);
+            }
+            continue;
+        }
+        leaves(value, key, &mut items);
+    }
+    if items.is_empty() {
+        return None;
+    }
+    let mut line = String::new();
+    for item in items.iter().take(MAX_ITEMS) {
+        if line.len() + item.len() + 2 > MAX_CHARS {
+            break;
+        }
+        if !line.is_empty() {
+            line.push_str(", ");
+        }
+        line.push_str(item);
+    }
+    Some(line)
+}
+
+/// "path value" for each scalar under `v` (a list of scalars as one value).
+fn leaves(v: &Value, path: &str, out: &mut Vec<String>) {
+    if out.len() >= MAX_ITEMS {
+        return;
+    }
+    let key = path.rsplit('.').next().unwrap_or(path);
+    if NOISE.contains(&key) {
+        return;
+    }
+    let named = |text: String| {
+        if path.is_empty() {
+            text
+        } else {
+            format!("{path} {text}")
+        }
+    };
+    match v {
+        Value::Object(m) => {
+            for (k, child) in m {
+                let p = if path.is_empty() {
+                    k.clone()
+                } else {
+                    format!("{path}.{k}")
+                };
+                leaves(child, &p, out);
+            }
+        }
+        Value::Array(items) if items.iter().all(|i| !i.is_object() && !i.is_array()) => {
+            if !items.is_empty() {
+                let shown: Vec<String> = items.iter().take(8).map(scalar).collect();
+                let more = items.len().saturating_sub(shown.len());
+                let mut text = shown.join(" ");
+                if more > 0 {
+                    text.push_str(&format!(" and {more} more"));
+                }
+                out.push(named(text));
+            }
+        }
+        Value::Array(items) => {
+            for (i, child) in items.iter().enumerate().take(4) {
+                let p = if path.is_empty() {
+                    i.to_string()
+                } else {
+                    format!("{path}.{i}")
+                };
+                leaves(child, &p, out);
+            }
+        }
+        Value::Null => {}
+        other => out.push(named(scalar(other))),
+    }
+}
+
+fn scalar(v: &Value) -> String {
+    match v {
+        Value::String(s) => s.clone(),
+        Value::Number(n) => n.to_string(),
+        other => other.to_string(),
+    }
+}
+
+/// The facts of a summary: its numbers and its names (words holding `/` or `_`), as
+/// written, lowercased.
+pub fn facts(summary: &str) -> Vec<String> {
+    summary
+        .split(|c: char| c.is_whitespace() || matches!(c, ',' | ';' | '(' | ')' | ':'))
+        .map(|w| w.trim_end_matches('.').to_lowercase())
+        .filter(|w| {
+            let number = w.parse::<f64>().is_ok();
+            let name = w.len() > 1 && (w.contains('/') || w.contains('_'));
+            number || name
+        })
+        .collect()
+}
+
+/// The answer the operator reads: `reply` with a repeated sentence said once, or, when
+/// the last call succeeded (`last_ok`) and the reply states none of the facts of its
+/// `summary`, that summary.
+pub fn grounded(reply: &str, summary: Option<&str>, last_ok: bool) -> String {
+    let reply = once(unlooped(reply));
+    let Some(summary) = summary.filter(|_| last_ok) else {
+        return reply;
+    };
+    let facts = facts(summary);
+    let lower = reply.to_lowercase();
+    if facts.is_empty() || facts.iter().any(|f| lower.contains(f.as_str())) {
+        return reply;
+    }
+    summary.to_string()
+}
+
+/// Longest phrase, in words, looked for as the unit of a loop.
+const LOOP_WORDS: usize = 12;
+
+/// `text` up to where it starts going round in a loop: a phrase said three times in a
+/// row is said once ("the direction of the direction of the direction of …", "request
+/// 1.0, request 1.0, …"; numbers alone may repeat), cut where a comma or stop ends the phrase when one does.
+/// Words are compared by their letters and digits alone, in any script.
+fn unlooped(text: &str) -> &str {
+    // (start, end, key) of each word.
+    let mut words: Vec<(usize, usize, String)> = Vec::new();
+    let mut start = None;
+    for (i, c) in text.char_indices().chain([(text.len(), ' ')]) {
+        match (c.is_alphanumeric() || c == '.' && start.is_some(), start) {
+            (true, None) => start = Some(i),
+            (false, Some(s)) => {
+                let key: String = text[s..i]
+                    .chars()
+                    .filter(|c| c.is_alphanumeric())
+                    .flat_map(char::to_lowercase)
+                    .collect();
+                words.push((s, i, key));
+                start = None;
+            }
+            _ => {}
+        }
+    }
+    let same = |a: usize, b: usize, n: usize| (0..n).all(|k| words[a + k].2 == words[b + k].2);
+    for i in 0..words.len() {
+        for p in 1..=LOOP_WORDS.min((words.len() - i) / 3) {
+            // Numbers alone repeat in real data ("0.0 0.0 0.0"); a loop says words.
+            let worded = words[i..i + p]
+                .iter()
+                .any(|w| w.2.chars().any(char::is_alphabetic));
+            if !(worded && same(i, i + p, p) && same(i, i + 2 * p, p)) {
+                continue;
+            }
+            // Of the p places to cut the second round, the first after a comma or stop.
+            let cut = (i + p..i + 2 * p)
+                .find(|&w| text[words[w - 1].1..words[w].0].contains([',', '.', ';']))
+                .unwrap_or(i + p);
+            return text[..words[cut].0].trim_end_matches(|c: char| c.is_whitespace() || c == ',');
+        }
+    }
+    text
+}
+
+/// `text` with each sentence that repeats an earlier one left out.
+fn once(text: &str) -> String {
+    let mut seen: Vec<String> = Vec::new();
+    let mut out = String::new();
+    for sentence in sentences(text) {
+        let key: String = sentence
+            .chars()
+            .filter(|c| c.is_alphanumeric())
+            .flat_map(char::to_lowercase)
+            .collect();
+        if key.is_empty() || seen.contains(&key) {
+            continue;
+        }
+        seen.push(key);
+        out.push_str(sentence);
+    }
+    out.trim().to_string()
+}
+
+/// Sentences with what ends them (and the space after).
+fn sentences(text: &str) -> Vec<&str> {
+    let mut out = Vec::new();
+    let mut start = 0;
+    let b = text.as_bytes();
+    for (i, &c) in b.iter().enumerate() {
+        let ends =
+            matches!(c, b'.' | b'!' | b'?') && b.get(i + 1).is_none_or(|n| n.is_ascii_whitespace());
+        if ends {
+            let mut end = i + 1;
+            while end < b.len() && b[end].is_ascii_whitespace() {
+                end += 1;
+            }
+            out.push(&text[start..end]);
+            start = end;
+        }
+    }
+    if start < text.len() {
+        out.push(&text[start..]);
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use serde_json::json;
+
+    #[test]
+    fn a_result_without_a_summary_gets_one_from_its_values() {
+        let out = with_summary(json!({"node": "/turtlesim", "name": "background_r", "value": 69}));
+        assert_eq!(
+            out["summary"],
+            "node /turtlesim, name background_r, value 69"
+        );
+        assert_eq!(out.as_object().unwrap().keys().next().unwrap(), "summary");
+        let own = with_summary(json!({"summary": "2 nodes: /a, /b", "count": 2}));
+        assert_eq!(own["summary"], "2 nodes: /a, /b");
+        assert_eq!(with_summary(json!([1, 2])), json!([1, 2]));
+    }
+
+    #[test]
+    fn an_echo_is_summarised_by_its_newest_message() {
+        let echo = json!({"topic": "/p", "type": "turtlesim/msg/Pose", "count": 2, "messages": [
+            {"x": 1.0, "y": 2.0}, {"x": 3.5, "y": 4.0, "header": {"stamp": {"sec": 1}}}
+        ]});
+        assert_eq!(
+            summarize(&echo).unwrap(),
+            "topic /p, type turtlesim/msg/Pose, count 2, x 3.5, y 4.0"
+        );
+        let nested = json!({"pose": {"x": 1.0}, "names": ["a", "b"]});
+        assert_eq!(summarize(&nested).unwrap(), "pose.x 1.0, names a b");
+    }
+
+    #[test]
+    fn an_answer_going_round_in_a_loop_is_cut_where_the_loop_starts() {
+        assert_eq!(
+            unlooped(
+                "The turtle is facing the direction of the direction of the direction of the t"
+            ),
+            "The turtle is facing the direction of"
+        );
+        assert_eq!(
+            unlooped("response 1.0, request 1.0, request 1.0, request 1.0, request 1.0"),
+            "response 1.0, request 1.0"
+        );
+        // A list that repeats no phrase is kept whole, however long.
+        let list = "10 topics: /battery_state, /clock, /diagnostics, /rosout, /turtle1/pose";
+        assert_eq!(unlooped(list), list);
+        assert_eq!(unlooped("x 1.0, y 1.0, z 1.0"), "x 1.0, y 1.0, z 1.0");
+        assert_eq!(unlooped("linear 0.0 0.0 0.0"), "linear 0.0 0.0 0.0");
+        let pose = "x 5.54, y 5.54";
+        assert_eq!(
+            grounded(
+                "pose x 5.54 pose x 5.54 pose x 5.54 pose x 5.54",
+                Some(pose),
+                true
+            ),
+            "pose x 5.54"
+        );
+    }
+
+    #[test]
+    fn an_answer_that_states_no_fact_is_replaced_by_the_summary() {
+        let s = "1 node: /turtlesim";
+        assert_eq!(grounded("The response is a response.", Some(s), true), s);
+        assert_eq!(
+            grounded("Running: /turtlesim.", Some(s), true),
+            "Running: /turtlesim."
+        );
+        // Numbers count as facts in any language.
+        let pose = "x 5.54, y 5.54, theta 0";
+        assert_eq!(
+            grounded("La tortuga está en x 5.54.", Some(pose), true),
+            "La tortuga está en x 5.54."
+        );
+        // After a failure the model's own words stay.
+        assert_eq!(grounded("It failed.", Some(s), false), "It failed.");
+        assert_eq!(grounded("Hello.", None, true), "Hello.");
+    }
+
+    #[test]
+    fn a_repeated_sentence_is_said_once() {
+        assert_eq!(
+            once("The turtle moved. The turtle moved. The turtle moved. It is at 7."),
+            "The turtle moved. It is at 7."
+        );
+        assert_eq!(once("v1.5 is set."), "v1.5 is set.");
+    }
+
+    #[test]
+    fn facts_are_numbers_and_names() {
+        assert_eq!(
+            facts("2 topics: /a/b, /c; value 0.5, name background_r."),
+            ["2", "/a/b", "/c", "0.5", "background_r"]
+        );
+    }
+}
