@@ -116,7 +116,7 @@ fn main() {
         answer_mode: AnswerMode::Tool,
         robot: Robot::Sim,
         copy_bias: ferrosa::ui::agent::DEFAULT_COPY_BIAS,
-        calibrated_choice: true,
+        calibrated_choice: false,
     };
     header::print(
         "ferrosa agent benchmark",

@@ -182,7 +182,7 @@ struct AgentOpts {
     copy_bias: f32,
     /// How a step's tool is chosen: calibrated (the tool the request raised most over a
     /// content-free request) or likeliest (the model's likeliest name).
-    #[arg(long, value_enum, default_value_t = PickArg::Calibrated)]
+    #[arg(long, value_enum, default_value_t = PickArg::Likeliest)]
     pick: PickArg,
 }
 
@@ -238,7 +238,7 @@ enum EvalCommand {
         #[arg(long, default_value_t = ui::agent::DEFAULT_COPY_BIAS)]
         copy_bias: f32,
         /// How a step's tool is chosen (see `chat --help`).
-        #[arg(long, value_enum, default_value_t = PickArg::Calibrated)]
+        #[arg(long, value_enum, default_value_t = PickArg::Likeliest)]
         pick: PickArg,
         #[arg(long, value_enum, default_value_t = BackendArg::Llama)]
         backend: BackendArg,

@@ -50,6 +50,9 @@ fn agent(script: &[String], packages: Vec<Package>, policy: Policy, context: usi
     // The synthetic vocabulary spends about four tokens where SmolLM2's spends one: room
     // for every tool (the selection test narrows its own).
     config.tool_budget_tokens = 20_000;
+    // The scripted replies are the model's choices; the calibrated choice would read
+    // the synthetic logits as preferences and choose again.
+    config.calibrated_choice = false;
     Agent::new(
         Box::new(backend),
         registry,
@@ -266,7 +269,8 @@ fn a_repeated_call_leads_to_the_answer_instead_of_a_loop() {
 #[test]
 fn history_is_trimmed_oldest_first_to_fit_the_context() {
     let dir = tempfile::tempdir().unwrap();
-    let long = "word ".repeat(30);
+    // Thirty different words (a word said over and over is a loop the answer cuts).
+    let long: String = (0..30).map(|k| format!("w{k} ")).collect();
     let mut script = Vec::new();
     for i in 0..8 {
         script.push(answer(&format!("Answer {i}: {}", long.trim())));

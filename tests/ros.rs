@@ -507,8 +507,8 @@ impl ferrosa::tool::Confirm for Approver {
 }
 
 /// The agent with the real default model on the sim, as an operator uses it: a status
-/// report, a request whose call fails, and a Spanish request. One model load for all
-/// three. (Two-step requests and a Spanish motion request are not here: the default
+/// report, a request whose call fails, and a Spanish request, with the calibrated first
+/// choice (`--pick calibrated`, the ROS suite's setting). One model load for all three. (Two-step requests and a Spanish motion request are not here: the default
 /// model stops after the first step, and answers "mueve la tortuga 1 metro hacia
 /// adelante" without a tool; see the README's ROS suite figures.)
 #[test]

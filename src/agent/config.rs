@@ -46,9 +46,10 @@ pub struct AgentConfig {
     /// Logit bonus for argument values that copy what the operator said or a tool
     /// returned this run (see `strategy::copy`); 0 turns it off.
     pub copy_bias: f32,
-    /// Which tool a step calls is decided by what the request raised in the model's
-    /// likelihoods over a content-free request (`strategy::choice`), not by the
-    /// likeliest name alone.
+    /// Which tool a run's first step calls is decided by what the request raised in
+    /// the model's likelihoods over a content-free request (`strategy::choice`), not by
+    /// the likeliest name alone. Off by default: on, "what is the mean of 3, 5 and 10?"
+    /// is answered without a tool (the README has the ROS suite with it).
     pub calibrated_choice: bool,
     pub sampler: SamplerConfig,
 }
@@ -68,7 +69,7 @@ impl AgentConfig {
             always_on: vec![ANSWER_TOOL.to_string(), STOP_TOOL.to_string()],
             output_chars: 1500,
             copy_bias: 0.0,
-            calibrated_choice: true,
+            calibrated_choice: false,
             sampler: SamplerConfig::default(),
         }
     }

@@ -145,8 +145,7 @@ fn scalar(v: &Value) -> String {
 /// The facts of a summary: its numbers and its names (words holding `/` or `_`), as
 /// written, lowercased.
 pub fn facts(summary: &str) -> Vec<String> {
-    summary
-        .split(|c: char| c.is_whitespace() || matches!(c, ',' | ';' | '(' | ')' | ':'))
+    words(summary)
         .map(|w| w.trim_end_matches('.').to_lowercase())
         .filter(|w| {
             let number = w.parse::<f64>().is_ok();
@@ -166,10 +165,29 @@ pub fn grounded(reply: &str, summary: Option<&str>, last_ok: bool) -> String {
     };
     let facts = facts(summary);
     let lower = reply.to_lowercase();
-    if facts.is_empty() || facts.iter().any(|f| lower.contains(f.as_str())) {
+    // Numbers are compared as numbers, to the precision the answer writes them: "42"
+    // states 42.0, "5.54" states 5.544.
+    let said: Vec<(f64, f64)> = words(&lower)
+        .filter_map(|w| {
+            let w = w.trim_end_matches(['.', '%']);
+            let n = w.parse::<f64>().ok()?;
+            let decimals = w.split_once('.').map_or(0, |(_, d)| d.len()) as i32;
+            Some((n, 0.5 * 10f64.powi(-decimals)))
+        })
+        .collect();
+    let stated = |f: &String| match f.parse::<f64>() {
+        Ok(n) => said.iter().any(|(s, tol)| (s - n).abs() <= *tol + 1e-9),
+        Err(_) => lower.contains(f.as_str()),
+    };
+    if facts.is_empty() || facts.iter().any(stated) {
         return reply;
     }
     summary.to_string()
+}
+
+/// The words of `text` as `facts` splits it.
+fn words(text: &str) -> impl Iterator<Item = &str> {
+    text.split(|c: char| c.is_whitespace() || matches!(c, ',' | ';' | '(' | ')' | ':'))
 }
 
 /// Longest phrase, in words, looked for as the unit of a loop.
@@ -317,6 +335,15 @@ mod tests {
             ),
             "pose x 5.54"
         );
+    }
+
+    #[test]
+    fn numbers_count_as_stated_to_the_precision_written() {
+        let s = "expression 6 * 7, result 42.0";
+        assert_eq!(grounded("It is 42.", Some(s), true), "It is 42.");
+        let pose = "x 5.544, y 2.1";
+        assert_eq!(grounded("At 5.54.", Some(pose), true), "At 5.54.");
+        assert_eq!(grounded("At 5.6.", Some(pose), true), pose);
     }
 
     #[test]
