@@ -652,21 +652,24 @@ fn driven(
         .unzip()
 }
 
-/// A list goes on when the request raised the odds of another call, and a further call
-/// is kept only when it brings a value the request spells: asked for two cities, the
-/// model's third (invented) city is dropped and the list closes.
-#[test]
-fn a_list_goes_on_while_asked_and_drops_a_call_nobody_asked_for() {
-    let specs = vec![
+/// `weather(city)` with `city` as given, and the answer pseudo-tool.
+fn weather_specs(city: Value) -> Vec<ToolSpec> {
+    vec![
         ToolSpec::new(
             "weather",
             "Weather in a city.",
-            json!({"type": "object", "properties": {"city": {"type": "string"}}, "required": ["city"]}),
+            json!({"type": "object", "properties": {"city": city}, "required": ["city"]}),
         )
         .unwrap(),
         ferrosa::agent::answer_spec(),
-    ];
-    let model = ByText::new(|text| {
+    ]
+}
+
+/// A model that lists weather calls: it prefers `weather` more when asked (the request
+/// present, not the content-free "N/A"), writes `city(n)` as the n-th call's city, and
+/// after each call goes on while asked (a little more each time) and closes without.
+fn weather_lister(city: impl Fn(usize) -> &'static str + Send + 'static) -> ByText {
+    ByText::new(move |text| {
         let asked = !text.contains("N/A");
         let turn = text.rsplit("assistant\n").next().unwrap_or("");
         let calls = turn.matches("\"city\"").count();
@@ -678,18 +681,25 @@ fn a_list_goes_on_while_asked_and_drops_a_call_nobody_asked_for() {
         ) {
             return next;
         }
-        let city = ["Paris\"}}", "Lyon\"}}", "Atlantis\"}}"][calls.clamp(1, 3) - 1];
-        if let Some(next) = after(turn, "\"city\": \"", &[(city, -0.1)]) {
+        if let Some(next) = after(turn, "\"city\": \"", &[(city(calls), -0.1)]) {
             return next;
         }
         if turn.ends_with("}}") {
-            // With the request the list goes on, a little more each time; without it, it
-            // closes.
             let more = if asked { -0.2 } else { -3.0 };
             return vec![(",\n".into(), more), ("\n]</tool_call>".into(), -1.0)];
         }
         vec![("<|im_end|>".into(), 0.0)]
-    });
+    })
+}
+
+/// A list goes on when the request raised the odds of another call, and a further call
+/// is kept only when it brings a value the request spells: asked for two cities, the
+/// model's third (invented) city is dropped and the list closes.
+#[test]
+fn a_list_goes_on_while_asked_and_drops_a_call_nobody_asked_for() {
+    let specs = weather_specs(json!({"type": "string"}));
+    let model =
+        weather_lister(|calls| ["Paris\"}}", "Lyon\"}}", "Atlantis\"}}"][calls.clamp(1, 3) - 1]);
     let (names, args) = driven(model, &specs, "weather in Paris and in Lyon", true);
     assert_eq!(names, ["weather", "weather"]);
     assert_eq!(args, [json!({"city": "Paris"}), json!({"city": "Lyon"})]);
@@ -699,15 +709,7 @@ fn a_list_goes_on_while_asked_and_drops_a_call_nobody_asked_for() {
 /// answers instead.
 #[test]
 fn a_first_call_of_unasked_values_gives_way_to_the_answer() {
-    let specs = vec![
-        ToolSpec::new(
-            "weather",
-            "Weather in a city.",
-            json!({"type": "object", "properties": {"city": {"type": "string"}}, "required": ["city"]}),
-        )
-        .unwrap(),
-        ferrosa::agent::answer_spec(),
-    ];
+    let specs = weather_specs(json!({"type": "string"}));
     let model = ByText::new(|text| {
         let turn = text.rsplit("assistant\n").next().unwrap_or("");
         let weather = if text.contains("N/A") { -3.0 } else { -0.5 };
@@ -878,38 +880,9 @@ fn a_list_of_calls_ending_in_forced_values_goes_on_and_closes() {
 #[test]
 fn a_full_list_closed_by_forced_tokens_stays_in_step_with_the_grammar() {
     let cities = ["Paris", "Lyon", "Nice", "Metz", "Brest"];
-    let specs = vec![
-        ToolSpec::new(
-            "weather",
-            "Weather in a city.",
-            json!({"type": "object", "properties": {"city": {"type": "string", "enum": cities}}, "required": ["city"]}),
-        )
-        .unwrap(),
-        ferrosa::agent::answer_spec(),
-    ];
-    let model = ByText::new(move |text| {
-        let asked = !text.contains("N/A");
-        let turn = text.rsplit("assistant\n").next().unwrap_or("");
-        let calls = turn.matches("\"city\"").count();
-        let weather = if asked { -0.5 } else { -1.5 };
-        if let Some(next) = after(
-            turn,
-            "{\"name\": \"",
-            &[("weather\"", weather), ("reply\"", -2.0)],
-        ) {
-            return next;
-        }
-        // One letter: the enum forces the rest of the city and the call's close.
-        let city = &cities[calls.clamp(1, 5) - 1][..1];
-        if let Some(next) = after(turn, "\"city\": \"", &[(city, -0.1)]) {
-            return next;
-        }
-        if turn.ends_with("}}") {
-            let more = if asked { -0.2 } else { -3.0 };
-            return vec![(",\n".into(), more), ("\n]</tool_call>".into(), -1.0)];
-        }
-        vec![("<|im_end|>".into(), 0.0)]
-    });
+    let specs = weather_specs(json!({"type": "string", "enum": cities}));
+    // One letter: the enum forces the rest of the city and the call's close.
+    let model = weather_lister(move |calls| &cities[calls.clamp(1, 5) - 1][..1]);
     let request = "weather in Paris, Lyon, Nice, Metz and Brest";
     let (names, args) = driven(model, &specs, request, true);
     let cities: Vec<Value> = cities.iter().map(|c| json!({ "city": c })).collect();

@@ -45,9 +45,7 @@ impl Ros {
         };
         let type_name = g.topic_type(&found).ok_or_else(|| no_topic(topic, &g))?;
         Ok(Resolved {
-            note: Some(format!(
-                "no topic {topic}; read {found} ({type_name}), the topic whose name and type match it best"
-            )),
+            note: Some(resolved_note(topic, &found, &type_name, "read")),
             topic: found,
             type_name,
         })
@@ -60,6 +58,20 @@ pub(super) struct Resolved {
     pub type_name: String,
     /// Set when the topic is not the one asked for, but the nearest match.
     pub note: Option<String>,
+}
+
+/// What a result says when its tool `did` (read, described) `found` for the `asked`
+/// topic the graph lacks; a result carries it as `resolved`.
+pub(super) fn resolved_note(asked: &str, found: &str, type_name: &str, did: &str) -> String {
+    format!("no topic {asked}; {did} {found} ({type_name}), the topic whose name and type match it best")
+}
+
+/// `out` with the note of a resolved topic, when there is one.
+pub(super) fn with_resolved(mut out: Value, note: Option<String>) -> Value {
+    if let Some(n) = note {
+        out["resolved"] = json!(n);
+    }
+    out
 }
 
 /// The words of a ROS name or type: lowercase runs of letters and digits, camel case

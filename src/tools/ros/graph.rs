@@ -6,8 +6,8 @@ use std::collections::BTreeSet;
 use serde_json::{json, Value};
 
 use super::base::{
-    absolute, no_topic, require_node, resolve_loose, service_type, typed, Filter, ListArgs,
-    NodeArgs, Ros, ServiceArgs, TopicArgs,
+    absolute, no_topic, require_node, resolve_loose, resolved_note, service_type, typed,
+    with_resolved, Filter, ListArgs, NodeArgs, Ros, ServiceArgs, TopicArgs,
 };
 use crate::ros::cdr;
 use crate::tool::{Effect, Tool, ToolContext, ToolError};
@@ -119,17 +119,13 @@ impl Tool for TopicInfo {
         };
         let (p, s) = (side(&g.publishers), side(&g.subscribers));
         let type_name = types.iter().cloned().collect::<Vec<_>>().join(", ");
-        let mut out = json!({
+        let note = (topic != asked).then(|| resolved_note(&asked, &topic, &type_name, "described"));
+        let out = json!({
             "topic": topic, "type": type_name,
             "publisher_count": p.len(), "subscriber_count": s.len(),
             "publishers": p, "subscribers": s,
         });
-        if topic != asked {
-            out["resolved"] = json!(format!(
-                "no topic {asked}; described {topic} ({type_name}), the topic whose name and type match it best"
-            ));
-        }
-        Ok(out)
+        Ok(with_resolved(out, note))
     }
 }
 

@@ -6,7 +6,7 @@ use schemars::JsonSchema;
 use serde::Deserialize;
 use serde_json::{json, Map, Value};
 
-use super::base::{absolute, failed, with_mux, with_note, Resolved, Ros};
+use super::base::{absolute, failed, with_mux, with_note, with_resolved, Resolved, Ros};
 use crate::tool::{Effect, Tool, ToolContext, ToolError};
 
 #[derive(Deserialize, JsonSchema)]
@@ -78,10 +78,7 @@ impl Tool for TopicEcho {
                 window.as_secs_f64()
             ));
         }
-        if let Some(r) = resolved {
-            out["resolved"] = json!(r);
-        }
-        Ok(out)
+        Ok(with_resolved(out, resolved))
     }
 }
 
@@ -124,12 +121,9 @@ impl Tool for TopicHz {
             }
             _ => 0.0,
         };
-        let mut out = json!({"topic": topic, "messages": samples.len(), "window_s": window.as_secs_f64(),
+        let out = json!({"topic": topic, "messages": samples.len(), "window_s": window.as_secs_f64(),
                   "rate_hz": (rate * 100.0).round() / 100.0});
-        if let Some(r) = resolved {
-            out["resolved"] = json!(r);
-        }
-        Ok(out)
+        Ok(with_resolved(out, resolved))
     }
 }
 
