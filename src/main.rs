@@ -233,6 +233,10 @@ enum EvalCommand {
         out: PathBuf,
         #[arg(long, default_value_t = 6)]
         max_steps: usize,
+        /// Only measure tool retrieval, without decoding: the share of cases whose
+        /// expected tools are all among those offered, per category and half.
+        #[arg(long)]
+        retrieval: bool,
         /// Logit bonus for argument values that copy the request, a tool's result or
         /// the robot's graph names (0: off).
         #[arg(long, default_value_t = ui::agent::DEFAULT_COPY_BIAS)]
@@ -396,12 +400,14 @@ fn main() -> ExitCode {
                     limit,
                     out,
                     max_steps,
+                    retrieval,
                     copy_bias,
                     pick,
                     backend,
                     threads,
                 },
         } => ui::eval::ros(&ui::eval::RosArgs {
+            retrieval,
             agent: ui::agent::AgentArgs {
                 model: ui::ModelArgs {
                     models_dir: dir,

@@ -40,7 +40,14 @@ fn answer(text: &str) -> String {
 
 fn agent(script: &[String], packages: Vec<Package>, policy: Policy, context: usize) -> Agent {
     let replies: Vec<&str> = script.iter().map(String::as_str).collect();
-    let backend = Scripted::synthetic(&replies).with_context(context);
+    agent_on(
+        Scripted::synthetic(&replies).with_context(context),
+        packages,
+        policy,
+    )
+}
+
+fn agent_on(backend: Scripted, packages: Vec<Package>, policy: Policy) -> Agent {
     let mut registry = Registry::new();
     for p in ferrosa::tools::standard().into_iter().chain(packages) {
         registry.add(p);
@@ -92,6 +99,50 @@ fn multi_step_run_observes_and_answers() {
         "{:?}",
         r.timings
     );
+}
+
+#[test]
+fn a_request_of_several_parts_is_worked_one_part_at_a_time() {
+    let script = [
+        call("calc_eval", json!({"expression": "3 + 5"})),
+        call("calc_stats", json!({"values": [3, 5, 10], "stat": "mean"})),
+        answer("The mean is 6."),
+    ];
+    let replies: Vec<&str> = script.iter().map(String::as_str).collect();
+    let prompts = Arc::new(Mutex::new(Vec::new()));
+    let backend = Scripted::synthetic(&replies).with_probe(prompts.clone());
+    let mut a = agent_on(backend, vec![], Policy::default());
+    let (r, _) = ask(&mut a, "add 3 and 5, then tell me the mean of 3, 5 and 10");
+    assert_eq!(r.answer, "The mean is 6.");
+    assert_eq!(r.steps.len(), 2);
+    let prompts = prompts.lock().unwrap();
+    let text = |i: usize| a.backend().vocab().decode_lossy(&prompts[i]);
+    // The first turn shows the first part alone; the next shows the second part as the
+    // operator's next turn, after the first part's result.
+    let (first, second) = (text(0), text(1));
+    assert!(first.contains("add 3 and 5"), "{first}");
+    assert!(!first.contains("the mean of"), "{first}");
+    let result = second
+        .find("\"result\"")
+        .expect("the first result is shown");
+    let part = second
+        .find("tell me the mean of 3, 5 and 10")
+        .expect("the second part");
+    assert!(part > result, "{second}");
+}
+
+#[test]
+fn a_part_the_model_answers_without_a_call_is_kept_and_the_next_part_worked() {
+    let script = [
+        answer("Hello!"),
+        call("calc_eval", json!({"expression": "2 + 2"})),
+        answer("It is 4."),
+    ];
+    let mut a = agent(&script, vec![], Policy::default(), 8192);
+    let (r, _) = ask(&mut a, "hello there, what is 2 + 2?");
+    assert_eq!(r.finish, Finish::Answer);
+    assert_eq!(r.steps.len(), 1);
+    assert_eq!(r.answer, "Hello! It is 4.");
 }
 
 /// Two tools that each wait until both have started: run one after the other, the first

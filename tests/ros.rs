@@ -507,10 +507,9 @@ impl ferrosa::tool::Confirm for Approver {
 }
 
 /// The agent with the real default model on the sim, as an operator uses it: a status
-/// report, a request whose call fails, and a Spanish request, with the calibrated first
-/// choice (`--pick calibrated`, the ROS suite's setting). One model load for all three. (Two-step requests and a Spanish motion request are not here: the default
-/// model stops after the first step, and answers "mueve la tortuga 1 metro hacia
-/// adelante" without a tool; see the README's ROS suite figures.)
+/// report, a request whose call fails, a Spanish request, a two-step request and a
+/// Spanish motion request after confirmation, with the calibrated first choice
+/// (`--pick calibrated`). One model load for all of them.
 #[test]
 #[ignore = "needs the model weights (or a ROS peer): cargo test --release -- --include-ignored"]
 fn the_agent_serves_operator_requests_with_the_real_model() {
@@ -595,4 +594,28 @@ fn the_agent_serves_operator_requests_with_the_real_model() {
     assert!(r.answer.contains("/turtlesim"), "{why}");
     // Nothing here moved the robot, so the operator was asked nothing.
     assert!(operator.0.lock().unwrap().is_empty(), "{why}");
+
+    // Two steps: each part of the request gets its call, in order, each confirmed, and
+    // the second starts where the first left the turtle.
+    let (r, why) = ask("rotate the turtle 90 degrees and then move it forward 1 meter");
+    let names: Vec<&str> = r.steps.iter().map(|s| s.name.as_str()).collect();
+    assert_eq!(names, ["turtle_rotate", "turtle_move"], "{why}");
+    assert!(r.steps.iter().all(|s| s.ok), "{why}");
+    let heading = r.steps[1].output["pose"]["theta_deg"].as_f64().unwrap();
+    assert!((heading - 90.0).abs() < 5.0, "{why}");
+    assert_eq!(
+        *operator.0.lock().unwrap(),
+        ["turtle_rotate", "turtle_move"],
+        "{why}"
+    );
+
+    // Spanish motion: confirmed, then moved the distance asked.
+    operator.0.lock().unwrap().clear();
+    let (r, why) = ask("mueve la tortuga 1 metro hacia adelante");
+    let moved = ok(&r.steps, "turtle_move").unwrap_or_else(|| panic!("{why}"));
+    assert!(
+        (moved.output["moved_m"].as_f64().unwrap() - 1.0).abs() < 0.1,
+        "{why}"
+    );
+    assert_eq!(*operator.0.lock().unwrap(), ["turtle_move"], "{why}");
 }

@@ -431,6 +431,26 @@ fn push_clause(
     (mood != Mood::Asked).then_some(mood)
 }
 
+/// How a folded word joins what follows to what came before: `Some(true)` when it
+/// only chains ("and", "then", "puis"), `Some(false)` when it joins alternatives or
+/// turns the sentence around ("or", "but"), `None` when it is no conjunction.
+pub fn chains(word: &str) -> Option<bool> {
+    CONJUNCTIONS.contains(&word).then(|| {
+        !DISJUNCTIONS.contains(&word) && (!CONTRASTS.contains(&word) || SEQUENCERS.contains(&word))
+    })
+}
+
+/// Contrasts that only order what is asked ("then", "luego", "dann").
+const SEQUENCERS: &[&str] = &["then", "luego", "despues", "puis", "dann", "poi", "depois"];
+
+/// Whether a folded word can open a request of its own: it asks ("what", "wo"), asks to
+/// be told ("tell", "dime") or names an act ("move", "gira").
+pub fn opens_request(word: &str) -> bool {
+    QUESTION_WORDS.contains(&word)
+        || TELL.contains(&word)
+        || !acts_of(std::slice::from_ref(&word.to_string())).is_empty()
+}
+
 /// Acts the request asks for (in some clause, and forbidden in none).
 pub fn asked_acts(clauses: &[Clause]) -> Vec<Act> {
     let mut acts: Vec<Act> = clauses

@@ -157,13 +157,24 @@ pub fn facts(summary: &str) -> Vec<String> {
 
 /// The answer the operator reads: `reply` with a repeated sentence said once, or, when
 /// the last call succeeded (`last_ok`) and the reply states none of the facts of its
-/// `summary`, that summary.
-pub fn grounded(reply: &str, summary: Option<&str>, last_ok: bool) -> String {
+/// `summary`, that summary. Facts the `request` itself states ("move 1 m" and a result's
+/// 1.0) do not show the reply read the result, unless there are no others.
+pub fn grounded(reply: &str, summary: Option<&str>, last_ok: bool, request: &str) -> String {
     let reply = once(unlooped(reply));
     let Some(summary) = summary.filter(|_| last_ok) else {
         return reply;
     };
-    let facts = facts(summary);
+    let all = facts(summary);
+    let asked = request.to_lowercase();
+    let asked_numbers: Vec<f64> = words(&asked)
+        .filter_map(|w| w.trim_end_matches(['.', '%']).parse::<f64>().ok())
+        .collect();
+    let in_request = |f: &String| match f.parse::<f64>() {
+        Ok(n) => asked_numbers.contains(&n),
+        Err(_) => asked.contains(f.as_str()),
+    };
+    let new: Vec<String> = all.iter().filter(|f| !in_request(f)).cloned().collect();
+    let facts = if new.is_empty() { all } else { new };
     let lower = reply.to_lowercase();
     // Numbers are compared as numbers, to the precision the answer writes them: "42"
     // states 42.0, "5.54" states 5.544.
@@ -331,7 +342,8 @@ mod tests {
             grounded(
                 "pose x 5.54 pose x 5.54 pose x 5.54 pose x 5.54",
                 Some(pose),
-                true
+                true,
+                ""
             ),
             "pose x 5.54"
         );
@@ -340,29 +352,47 @@ mod tests {
     #[test]
     fn numbers_count_as_stated_to_the_precision_written() {
         let s = "expression 6 * 7, result 42.0";
-        assert_eq!(grounded("It is 42.", Some(s), true), "It is 42.");
+        assert_eq!(grounded("It is 42.", Some(s), true, ""), "It is 42.");
         let pose = "x 5.544, y 2.1";
-        assert_eq!(grounded("At 5.54.", Some(pose), true), "At 5.54.");
-        assert_eq!(grounded("At 5.6.", Some(pose), true), pose);
+        assert_eq!(grounded("At 5.54.", Some(pose), true, ""), "At 5.54.");
+        assert_eq!(grounded("At 5.6.", Some(pose), true, ""), pose);
+    }
+
+    #[test]
+    fn facts_the_request_states_show_nothing_read() {
+        let s = "requested_m 1.0, moved_m 1.0, pose.x 6.54, pose.y 5.54";
+        let q = "mueve la tortuga 1 metro";
+        assert_eq!(grounded("Mueve la tortuga 1 metro.", Some(s), true, q), s);
+        assert_eq!(
+            grounded("Movida 1 m, ahora en x 6.54.", Some(s), true, q),
+            "Movida 1 m, ahora en x 6.54."
+        );
+        // When the request states every fact, saying one is enough.
+        let set = "node /turtlesim, name background_r, value 100";
+        let q = "set background_r of /turtlesim to 100";
+        assert_eq!(grounded("Set to 100.", Some(set), true, q), "Set to 100.");
     }
 
     #[test]
     fn an_answer_that_states_no_fact_is_replaced_by_the_summary() {
         let s = "1 node: /turtlesim";
-        assert_eq!(grounded("The response is a response.", Some(s), true), s);
         assert_eq!(
-            grounded("Running: /turtlesim.", Some(s), true),
+            grounded("The response is a response.", Some(s), true, ""),
+            s
+        );
+        assert_eq!(
+            grounded("Running: /turtlesim.", Some(s), true, ""),
             "Running: /turtlesim."
         );
         // Numbers count as facts in any language.
         let pose = "x 5.54, y 5.54, theta 0";
         assert_eq!(
-            grounded("La tortuga está en x 5.54.", Some(pose), true),
+            grounded("La tortuga está en x 5.54.", Some(pose), true, ""),
             "La tortuga está en x 5.54."
         );
         // After a failure the model's own words stay.
-        assert_eq!(grounded("It failed.", Some(s), false), "It failed.");
-        assert_eq!(grounded("Hello.", None, true), "Hello.");
+        assert_eq!(grounded("It failed.", Some(s), false, ""), "It failed.");
+        assert_eq!(grounded("Hello.", None, true, ""), "Hello.");
     }
 
     #[test]

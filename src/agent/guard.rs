@@ -10,6 +10,11 @@
 //!   ros_topic_list to see the topics"), the next step offers that tool and the answer.
 //! - `AskedFor`: an actuating call runs only when the operator's request points at it
 //!   (`intent`); tools it cannot point at are not offered.
+//! - `ActFirst`: a request (or a part of one, `plan`) that asks for an act a dedicated
+//!   actuator is named for ("mueve la tortuga" and `turtle_move`) gets an actuating
+//!   call before any answer: its first step offers the actuators only (of which
+//!   `AskedFor` keeps those the request may ask for). A small model otherwise often
+//!   answers "moving the turtle" without moving it, most of all outside English.
 //!
 //! The policy (`tool::Policy`: deny-list, limits, confirmation) comes after all of them.
 
@@ -18,7 +23,8 @@ use std::sync::Arc;
 
 use serde_json::Value;
 
-use super::intent::Intent;
+use super::concepts::{acts_of, asked_acts, clauses, Act};
+use super::intent::{is_generic, name_words, Intent};
 use crate::strategy::ground::Grounding;
 use crate::strategy::Strategy;
 use crate::tool::{Effect, Policy, ToolCall, ToolSpec};
@@ -52,6 +58,10 @@ pub trait Guard {
     /// After the calls ran: what happened to one (`done`: it ran or was refused, so
     /// asking again would get the same), and the text the model was shown.
     fn observe(&mut self, _call: &ToolCall, _done: bool, _shown: &str) {}
+
+    /// The run moved on to the next part of the request (`plan`): what held for the
+    /// last part's steps no longer does.
+    fn next_part(&mut self, _part: &str) {}
 }
 
 /// The guards of a run, in order.
@@ -69,10 +79,12 @@ impl Guards {
             Box::new(FollowError::default()),
         ];
         if let Some(asked) = asked {
+            let actuators = asked.actuators.clone();
             guards.push(Box::new(AskedFor {
                 intent: Intent::new(query),
                 asked,
             }));
+            guards.push(Box::new(ActFirst::new(query, actuators)));
         }
         Guards { guards }
     }
@@ -87,10 +99,15 @@ impl Guards {
         let mut allowed: Option<Vec<String>> = None;
         for g in &self.guards {
             if let Some(names) = g.narrow(offered) {
-                allowed = Some(match allowed {
+                let kept: Vec<String> = match &allowed {
                     None => names,
-                    Some(prev) => prev.into_iter().filter(|n| names.contains(n)).collect(),
-                });
+                    Some(prev) => prev.iter().filter(|n| names.contains(n)).cloned().collect(),
+                };
+                // A guard that would leave nothing to write is passed over (the guards
+                // that judge calls after the turn still do).
+                if !kept.is_empty() {
+                    allowed = Some(kept);
+                }
             }
         }
         allowed
@@ -113,6 +130,12 @@ impl Guards {
     pub fn observe(&mut self, call: &ToolCall, done: bool, shown: &str) {
         for g in &mut self.guards {
             g.observe(call, done, shown);
+        }
+    }
+
+    pub fn next_part(&mut self, part: &str) {
+        for g in &mut self.guards {
+            g.next_part(part);
         }
     }
 }
@@ -186,6 +209,10 @@ impl Guard for NoRepeat {
         // A failed call fails the same way again: it is as done as one that ran.
         self.done.push((call.name.clone(), call.arguments.clone()));
     }
+
+    fn next_part(&mut self, _: &str) {
+        self.answer_only = false;
+    }
 }
 
 /// The next step an error names. A small model that reads "no topic /x; call
@@ -229,6 +256,10 @@ impl Guard for FollowError {
         if !done {
             self.error = Some(shown.to_string());
         }
+    }
+
+    fn next_part(&mut self, _: &str) {
+        self.error = None;
     }
 }
 
@@ -299,6 +330,62 @@ impl Guard for AskedFor {
                 }
             })
             .collect()
+    }
+}
+
+/// The acts a request (part) asks for, until a step has called.
+struct ActFirst {
+    acts: Vec<Act>,
+    actuators: BTreeSet<String>,
+    tried: bool,
+}
+
+impl ActFirst {
+    fn new(request: &str, actuators: BTreeSet<String>) -> ActFirst {
+        // Words of names ("cmd_vel", "/turtle1/pose") are what a call acts on, not acts.
+        let plain: Vec<&str> = request
+            .split_whitespace()
+            .filter(|w| !w.contains(['_', '/']))
+            .collect();
+        let acts = asked_acts(&clauses(&plain.join(" ")))
+            .into_iter()
+            .filter(|a| !matches!(a, Act::Stop | Act::Fence))
+            .collect();
+        ActFirst {
+            acts,
+            actuators,
+            tried: false,
+        }
+    }
+}
+
+impl Guard for ActFirst {
+    fn name(&self) -> &'static str {
+        "act-first"
+    }
+
+    fn narrow(&self, offered: &[ToolSpec]) -> Option<Vec<String>> {
+        if self.tried || self.acts.is_empty() {
+            return None;
+        }
+        let actuators = || offered.iter().filter(|s| self.actuators.contains(&s.name));
+        let named = actuators().any(|s| {
+            !is_generic(s)
+                && acts_of(&name_words(&s.name))
+                    .iter()
+                    .any(|a| self.acts.contains(a))
+        });
+        named.then(|| actuators().map(|s| s.name.clone()).collect())
+    }
+
+    fn check(&mut self, calls: &mut [ToolCall], _: &[ToolSpec]) -> Vec<Verdict> {
+        self.tried = true;
+        vec![Verdict::Pass; calls.len()]
+    }
+
+    fn next_part(&mut self, part: &str) {
+        let actuators = std::mem::take(&mut self.actuators);
+        *self = ActFirst::new(part, actuators);
     }
 }
 
@@ -377,5 +464,66 @@ mod tests {
         // A call that ran (or was refused) names no next step.
         g.observe(&c, true, "see ros_topic_list");
         assert_eq!(g.narrow(&offered), None);
+    }
+
+    fn asked(actuators: &[&str]) -> Asked {
+        Asked {
+            policy: Arc::new(Policy::default()),
+            effects: actuators
+                .iter()
+                .map(|a| (a.to_string(), Effect::Actuates))
+                .collect(),
+            actuators: actuators.iter().map(|a| a.to_string()).collect(),
+            observing: ["turtle", "pose", "ros", "topic", "publish"]
+                .iter()
+                .map(|w| w.to_string())
+                .collect(),
+        }
+    }
+
+    #[test]
+    fn a_request_for_an_act_gets_an_actuating_call_before_an_answer() {
+        let publish = ToolSpec::new(
+            "ros_topic_publish",
+            "",
+            json!({"type": "object", "properties": {"topic": {"type": "string"}}}),
+        )
+        .unwrap();
+        let offered = [
+            spec("turtle_move"),
+            spec("turtle_rotate"),
+            spec("turtle_pose"),
+            publish,
+            spec("reply"),
+        ];
+        let actuators = ["turtle_move", "turtle_rotate", "ros_topic_publish"];
+        let narrowed = |q: &str| {
+            let mut g = Guards::standard(q, &[q], Some(asked(&actuators)));
+            let first = g.narrow(&offered);
+            g.check(&mut [call("turtle_pose", json!({}))], &offered);
+            (first, g.narrow(&offered))
+        };
+        // The actuators the request may ask for, without the answer; once.
+        for q in ["mueve la tortuga 1 metro", "Bewege die Schildkröte 1 Meter"] {
+            let want: Vec<String> = vec!["turtle_move".into(), "ros_topic_publish".into()];
+            assert_eq!(narrowed(q).0, Some(want), "{q}");
+            assert!(narrowed(q).1.unwrap().contains(&"reply".to_string()), "{q}");
+        }
+        // Questions, negations and acts named only inside names force nothing.
+        for q in [
+            "where is the turtle?",
+            "how do I move the turtle?",
+            "don't move the turtle",
+            "echo /turtle1/cmd_vel",
+            "list the publishers of /turtle1/pose",
+        ] {
+            let first = narrowed(q).0;
+            assert!(
+                first
+                    .as_ref()
+                    .is_none_or(|n| n.contains(&"reply".to_string())),
+                "{q}: {first:?}"
+            );
+        }
     }
 }

@@ -32,14 +32,16 @@ pub fn vocabulary<'a>(tools: impl IntoIterator<Item = &'a ToolSpec>) -> BTreeSet
         .collect()
 }
 
-fn name_words(name: &str) -> Vec<String> {
+/// The folded words of a tool's name (`turtle_move`: turtle, move).
+pub(super) fn name_words(name: &str) -> Vec<String> {
     folded_words(&name.replace(['_', '.'], " "))
 }
 
 /// String arguments that name a ROS thing (what a generic tool acts on).
 const TARGET_KEYS: &[&str] = &["service", "topic", "action", "node", "name", "goal_id"];
 
-fn is_generic(spec: &ToolSpec) -> bool {
+/// A tool that acts on a ROS thing its arguments name (a service call, a publish).
+pub(super) fn is_generic(spec: &ToolSpec) -> bool {
     spec.parameters["properties"].as_object().is_some_and(|p| {
         TARGET_KEYS
             .iter()

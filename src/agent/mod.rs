@@ -36,6 +36,7 @@ pub mod guard;
 pub mod intent;
 pub mod memory;
 pub mod outcome;
+pub mod plan;
 pub mod prompt;
 mod run;
 pub mod select;
@@ -75,6 +76,7 @@ impl Agent {
         let said: Vec<&str> = queries.iter().map(String::as_str).collect();
         let asked = self.config.asked_actuation_only.then(|| self.asked.clone());
         let guards = guard::Guards::standard(query, &said, asked);
+        let parts = plan::parts(query, &intent::vocabulary(&offered));
         if let Some(t) = &mut self.trace {
             t.record(
                 "query",
@@ -100,6 +102,9 @@ impl Agent {
             answer_only: false,
             step_first_token: None,
             stop_withdrawn: false,
+            parts,
+            part: 0,
+            partial_answers: Vec::new(),
         }
         .run()
     }

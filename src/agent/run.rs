@@ -7,8 +7,10 @@
 //! 4. **act**: the allowed calls run concurrently, each under the time limit;
 //! 5. **observe**: results (or the reasons for refusals) are appended for the next step.
 //!
-//! The run ends with an answer (the `reply` call), at the step limit, or on
-//! cancellation. Events stream as they happen: tokens during the turn, each call with its
+//! A request of several parts (`plan`) is worked one part at a time: the model is shown
+//! the first part as the operator's turn, and each next part once a call of the part
+//! before has run (or the model answered it). The run ends with the last part's answer
+//! (the `reply` call), at the step limit, or on cancellation. Events stream as they happen: tokens during the turn, each call with its
 //! decision, each result.
 
 use std::ops::ControlFlow;
@@ -36,6 +38,8 @@ use crate::tool::{Decision, ToolCall, ToolSpec};
 enum Thought {
     /// Calls to make.
     Calls(Vec<ToolCall>),
+    /// The model answered a part of the request that is not the last: on to the next.
+    NextPart,
     /// The run is over.
     Done(Finish),
 }
@@ -69,6 +73,11 @@ pub(super) struct Run<'a> {
     /// The model called `robot_stop` on a request that asked no stop: the robot was
     /// braked (not latched) and the tool is not offered again this run.
     pub stop_withdrawn: bool,
+    /// The request's parts (`plan`; one when it is not cut), the one being worked, and
+    /// the answers given to the parts before it.
+    pub parts: Vec<String>,
+    pub part: usize,
+    pub partial_answers: Vec<String>,
 }
 
 impl Run<'_> {
@@ -103,6 +112,12 @@ impl Run<'_> {
                 "Stopped. Motion stays refused until the operator resets the e-stop.".into();
             return Ok(self.end(Finish::Answer));
         }
+        if self.parts.len() > 1 {
+            self.guards.next_part(&self.parts[0]);
+            if let Some(t) = &mut self.agent.trace {
+                t.record("parts", json!({ "parts": self.parts }));
+            }
+        }
         let mut finish = Finish::MaxSteps;
         for step in 0..self.agent.config.max_steps {
             if self.agent.cancel.load(Ordering::SeqCst) {
@@ -113,6 +128,10 @@ impl Run<'_> {
                 Thought::Done(f) => {
                     finish = f;
                     break;
+                }
+                Thought::NextPart => {
+                    self.next_part();
+                    continue;
                 }
                 Thought::Calls(c) => c,
             };
@@ -126,9 +145,41 @@ impl Run<'_> {
                 continue;
             }
             let decisions = self.decide(&calls, verdicts);
-            self.act_and_observe(step, &calls, decisions);
+            let done = self.act_and_observe(step, &calls, decisions);
+            if done && self.part + 1 < self.parts.len() {
+                self.next_part();
+            }
         }
         Ok(self.end(finish))
+    }
+
+    /// On to the next part of the request: the operator's next turn, as the model reads it.
+    fn next_part(&mut self) {
+        self.part += 1;
+        let part = self.parts[self.part].clone();
+        self.guards.next_part(&part);
+        self.answer_only = false;
+        if let Some(t) = &mut self.agent.trace {
+            t.record("next_part", json!({ "part": self.part, "text": part }));
+        }
+        self.scratch.push(ChatMessage::new(Role::User, part));
+    }
+
+    /// The model answered: the run's answer when this is the last part, else the
+    /// part's, kept for the answer.
+    fn answered(&mut self, text: String) -> Thought {
+        if self.part + 1 < self.parts.len() {
+            if !text.is_empty() {
+                self.partial_answers.push(text);
+            }
+            return Thought::NextPart;
+        }
+        let mut said = std::mem::take(&mut self.partial_answers);
+        if !said.contains(&text) {
+            said.push(text);
+        }
+        self.answer = said.join(" ");
+        Thought::Done(Finish::Answer)
     }
 
     /// The step's turn: the model writes calls, or the answer.
@@ -223,12 +274,16 @@ impl Run<'_> {
                 a.arguments["text"].as_str().unwrap_or_default(),
                 ANSWER_CHARS,
             );
-            self.answer = facts::grounded(&said, self.last_summary.as_deref(), self.last_ok);
-            return Ok(Thought::Done(Finish::Answer));
+            let grounded = facts::grounded(
+                &said,
+                self.last_summary.as_deref(),
+                self.last_ok,
+                self.query,
+            );
+            return Ok(self.answered(grounded));
         }
         if turn.calls.is_empty() {
-            self.answer = turn.prose;
-            return Ok(Thought::Done(Finish::Answer));
+            return Ok(self.answered(turn.prose));
         }
         if self.timings.first_call_token_ms.is_none() {
             self.timings.first_call_token_ms = self.step_first_token;
@@ -250,13 +305,14 @@ impl Run<'_> {
             .collect()
     }
 
-    /// Run the allowed calls and append what came of each call that was not skipped.
+    /// Run the allowed calls and append what came of each call that was not skipped;
+    /// whether one of them is done (it ran, or was refused).
     fn act_and_observe(
         &mut self,
         step: usize,
         calls: &[ToolCall],
         decisions: Vec<Option<Decision>>,
-    ) {
+    ) -> bool {
         let shown: Vec<(ToolCall, Decision)> = calls
             .iter()
             .zip(decisions)
@@ -302,9 +358,11 @@ impl Run<'_> {
             Role::Assistant,
             self.agent.config.envelope.render_calls(&calls),
         ));
+        let mut done = false;
         for (i, (call, o)) in calls.into_iter().zip(outcomes).enumerate() {
-            self.observe(step, i, call, o);
+            done |= self.observe(step, i, call, o);
         }
+        done
     }
 
     /// `robot_stop` on a request that asked no stop: brake without latching, and offer
@@ -323,7 +381,8 @@ impl Run<'_> {
         }
     }
 
-    fn observe(&mut self, step: usize, index: usize, call: ToolCall, o: Outcome) {
+    /// Append what came of one call; whether it is done (it ran, or was refused).
+    fn observe(&mut self, step: usize, index: usize, call: ToolCall, o: Outcome) -> bool {
         let Outcome {
             output,
             ok,
@@ -366,6 +425,7 @@ impl Run<'_> {
             ms,
             decision,
         });
+        done
     }
 
     /// The run's result, with what is known when there is no answer.
@@ -417,7 +477,7 @@ impl Run<'_> {
     fn turn(&mut self, allowed: Option<Vec<String>>) -> Result<TurnResult, DecodeError> {
         let messages = self
             .agent
-            .context(self.query, &self.scratch, &self.offered)?;
+            .context(&self.parts[0], &self.scratch, &self.offered)?;
         let allowed_specs: Option<Vec<ToolSpec>> = allowed.map(|names| {
             self.offered
                 .iter()

@@ -184,9 +184,11 @@ impl Agent {
         if self.config.answer_mode == AnswerMode::Tool {
             specs.push(answer_spec());
         }
+        let names = self.names.as_ref().map(|n| n()).unwrap_or_default();
         let chosen = select::select(
             query,
             &specs,
+            &names,
             &self.config.always_on,
             self.config.tool_budget_tokens,
             |s| self.tokens(&Envelope::describe_tool(s)),

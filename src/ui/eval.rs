@@ -126,6 +126,8 @@ pub struct RosArgs {
     pub skip: usize,
     pub limit: Option<usize>,
     pub out: PathBuf,
+    /// Measure tool retrieval only (`retrieval`).
+    pub retrieval: bool,
 }
 
 /// Approves actuating calls when the current case says the operator would.
@@ -146,6 +148,15 @@ pub fn ros(args: &RosArgs) -> anyhow::Result<()> {
     let first: Arc<dyn RosGraph> = link.graph.clone().expect("the sim has a graph");
     let switch = Arc::new(SwitchGraph::new(first));
     // The robot just started serves the first case; every later case gets a new one.
+    if args.retrieval {
+        let agent = build_with(
+            &args.agent,
+            operator,
+            Some(switch),
+            crate::estop::EStop::new(),
+        )?;
+        return retrieval(&agent, &cases);
+    }
     let mut used = false;
     let (jsonl, mut file) = case_file(&args.out, "ros_cases.jsonl")?;
     let mut results: Vec<CaseResult> = Vec::new();
@@ -276,5 +287,70 @@ pub fn ros(args: &RosArgs) -> anyhow::Result<()> {
         eval::markdown(&[summaries, by_half, overall].concat())
     );
     eprintln!("per-case results: {}", jsonl.display());
+    Ok(())
+}
+
+/// The share of cases whose expected tools (every `expect_calls` name, one of
+/// `expect_any`) are all offered, per category and per half, with the misses.
+fn retrieval(agent: &crate::agent::Agent, cases: &[eval::ros::RosCase]) -> anyhow::Result<()> {
+    use std::collections::BTreeMap;
+    let halves = eval::ros::halves(cases);
+    let mut by: BTreeMap<String, (usize, usize)> = BTreeMap::new();
+    let (mut tune, mut report) = ((0, 0), (0, 0));
+    let mut sizes = Vec::new();
+    let mut first = 0usize;
+    for (case, half) in cases.iter().zip(halves) {
+        let offered: Vec<String> = agent
+            .offered_tools(&case.query)
+            .into_iter()
+            .map(|s| s.name)
+            .collect();
+        sizes.push(offered.len());
+        if let Some(want) = case.expect_calls.first().or(case.expect_any.first()) {
+            if offered.first() == Some(&want.name) {
+                first += 1;
+            }
+        }
+        let has = |n: &String| offered.contains(n);
+        let hit = case.expect_calls.iter().all(|c| has(&c.name))
+            && (case.expect_any.is_empty() || case.expect_any.iter().any(|c| has(&c.name)));
+        if !hit {
+            let want: Vec<&str> = case
+                .expect_calls
+                .iter()
+                .chain(&case.expect_any)
+                .map(|c| c.name.as_str())
+                .collect();
+            println!(
+                "miss {}: {:?} wants {want:?}, offered {offered:?}",
+                case.id, case.query
+            );
+        }
+        for counts in [
+            by.entry(case.category()).or_default(),
+            match half {
+                eval::ros::Half::Tune => &mut tune,
+                eval::ros::Half::Report => &mut report,
+            },
+        ] {
+            counts.0 += usize::from(hit);
+            counts.1 += 1;
+        }
+    }
+    let pct = |(h, n): (usize, usize)| 100.0 * h as f64 / n.max(1) as f64;
+    let all = (tune.0 + report.0, tune.1 + report.1);
+    println!(
+        "\nretrieval: {:.1}% ({}/{}) | tune half {:.1}% | report half {:.1}% | first call's tool ranked first: {first} | tools offered per case: {:.1} of {}",
+        pct(all),
+        all.0,
+        all.1,
+        pct(tune),
+        pct(report),
+        sizes.iter().sum::<usize>() as f64 / sizes.len().max(1) as f64,
+        agent.registry().len() + 1
+    );
+    for (cat, c) in by {
+        println!("  {cat:<12} {:5.1}% ({}/{})", pct(c), c.0, c.1);
+    }
     Ok(())
 }
