@@ -5,7 +5,9 @@
 //! - `Grounded`: optional arguments nobody asked for are dropped (`strategy::ground`).
 //! - `NoRepeat`: a call already made this run (whether it succeeded, was refused or
 //!   failed) is not made again; a turn of nothing but repeats leaves the next step only
-//!   the answer.
+//!   the answer; a tool whose calls failed or were refused twice is offered no more
+//!   this run (a small model otherwise varies the arguments of a failing call until the
+//!   step limit).
 //! - `FollowError`: after a call fails with an error that names a tool ("call
 //!   ros_topic_list to see the topics"), the next step offers that tool and the answer.
 //! - `AskedFor`: an actuating call runs only when the operator's request points at it
@@ -40,6 +42,21 @@ pub enum Verdict {
     Refuse(String),
 }
 
+/// What came of a call.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Came {
+    Ran,
+    Refused,
+    Failed,
+}
+
+impl Came {
+    /// Asking again would get the same: it ran, or was refused.
+    pub fn done(self) -> bool {
+        self != Came::Failed
+    }
+}
+
 /// One guard (see the module header).
 pub trait Guard {
     fn name(&self) -> &'static str;
@@ -55,9 +72,8 @@ pub trait Guard {
         vec![Verdict::Pass; calls.len()]
     }
 
-    /// After the calls ran: what happened to one (`done`: it ran or was refused, so
-    /// asking again would get the same), and the text the model was shown.
-    fn observe(&mut self, _call: &ToolCall, _done: bool, _shown: &str) {}
+    /// After the calls ran: what came of one, and the text the model was shown.
+    fn observe(&mut self, _call: &ToolCall, _came: Came, _shown: &str) {}
 
     /// The run moved on to the next part of the request (`plan`): what held for the
     /// last part's steps no longer does.
@@ -127,9 +143,9 @@ impl Guards {
         verdicts
     }
 
-    pub fn observe(&mut self, call: &ToolCall, done: bool, shown: &str) {
+    pub fn observe(&mut self, call: &ToolCall, came: Came, shown: &str) {
         for g in &mut self.guards {
-            g.observe(call, done, shown);
+            g.observe(call, came, shown);
         }
     }
 
@@ -160,7 +176,7 @@ impl Guard for Grounded {
         vec![Verdict::Pass; calls.len()]
     }
 
-    fn observe(&mut self, _: &ToolCall, _: bool, shown: &str) {
+    fn observe(&mut self, _: &ToolCall, _: Came, shown: &str) {
         self.0.add(shown);
     }
 }
@@ -172,16 +188,29 @@ impl Guard for Grounded {
 struct NoRepeat {
     done: Vec<(String, Value)>,
     answer_only: bool,
+    /// Calls of each tool that failed or were refused.
+    misses: BTreeMap<String, usize>,
 }
+
+/// Misses after which a tool is offered no more.
+const MAX_MISSES: usize = 2;
 
 impl Guard for NoRepeat {
     fn name(&self) -> &'static str {
         "no-repeat"
     }
 
-    fn narrow(&self, _: &[ToolSpec]) -> Option<Vec<String>> {
-        self.answer_only
-            .then(|| vec![super::answer::ANSWER_TOOL.to_string()])
+    fn narrow(&self, offered: &[ToolSpec]) -> Option<Vec<String>> {
+        if self.answer_only {
+            return Some(vec![super::answer::ANSWER_TOOL.to_string()]);
+        }
+        let spent = |n: &String| self.misses.get(n).is_some_and(|m| *m >= MAX_MISSES);
+        let left: Vec<String> = offered
+            .iter()
+            .map(|s| s.name.clone())
+            .filter(|n| !spent(n))
+            .collect();
+        (left.len() < offered.len()).then_some(left)
     }
 
     fn check(&mut self, calls: &mut [ToolCall], _: &[ToolSpec]) -> Vec<Verdict> {
@@ -205,9 +234,12 @@ impl Guard for NoRepeat {
         verdicts
     }
 
-    fn observe(&mut self, call: &ToolCall, _: bool, _: &str) {
+    fn observe(&mut self, call: &ToolCall, came: Came, _: &str) {
         // A failed call fails the same way again: it is as done as one that ran.
         self.done.push((call.name.clone(), call.arguments.clone()));
+        if came != Came::Ran {
+            *self.misses.entry(call.name.clone()).or_default() += 1;
+        }
     }
 
     fn next_part(&mut self, _: &str) {
@@ -252,8 +284,8 @@ impl Guard for FollowError {
         vec![Verdict::Pass; calls.len()]
     }
 
-    fn observe(&mut self, _: &ToolCall, done: bool, shown: &str) {
-        if !done {
+    fn observe(&mut self, _: &ToolCall, came: Came, shown: &str) {
+        if !came.done() {
             self.error = Some(shown.to_string());
         }
     }
@@ -432,10 +464,31 @@ mod tests {
             [Verdict::Pass],
             "first time"
         );
-        g.observe(&c, false, "{\"error\": \"no topic /Battery_Level\"}");
+        g.observe(&c, Came::Failed, "{\"error\": \"no topic /Battery_Level\"}");
         assert_eq!(g.check(&mut [c], &offered), [Verdict::Skip]);
         // A turn of nothing but repeats: only the answer is left.
         assert_eq!(g.narrow(&offered), Some(vec!["reply".to_string()]));
+    }
+
+    #[test]
+    fn a_tool_that_missed_twice_is_offered_no_more() {
+        let mut g = Guards::standard("publish on cmd_vel", &[], None);
+        let offered = [
+            spec("ros_topic_publish"),
+            spec("turtle_pose"),
+            spec("reply"),
+        ];
+        for (topic, came) in [("/a", Came::Refused), ("/b", Came::Failed)] {
+            assert_eq!(g.narrow(&offered), None);
+            let c = call("ros_topic_publish", json!({ "topic": topic }));
+            g.check(&mut [c.clone()], &offered);
+            g.observe(&c, came, "{\"error\": \"invalid arguments\"}");
+        }
+        g.check(&mut [call("turtle_pose", json!({}))], &offered);
+        assert_eq!(
+            g.narrow(&offered),
+            Some(vec!["turtle_pose".to_string(), "reply".to_string()])
+        );
     }
 
     #[test]
@@ -451,7 +504,7 @@ mod tests {
         g.check(&mut [c.clone()], &offered);
         g.observe(
             &c,
-            false,
+            Came::Failed,
             "no topic /x; call ros_topic_list to see the topics",
         );
         assert_eq!(
@@ -462,7 +515,7 @@ mod tests {
         g.check(&mut [call("ros_topic_list", json!({}))], &offered);
         assert_eq!(g.narrow(&offered), None);
         // A call that ran (or was refused) names no next step.
-        g.observe(&c, true, "see ros_topic_list");
+        g.observe(&c, Came::Ran, "see ros_topic_list");
         assert_eq!(g.narrow(&offered), None);
     }
 

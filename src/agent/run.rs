@@ -22,7 +22,7 @@ use serde_json::{json, Value};
 use super::answer::{self, ANSWER_CHARS, ANSWER_TOOL};
 use super::config::STOP_TOOL;
 use super::facts;
-use super::guard::{Guards, Verdict};
+use super::guard::{Came, Guards, Verdict};
 use super::memory::truncate_output;
 use super::{Agent, AgentError, Event, Finish, RunResult, StepRecord, Timings};
 use crate::backend::BackendError;
@@ -408,9 +408,14 @@ impl Run<'_> {
             ms,
         });
         let shown = truncate_output(&to_json_spaced(&output), self.agent.config.output_chars);
+        let came = match (&decision, ok) {
+            (_, true) => Came::Ran,
+            (Decision::Refused(_), false) => Came::Refused,
+            (_, false) => Came::Failed,
+        };
         // A refused call is as done as a successful one: asking again gets the same.
-        let done = ok || matches!(decision, Decision::Refused(_));
-        self.guards.observe(&call, done, &shown);
+        let done = came.done();
+        self.guards.observe(&call, came, &shown);
         self.copy_from.push(shown.clone());
         self.last_observation = shown.clone();
         self.scratch.push(ChatMessage::tool(&call.name, shown));
