@@ -166,9 +166,7 @@ pub fn grounded(reply: &str, summary: Option<&str>, last_ok: bool, request: &str
     };
     let all = facts(summary);
     let asked = request.to_lowercase();
-    let asked_numbers: Vec<f64> = words(&asked)
-        .filter_map(|w| w.trim_end_matches(['.', '%']).parse::<f64>().ok())
-        .collect();
+    let asked_numbers: Vec<f64> = written_numbers(&asked).map(|(n, _)| n).collect();
     let in_request = |f: &String| match f.parse::<f64>() {
         Ok(n) => asked_numbers.contains(&n),
         Err(_) => asked.contains(f.as_str()),
@@ -178,14 +176,7 @@ pub fn grounded(reply: &str, summary: Option<&str>, last_ok: bool, request: &str
     let lower = reply.to_lowercase();
     // Numbers are compared as numbers, to the precision the answer writes them: "42"
     // states 42.0, "5.54" states 5.544.
-    let said: Vec<(f64, f64)> = words(&lower)
-        .filter_map(|w| {
-            let w = w.trim_end_matches(['.', '%']);
-            let n = w.parse::<f64>().ok()?;
-            let decimals = w.split_once('.').map_or(0, |(_, d)| d.len()) as i32;
-            Some((n, 0.5 * 10f64.powi(-decimals)))
-        })
-        .collect();
+    let said: Vec<(f64, f64)> = written_numbers(&lower).collect();
     let stated = |f: &String| match f.parse::<f64>() {
         Ok(n) => said.iter().any(|(s, tol)| (s - n).abs() <= *tol + 1e-9),
         Err(_) => lower.contains(f.as_str()),
@@ -194,6 +185,17 @@ pub fn grounded(reply: &str, summary: Option<&str>, last_ok: bool, request: &str
         return reply;
     }
     summary.to_string()
+}
+
+/// The numbers `text` writes, each with half a unit of its last written place ("5.54":
+/// 0.005), the precision it states.
+fn written_numbers(text: &str) -> impl Iterator<Item = (f64, f64)> + '_ {
+    words(text).filter_map(|w| {
+        let w = w.trim_end_matches(['.', '%']);
+        let n = w.parse::<f64>().ok()?;
+        let decimals = w.split_once('.').map_or(0, |(_, d)| d.len()) as i32;
+        Some((n, 0.5 * 10f64.powi(-decimals)))
+    })
 }
 
 /// The words of `text` as `facts` splits it.

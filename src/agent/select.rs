@@ -183,7 +183,8 @@ impl Word {
 }
 
 fn words_of(text: &str) -> Vec<Word> {
-    let mut w = folded_words(&text.replace(['_', '/', '.'], " "));
+    // `folded_words` already splits names at `_`, `/` and `.`.
+    let mut w = folded_words(text);
     w.sort();
     w.dedup();
     w.into_iter().map(Word::new).collect()
