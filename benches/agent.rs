@@ -116,7 +116,7 @@ fn main() {
         answer_mode: AnswerMode::Tool,
         robot: Robot::Sim,
         copy_bias: ferrosa::ui::agent::DEFAULT_COPY_BIAS,
-        calibrated_choice: false,
+        pick: Default::default(),
     };
     header::print(
         "ferrosa agent benchmark",

@@ -180,9 +180,11 @@ struct AgentOpts {
     /// returned or the robot's graph names (0: off).
     #[arg(long, default_value_t = ui::agent::DEFAULT_COPY_BIAS)]
     copy_bias: f32,
-    /// How a step's tool is chosen: calibrated (the tool the request raised most over a
-    /// content-free request) or likeliest (the model's likeliest name).
-    #[arg(long, value_enum, default_value_t = PickArg::Likeliest)]
+    /// How the first step of a request picks its tool: weighed (the model's
+    /// log-probability of each name plus the tool retrieval's score), calibrated (the
+    /// tool the request raised most over a content-free request) or likeliest (the
+    /// model's likeliest name).
+    #[arg(long, value_enum, default_value_t = PickArg::Weighed)]
     pick: PickArg,
 }
 
@@ -207,7 +209,7 @@ impl AgentOpts {
             answer_mode: self.answer_mode.into(),
             robot: self.robot,
             copy_bias: self.copy_bias,
-            calibrated_choice: self.pick == PickArg::Calibrated,
+            pick: self.pick.into(),
         }
     }
 }
@@ -242,7 +244,7 @@ enum EvalCommand {
         #[arg(long, default_value_t = ui::agent::DEFAULT_COPY_BIAS)]
         copy_bias: f32,
         /// How a step's tool is chosen (see `chat --help`).
-        #[arg(long, value_enum, default_value_t = PickArg::Likeliest)]
+        #[arg(long, value_enum, default_value_t = PickArg::Weighed)]
         pick: PickArg,
         #[arg(long, value_enum, default_value_t = BackendArg::Llama)]
         backend: BackendArg,
@@ -427,7 +429,7 @@ fn main() -> ExitCode {
                 answer_mode: AnswerMode::Tool,
                 robot: ui::agent::Robot::Sim,
                 copy_bias,
-                calibrated_choice: pick == PickArg::Calibrated,
+                pick: pick.into(),
             },
             suite,
             decoding,

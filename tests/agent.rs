@@ -57,9 +57,9 @@ fn agent_on(backend: Scripted, packages: Vec<Package>, policy: Policy) -> Agent 
     // The synthetic vocabulary spends about four tokens where SmolLM2's spends one: room
     // for every tool (the selection test narrows its own).
     config.tool_budget_tokens = 20_000;
-    // The scripted replies are the model's choices; the calibrated choice would read
-    // the synthetic logits as preferences and choose again.
-    config.calibrated_choice = false;
+    // The scripted replies are the model's choices; a weighed or calibrated choice
+    // would read the synthetic logits as preferences and choose again.
+    config.pick = ferrosa::agent::config::Pick::Likeliest;
     Agent::new(
         Box::new(backend),
         registry,

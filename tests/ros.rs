@@ -508,11 +508,8 @@ impl ferrosa::tool::Confirm for Approver {
 
 /// The agent with the real default model on the sim, as an operator uses it: a status
 /// report, a request whose call fails, a Spanish request, a two-step request and a
-/// Spanish motion request after confirmation, with the default tool pick (likeliest),
-/// but for the failing call and the Spanish listing, asked with `--pick calibrated`:
-/// with the likeliest pick the model calls `robot_stop` on "echo the /odom topic" (no
-/// call fails) and, in this session, `ros_service_list` on "lista los nodos de ROS"
-/// (with the calibrated pick it reports no status). One model load for all of them.
+/// Spanish motion request after confirmation, with the default tool pick (weighed).
+/// One model load for all of them.
 #[test]
 #[ignore = "needs the model weights (or a ROS peer): cargo test --release -- --include-ignored"]
 fn the_agent_serves_operator_requests_with_the_real_model() {
@@ -546,15 +543,14 @@ fn the_agent_serves_operator_requests_with_the_real_model() {
         answer_mode: Default::default(),
         robot: Robot::Sim,
         copy_bias: ferrosa::ui::agent::DEFAULT_COPY_BIAS,
-        calibrated_choice: false,
+        pick: Default::default(),
     };
     let operator = Arc::new(Approver::default());
     let estop = ferrosa::estop::EStop::new();
     let mut agent = build_with(&args, operator.clone(), Some(graph.clone()), estop).unwrap();
     graph.set_fence(agent.fence().clone());
-    let mut ask = |q: &str, calibrated: bool| {
+    let mut ask = |q: &str| {
         agent.clear();
-        agent.config.calibrated_choice = calibrated;
         let r = agent.ask(q, &mut |_| {}).unwrap();
         let shown: Vec<String> = r
             .steps
@@ -570,7 +566,7 @@ fn the_agent_serves_operator_requests_with_the_real_model() {
 
     // A status report: battery, diagnostics and nodes in one call; the answer states
     // the battery's charge as read.
-    let (r, why) = ask("give me a status report", false);
+    let (r, why) = ask("give me a status report");
     let status = ok(&r.steps, "robot_status").unwrap_or_else(|| panic!("{why}"));
     let percent = status.output["battery"][0]["percent"].as_f64().unwrap();
     assert!(
@@ -580,7 +576,7 @@ fn the_agent_serves_operator_requests_with_the_real_model() {
     );
 
     // A failing call is never made again as it was.
-    let (r, why) = ask("echo the /odom topic", true);
+    let (r, why) = ask("echo the /odom topic");
     let failed: Vec<&StepRecord> = r.steps.iter().filter(|s| !s.ok).collect();
     assert!(!failed.is_empty(), "no call failed: {why}");
     for f in &failed {
@@ -593,7 +589,7 @@ fn the_agent_serves_operator_requests_with_the_real_model() {
     }
 
     // Spanish: the same tool as in English, and the answer names what it found.
-    let (r, why) = ask("lista los nodos de ROS", true);
+    let (r, why) = ask("lista los nodos de ROS");
     ok(&r.steps, "ros_node_list").unwrap_or_else(|| panic!("{why}"));
     assert!(r.answer.contains("/turtlesim"), "{why}");
     // Nothing here moved the robot, so the operator was asked nothing.
@@ -601,10 +597,7 @@ fn the_agent_serves_operator_requests_with_the_real_model() {
 
     // Two steps: each part of the request gets its call, in order, each confirmed, and
     // the second starts where the first left the turtle.
-    let (r, why) = ask(
-        "rotate the turtle 90 degrees and then move it forward 1 meter",
-        false,
-    );
+    let (r, why) = ask("rotate the turtle 90 degrees and then move it forward 1 meter");
     let names: Vec<&str> = r.steps.iter().map(|s| s.name.as_str()).collect();
     assert_eq!(names, ["turtle_rotate", "turtle_move"], "{why}");
     assert!(r.steps.iter().all(|s| s.ok), "{why}");
@@ -618,7 +611,7 @@ fn the_agent_serves_operator_requests_with_the_real_model() {
 
     // Spanish motion: confirmed, then moved the distance asked.
     operator.0.lock().unwrap().clear();
-    let (r, why) = ask("mueve la tortuga 1 metro hacia adelante", false);
+    let (r, why) = ask("mueve la tortuga 1 metro hacia adelante");
     let moved = ok(&r.steps, "turtle_move").unwrap_or_else(|| panic!("{why}"));
     assert!(
         (moved.output["moved_m"].as_f64().unwrap() - 1.0).abs() < 0.1,

@@ -301,7 +301,7 @@ fn stack(setup: &Setup, script: &[String]) -> Stack {
         answer_mode: Default::default(),
         robot: Robot::Sim,
         copy_bias: 0.0,
-        calibrated_choice: false,
+        pick: ferrosa::agent::config::Pick::Likeliest,
     };
     let operator = Arc::new(Operator {
         approves: setup.approves,
@@ -322,6 +322,8 @@ fn stack(setup: &Setup, script: &[String]) -> Stack {
     // Every tool offered (the synthetic vocabulary is wordy): the attacker's call must
     // reach the policy, not fall to tool selection.
     config.tool_budget_tokens = 1 << 20;
+    // The scripted attacker's calls are the model's choices.
+    config.pick = ferrosa::agent::config::Pick::Likeliest;
     let agent = Agent::new(Box::new(backend), registry, policy, prompt.render(), config).unwrap();
     Stack {
         agent,

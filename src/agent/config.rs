@@ -21,6 +21,23 @@ pub enum AnswerMode {
     Decline,
 }
 
+/// How the first step of a request, or of a part of one (`plan`), picks its tool
+/// (`strategy::choice`; constrained decoding only). Later steps decode the name as the
+/// model writes it: whether the work is done is for the model to say.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Pick {
+    /// The model's likeliest name.
+    Likeliest,
+    /// The name the request raised most over a content-free request. On, "what is the
+    /// mean of 3, 5 and 10?" is answered without a tool (the README has the ROS suite
+    /// with it).
+    Calibrated,
+    /// The model's log-probability of each name, weighed with the tool retrieval's
+    /// score of the tool for the request (`select::prior`).
+    #[default]
+    Weighed,
+}
+
 #[derive(Debug, Clone)]
 pub struct AgentConfig {
     pub max_steps: usize,
@@ -46,11 +63,8 @@ pub struct AgentConfig {
     /// Logit bonus for argument values that copy what the operator said or a tool
     /// returned this run (see `strategy::copy`); 0 turns it off.
     pub copy_bias: f32,
-    /// Which tool a run's first step calls is decided by what the request raised in
-    /// the model's likelihoods over a content-free request (`strategy::choice`), not by
-    /// the likeliest name alone. Off by default: on, "what is the mean of 3, 5 and 10?"
-    /// is answered without a tool (the README has the ROS suite with it).
-    pub calibrated_choice: bool,
+    /// How the first step of a request (and of each of its parts) picks its tool.
+    pub pick: Pick,
     pub sampler: SamplerConfig,
 }
 
@@ -69,7 +83,7 @@ impl AgentConfig {
             always_on: vec![ANSWER_TOOL.to_string(), STOP_TOOL.to_string()],
             output_chars: 1500,
             copy_bias: 0.0,
-            calibrated_choice: false,
+            pick: Pick::default(),
             sampler: SamplerConfig::default(),
         }
     }

@@ -491,7 +491,11 @@ impl Run<'_> {
                 .collect()
         });
         let sources: Vec<&str> = self.copy_from.iter().map(String::as_str).collect();
-        let mut pipeline = self.agent.pipeline(&sources, self.scratch.is_empty());
+        // A part's first step: nothing since the operator's words but the part itself.
+        let fresh = self.scratch.last().is_none_or(|m| m.role == Role::User);
+        let candidates = allowed_specs.as_deref().unwrap_or(&self.offered);
+        let pick = fresh.then_some((self.parts[self.part].as_str(), candidates));
+        let mut pipeline = self.agent.pipeline(&sources, pick);
         let req = self.agent.request(
             &messages,
             &self.offered,

@@ -292,6 +292,11 @@ pub fn select(
         .map(|(i, sc)| (sc, i))
         .collect();
     ranked.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
+    let named: Vec<(&str, f64)> = ranked
+        .iter()
+        .map(|(sc, i)| (specs[*i].name.as_str(), *sc))
+        .collect();
+    tracing::debug!(target: "ferrosa::select", ranked = ?named, "retrieval");
     let top = ranked.first().map_or(0.0, |r| r.0);
     ranked.retain(|r| r.0 >= RELATIVE_FLOOR * top);
     let mut chosen: Vec<usize> = Vec::new();
@@ -304,6 +309,54 @@ pub fn select(
     // Best first: a small model leans toward the first tool it is shown.
     chosen.extend(always);
     chosen
+}
+
+/// How much a tool's retrieval share weighs against the model's log-probability of its
+/// name, when the first step of a request picks its tool (`config::Pick::Weighed`).
+pub const PRIOR_WEIGHT: f64 = 8.0;
+
+/// The share of the best tool's score the answer (`fallback`) is held at: the model
+/// answers without a tool when it likes that better than a tool scoring this share
+/// or less.
+const FALLBACK_SHARE: f64 = 0.3;
+
+/// The least share a tool is held at (a tool the request does not meet at all).
+const PRIOR_FLOOR: f64 = 1e-3;
+
+/// Per candidate name, its prior for the weighed tool choice: the log of its retrieval
+/// score's share of the best score among `specs` (all the tools the request could be
+/// offered, so the words' weights are those `select` uses). The answer, `fallback`,
+/// is held at `FALLBACK_SHARE`; when the request meets no tool at all, every tool is
+/// at the floor and the answer at 0.
+pub fn prior(
+    query: &str,
+    specs: &[ToolSpec],
+    names: &[(String, String)],
+    candidates: &[&str],
+    fallback: &str,
+) -> Vec<f64> {
+    let scored = scores(query, specs, names);
+    let score_of = |name: &str| {
+        specs
+            .iter()
+            .position(|s| s.name == name)
+            .map_or(0.0, |i| scored[i])
+    };
+    let top = specs
+        .iter()
+        .zip(&scored)
+        .filter(|(s, _)| s.name != fallback)
+        .map(|(_, sc)| *sc)
+        .fold(0.0, f64::max);
+    candidates
+        .iter()
+        .map(|&c| match (c == fallback, top > 0.0) {
+            (true, true) => FALLBACK_SHARE.ln(),
+            (true, false) => 0.0,
+            (false, true) => (score_of(c) / top).max(PRIOR_FLOOR).ln(),
+            (false, false) => PRIOR_FLOOR.ln(),
+        })
+        .collect()
 }
 
 #[cfg(test)]
@@ -349,6 +402,24 @@ mod tests {
         assert_eq!(pick("hello"), ["reply"]);
         // Everything fits: everything is offered.
         assert_eq!(select("hi", &specs(), &[], &[], 1000, |_| 10).len(), 7);
+    }
+
+    #[test]
+    fn the_prior_is_each_tools_share_of_the_best_and_the_answer_a_fixed_one() {
+        let s = specs();
+        let p = prior(
+            "what topics are there?",
+            &s,
+            &[],
+            &["ros_node_list", "ros_topic_list", "reply"],
+            "reply",
+        );
+        assert_eq!(p[1], 0.0, "{p:?}");
+        assert!(p[0] < FALLBACK_SHARE.ln(), "{p:?}");
+        assert_eq!(p[2], FALLBACK_SHARE.ln());
+        // A request no tool meets: the answer is all the prior allows.
+        let p = prior("hello", &s, &[], &["ros_node_list", "reply"], "reply");
+        assert_eq!(p, [PRIOR_FLOOR.ln(), 0.0]);
     }
 
     #[test]

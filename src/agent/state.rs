@@ -9,7 +9,7 @@ use std::sync::Arc;
 use serde_json::json;
 
 use super::answer::{answer_spec, ANSWER_TOOL};
-use super::config::{AgentConfig, AnswerMode};
+use super::config::{AgentConfig, AnswerMode, Pick};
 use super::guard::Asked;
 use super::intent;
 use super::memory::Memory;
@@ -21,7 +21,7 @@ use crate::chat::{ChatMessage, Role};
 use crate::decode::envelope::{Envelope, ToolChoice};
 use crate::decode::turn::{render_prompt, with_tools, TurnRequest};
 use crate::decode::{DecodeError, Decoding, Grammars, Session};
-use crate::strategy::choice::Calibrated;
+use crate::strategy::choice::{Calibrated, Weighed};
 use crate::strategy::copy::{defaults, CopyBias, CopyIndex, Scoped};
 use crate::strategy::guard::LoopGuard;
 use crate::strategy::Pipeline;
@@ -196,6 +196,17 @@ impl Agent {
         chosen.into_iter().map(|i| specs[i].clone()).collect()
     }
 
+    /// Each candidate's prior for the weighed tool choice (`select::prior`), in order.
+    fn prior(&self, part: &str, candidates: &[ToolSpec]) -> Vec<f64> {
+        let mut specs = self.exec.registry().specs();
+        if self.config.answer_mode == AnswerMode::Tool {
+            specs.push(answer_spec());
+        }
+        let names = self.names.as_ref().map(|n| n()).unwrap_or_default();
+        let candidates: Vec<&str> = candidates.iter().map(|s| s.name.as_str()).collect();
+        select::prior(part, &specs, &names, &candidates, ANSWER_TOOL)
+    }
+
     /// Prompt tokens of the first step of `query` with these tools and no history.
     pub fn prompt_tokens_with(&self, query: &str, specs: &[ToolSpec]) -> usize {
         let messages = [
@@ -237,14 +248,25 @@ impl Agent {
         }
     }
 
-    /// The strategies of a step's turn: the calibrated tool choice (on a run's first
-    /// step, `first`: after a result the question is whether to answer, which the
-    /// content-free request says nothing about) and the copy bias (with its array
-    /// guard), each when on.
-    pub(super) fn pipeline(&self, sources: &[&str], first: bool) -> Pipeline {
+    /// The strategies of a step's turn: the tool choice `config.pick` names (on the
+    /// first step of a request or of a part, `pick`: the part's text and the tools the
+    /// step may call; after a result the question is whether to answer, which neither
+    /// a content-free request nor the retrieval says anything about) and the copy bias
+    /// (with its array guard), each when on.
+    pub(super) fn pipeline(&self, sources: &[&str], pick: Option<(&str, &[ToolSpec])>) -> Pipeline {
         let mut p = Pipeline::new();
-        if first && self.config.calibrated_choice && self.config.decoding == Decoding::Constrained {
-            p = p.with(Calibrated { lists: false });
+        let constrained = self.config.decoding == Decoding::Constrained;
+        match pick.filter(|_| constrained) {
+            Some(_) if self.config.pick == Pick::Calibrated => {
+                p = p.with(Calibrated { lists: false });
+            }
+            Some((part, candidates)) if self.config.pick == Pick::Weighed => {
+                p = p.with(Weighed {
+                    prior: self.prior(part, candidates),
+                    weight: select::PRIOR_WEIGHT,
+                });
+            }
+            _ => {}
         }
         if self.config.copy_bias > 0.0 && self.config.decoding == Decoding::Constrained {
             let vocab = self.backend.vocab();

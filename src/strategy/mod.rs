@@ -9,8 +9,8 @@
 //! model's output.
 //!
 //! Layout:
-//! - `choice`: calibrated tool choice and list length (contextual calibration against a
-//!   content-free request)
+//! - `choice`: which tool a turn calls, calibrated (against a content-free request, list
+//!   length too) or weighed with a prior (the agent's tool retrieval)
 //! - `copy`: the copy bias (values lean towards spans of the request or a tool result)
 //! - `guard`: guards on what a turn writes (no looping arrays, no repeated call, no
 //!   repeated phrase in an answer)
@@ -219,6 +219,17 @@ pub struct Scores {
 }
 
 impl Scorer<'_> {
+    /// Each candidate's log-probability after `written`, with the request only.
+    pub fn real(
+        &mut self,
+        written: &[TokenId],
+        candidates: &[Vec<TokenId>],
+    ) -> Result<Vec<f64>, BackendError> {
+        let mut ctx = self.real.to_vec();
+        ctx.extend_from_slice(written);
+        continuation_logprobs(self.backend, self.session, &ctx, candidates)
+    }
+
     /// Both scores of each candidate after `written`. The baseline goes first so the
     /// cache ends on the real prompt, which the turn continues from.
     pub fn scores(

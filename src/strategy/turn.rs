@@ -107,6 +107,7 @@ impl Gate {
             }
             tokens.push(toks);
         }
+        tracing::debug!(target: "ferrosa::gate", ?names, ?fallback, "candidates");
         let mut messages = req.messages.to_vec();
         messages[last_user].content = CONTENT_FREE.into();
         let baseline = TurnRequest {

@@ -42,7 +42,7 @@ pub struct AgentArgs {
     pub answer_mode: AnswerMode,
     pub robot: Robot,
     pub copy_bias: f32,
-    pub calibrated_choice: bool,
+    pub pick: crate::agent::config::Pick,
 }
 
 /// `ferrosa sim`: the robot alone, until Ctrl-C.
@@ -157,7 +157,7 @@ pub fn build_with(
     config.decoding = args.decoding;
     config.answer_mode = args.answer_mode;
     config.copy_bias = args.copy_bias;
-    config.calibrated_choice = args.calibrated_choice;
+    config.pick = args.pick;
     let mut agent = Agent::new(model, registry, policy, prompt.render(), config)?;
     if let Some(g) = graph {
         let fence = agent.fence().clone();

@@ -4,6 +4,7 @@
 
 use clap::ValueEnum;
 
+use crate::agent::config::Pick;
 use crate::agent::AnswerMode;
 use crate::backend::BackendKind;
 use crate::decode::{Decoding, Envelope, ToolChoice};
@@ -83,10 +84,22 @@ impl From<EnvelopeArg> for Envelope {
 /// How an agent step picks its tool.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
 pub enum PickArg {
+    /// The model's likeliest name weighed with the tool retrieval's score.
+    Weighed,
     /// The tool the request raised most over a content-free request.
     Calibrated,
     /// The model's likeliest tool name.
     Likeliest,
+}
+
+impl From<PickArg> for Pick {
+    fn from(a: PickArg) -> Pick {
+        match a {
+            PickArg::Weighed => Pick::Weighed,
+            PickArg::Calibrated => Pick::Calibrated,
+            PickArg::Likeliest => Pick::Likeliest,
+        }
+    }
 }
 
 impl From<ToolChoiceArg> for ToolChoice {

@@ -248,11 +248,7 @@ pub fn ros(args: &RosArgs) -> anyhow::Result<()> {
         b if b > 0.0 => format!(" | copy bias {b}"),
         _ => String::new(),
     };
-    let pick = if args.agent.calibrated_choice {
-        "calibrated"
-    } else {
-        "likeliest"
-    };
+    let pick = format!("{:?}", args.agent.pick).to_lowercase();
     println!(
         "model {model_name} | suite {}{copy} | tool pick {pick} | {} cases per mode\n",
         args.suite.display(),
