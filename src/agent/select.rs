@@ -292,11 +292,13 @@ pub fn select(
         .map(|(i, sc)| (sc, i))
         .collect();
     ranked.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
-    let named: Vec<(&str, f64)> = ranked
-        .iter()
-        .map(|(sc, i)| (specs[*i].name.as_str(), *sc))
-        .collect();
-    tracing::debug!(target: "ferrosa::select", ranked = ?named, "retrieval");
+    if tracing::enabled!(target: "ferrosa::select", tracing::Level::DEBUG) {
+        let named: Vec<(&str, f64)> = ranked
+            .iter()
+            .map(|(sc, i)| (specs[*i].name.as_str(), *sc))
+            .collect();
+        tracing::debug!(target: "ferrosa::select", ranked = ?named, "retrieval");
+    }
     let top = ranked.first().map_or(0.0, |r| r.0);
     ranked.retain(|r| r.0 >= RELATIVE_FLOOR * top);
     let mut chosen: Vec<usize> = Vec::new();

@@ -178,13 +178,20 @@ impl Agent {
         token_count(self.backend.as_ref(), text)
     }
 
-    /// Which tools to offer for `query`, by the token cost of their specs.
-    pub fn offered_tools(&self, query: &str) -> Vec<ToolSpec> {
+    /// What retrieval reads: every tool a request could be offered (the answer too,
+    /// when answering is a tool) and the robot's names now.
+    fn retrievable(&self) -> (Vec<ToolSpec>, Vec<(String, String)>) {
         let mut specs = self.exec.registry().specs();
         if self.config.answer_mode == AnswerMode::Tool {
             specs.push(answer_spec());
         }
         let names = self.names.as_ref().map(|n| n()).unwrap_or_default();
+        (specs, names)
+    }
+
+    /// Which tools to offer for `query`, by the token cost of their specs.
+    pub fn offered_tools(&self, query: &str) -> Vec<ToolSpec> {
+        let (specs, names) = self.retrievable();
         let chosen = select::select(
             query,
             &specs,
@@ -198,11 +205,7 @@ impl Agent {
 
     /// Each candidate's prior for the weighed tool choice (`select::prior`), in order.
     fn prior(&self, part: &str, candidates: &[ToolSpec]) -> Vec<f64> {
-        let mut specs = self.exec.registry().specs();
-        if self.config.answer_mode == AnswerMode::Tool {
-            specs.push(answer_spec());
-        }
-        let names = self.names.as_ref().map(|n| n()).unwrap_or_default();
+        let (specs, names) = self.retrievable();
         let candidates: Vec<&str> = candidates.iter().map(|s| s.name.as_str()).collect();
         select::prior(part, &specs, &names, &candidates, ANSWER_TOOL)
     }
@@ -268,7 +271,7 @@ impl Agent {
             }
             _ => {}
         }
-        if self.config.copy_bias > 0.0 && self.config.decoding == Decoding::Constrained {
+        if self.config.copy_bias > 0.0 && constrained {
             let vocab = self.backend.vocab();
             let offered = self.exec.registry().specs();
             let mut scoped = defaults(&offered);
