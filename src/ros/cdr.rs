@@ -11,7 +11,7 @@
 //! declared default or zero, and refuses unknown fields, wrong types and out-of-range
 //! numbers with the field's path, so the model can correct a call.
 
-use serde_json::{Map, Number, Value};
+use serde_json::{json, Map, Number, Value};
 
 use super::msg::{BaseType, Field, Interfaces, MessageDef, MsgError, Primitive, Shape};
 
@@ -400,6 +400,51 @@ fn template_at(ifaces: &Interfaces, type_name: &str, depth: usize) -> Result<Val
         out.insert(field.name.clone(), field_default_at(ifaces, field, depth)?);
     }
     Ok(Value::Object(out))
+}
+
+/// The JSON schema of a message of `type_name` as the encoder takes it: every field
+/// optional (an absent field is its default), no other key, integers within their width,
+/// fixed arrays of their length. What a grammar holds a message argument to.
+pub fn schema(ifaces: &Interfaces, type_name: &str) -> Result<Value, CodecError> {
+    schema_at(ifaces, type_name, 0)
+}
+
+fn schema_at(ifaces: &Interfaces, type_name: &str, depth: usize) -> Result<Value, CodecError> {
+    too_deep(type_name, depth)?;
+    let def = ifaces.message(type_name)?;
+    let mut properties = Map::new();
+    for field in &def.fields {
+        let one = elem_schema(ifaces, &field.base, depth)?;
+        let s = match field.shape {
+            Shape::Single => one,
+            Shape::Array(n) => json!({"type": "array", "items": one, "minItems": n, "maxItems": n}),
+            Shape::Sequence { max: Some(n) } => {
+                json!({"type": "array", "items": one, "maxItems": n})
+            }
+            Shape::Sequence { max: None } => json!({"type": "array", "items": one}),
+        };
+        properties.insert(field.name.clone(), s);
+    }
+    Ok(json!({"type": "object", "properties": properties, "additionalProperties": false}))
+}
+
+fn elem_schema(ifaces: &Interfaces, base: &BaseType, depth: usize) -> Result<Value, CodecError> {
+    let int = |min: i64, max: i64| json!({"type": "integer", "minimum": min, "maximum": max});
+    Ok(match base {
+        BaseType::Primitive(p) => match p {
+            Primitive::Bool => json!({"type": "boolean"}),
+            Primitive::String => json!({"type": "string"}),
+            Primitive::F32 | Primitive::F64 => json!({"type": "number"}),
+            Primitive::Byte | Primitive::Char | Primitive::U8 => int(0, u8::MAX.into()),
+            Primitive::I8 => int(i8::MIN.into(), i8::MAX.into()),
+            Primitive::I16 => int(i16::MIN.into(), i16::MAX.into()),
+            Primitive::U16 => int(0, u16::MAX.into()),
+            Primitive::I32 => int(i32::MIN.into(), i32::MAX.into()),
+            Primitive::U32 => int(0, u32::MAX.into()),
+            Primitive::I64 | Primitive::U64 => json!({"type": "integer"}),
+        },
+        BaseType::Message(name) => schema_at(ifaces, name, depth + 1)?,
+    })
 }
 
 // ---------------------------------------------------------------- decoding

@@ -108,6 +108,17 @@ pub struct CancelOutcome {
     pub canceling: Vec<String>,
 }
 
+/// The graph as discovered so far when `graph` answers without waiting (the sim's and
+/// the DDS graph's do), else `None`: for what is built inside a model's turn, which never
+/// waits on the robot.
+pub fn graph_now(graph: &dyn RosGraph) -> Option<Graph> {
+    let mut cx = std::task::Context::from_waker(std::task::Waker::noop());
+    match graph.graph().as_mut().poll(&mut cx) {
+        std::task::Poll::Ready(Ok(g)) => Some(g),
+        _ => None,
+    }
+}
+
 pub trait RosGraph: Send + Sync {
     /// The graph as discovered so far.
     fn graph(&self) -> BoxFuture<'_, Result<Graph, RosError>>;

@@ -72,4 +72,12 @@ pub trait Tool: Send + Sync + 'static {
         args: Self::Args,
         cx: &ToolContext,
     ) -> impl Future<Output = Result<serde_json::Value, ToolError>> + Send;
+    /// The arguments as the robot can take them now, when that is narrower than
+    /// `Args` says (a service's request typed by that service's type): a JSON schema
+    /// every value of which `Args` also takes. The grammar holds calls to it; the
+    /// prompt shows `Args`, so it stays the same while the robot changes. `None` (the
+    /// default): `Args` as it is.
+    fn live_parameters(&self) -> Option<serde_json::Value> {
+        None
+    }
 }

@@ -15,6 +15,11 @@ pub type BoxFuture<'a, T> = Pin<Box<dyn Future<Output = T> + Send + 'a>>;
 pub trait DynTool: Send + Sync {
     fn spec(&self) -> &ToolSpec;
     fn effect(&self) -> Effect;
+    /// The spec with the arguments the robot can take now (`Tool::live_parameters`),
+    /// when they are narrower than the spec's.
+    fn live_spec(&self) -> Option<ToolSpec> {
+        None
+    }
     /// Run with JSON arguments (already validated against the schema by the policy).
     fn call<'a>(
         &'a self,
@@ -35,6 +40,14 @@ impl<T: Tool> DynTool for Typed<T> {
 
     fn effect(&self) -> Effect {
         T::EFFECT
+    }
+
+    fn live_spec(&self) -> Option<ToolSpec> {
+        let parameters = self.tool.live_parameters()?;
+        Some(ToolSpec {
+            parameters,
+            ..self.spec.clone()
+        })
     }
 
     fn call<'a>(

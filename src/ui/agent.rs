@@ -177,8 +177,7 @@ pub fn build_with(
 /// run never waits for it).
 fn robot_names(graph: Arc<dyn RosGraph>, fence: Arc<crate::fence::Fence>) -> NameSource {
     Arc::new(move || {
-        let mut cx = std::task::Context::from_waker(std::task::Waker::noop());
-        let std::task::Poll::Ready(Ok(g)) = graph.graph().as_mut().poll(&mut cx) else {
+        let Some(g) = crate::ros::graph_now(graph.as_ref()) else {
             return Vec::new();
         };
         let mut out = std::collections::BTreeSet::new();

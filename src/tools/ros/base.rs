@@ -147,6 +147,43 @@ pub(super) fn resolve_loose(
     }
 }
 
+/// Arguments as one branch per name in `entries` (name → types), its `body` typed by
+/// that name's type (`cdr::schema` of the type plus `suffix`, e.g. `_Request`), and one
+/// branch for a name the robot lacks, as `Args` declares it (`open`): what a call tool
+/// gives as its `Tool::live_parameters`. `None` when no name has a known type.
+pub(super) fn typed_by_name(
+    ros: &Ros,
+    entries: BTreeMap<String, BTreeSet<String>>,
+    (name_key, body_key, suffix): (&str, &str, &str),
+    body_required: bool,
+    open: Value,
+) -> Option<Value> {
+    let required = if body_required {
+        json!([name_key, body_key])
+    } else {
+        json!([name_key])
+    };
+    let mut branches: Vec<Value> = entries
+        .into_iter()
+        .filter_map(|(name, types)| {
+            let ty = crate::ros::msg::normalize_type(types.iter().next()?);
+            let body =
+                crate::ros::cdr::schema(ros.graph.interfaces(), &format!("{ty}{suffix}")).ok()?;
+            Some(json!({
+                "type": "object",
+                "properties": {name_key: {"type": "string", "const": name}, body_key: body},
+                "required": required,
+                "additionalProperties": false,
+            }))
+        })
+        .collect();
+    if branches.is_empty() {
+        return None;
+    }
+    branches.push(open);
+    Some(json!({ "anyOf": branches }))
+}
+
 /// "no topic /x; did you mean /y?" or, with nothing near, which tool lists them.
 pub(super) fn not_found<'a>(
     kind: &str,

@@ -229,4 +229,46 @@ mod tests {
         assert!(out["definition"].as_str().unwrap().contains("string name"));
         assert_eq!(out["example"]["request"]["name"], "");
     }
+
+    #[test]
+    fn calls_take_arguments_typed_by_the_names_the_robot_holds() {
+        let ros = Ros { graph: fake() };
+        let live = ServiceCall(ros.clone()).live_parameters().unwrap();
+        let branches = live["anyOf"].as_array().unwrap();
+        // One branch per service of a known type, then one for a service it lacks.
+        assert_eq!(branches.len(), 2);
+        let teleport = &branches[0];
+        assert_eq!(
+            teleport["properties"]["service"]["const"],
+            "/turtle1/teleport_absolute"
+        );
+        let request = &teleport["properties"]["request"];
+        assert_eq!(request["properties"]["theta"]["type"], "number");
+        assert_eq!(request["additionalProperties"], false);
+        assert_eq!(teleport["required"], json!(["service"]));
+        assert!(branches[1]["properties"]["service"].get("const").is_none());
+
+        let live = TopicPublish(ros).live_parameters().unwrap();
+        let branches = live["anyOf"].as_array().unwrap();
+        let twist = branches
+            .iter()
+            .find(|b| b["properties"]["topic"]["const"] == "/turtle1/cmd_vel")
+            .unwrap();
+        let linear = &twist["properties"]["message"]["properties"]["linear"];
+        assert_eq!(linear["properties"]["x"]["type"], "number");
+        assert_eq!(twist["required"], json!(["topic", "message"]));
+        // A topic the robot lacks needs its type.
+        let open = branches.last().unwrap();
+        assert_eq!(
+            open["required"],
+            json!(["topic", "message", "message_type"])
+        );
+        // Every branch is a value the declared arguments take.
+        let declared = crate::tool::registry::erase(TopicPublish(Ros { graph: fake() }));
+        let call = json!({"topic": "/turtle1/cmd_vel", "message": {"linear": {"x": 0.5}}});
+        assert!(declared.spec().validate(&call).is_ok());
+        assert!(jsonschema::validator_for(&live).unwrap().is_valid(&call));
+        let forged = json!({"topic": "/turtle1/cmd_vel", "message": {"type": "object"}});
+        assert!(!jsonschema::validator_for(&live).unwrap().is_valid(&forged));
+    }
 }

@@ -4,7 +4,7 @@ use schemars::JsonSchema;
 use serde::Deserialize;
 use serde_json::{json, Map, Value};
 
-use super::base::{absolute, failed, service_type, with_note, Ros};
+use super::base::{absolute, failed, service_type, typed_by_name, with_note, Ros};
 use crate::tool::{Effect, Tool, ToolContext, ToolError};
 
 #[derive(Deserialize, JsonSchema)]
@@ -40,5 +40,27 @@ impl Tool for ServiceCall {
             json!({"service": service, "type": ty, "response": reply.response}),
             reply.note,
         ))
+    }
+
+    /// One branch per service the robot offers, its request typed by the service's
+    /// type (a small model otherwise fills a free request with the schema's own words),
+    /// and one for a service the robot lacks (`agent::bound` holds its name to those
+    /// the operator wrote; the call then reports it missing).
+    fn live_parameters(&self) -> Option<Value> {
+        let g = crate::ros::graph_now(self.0.graph.as_ref())?;
+        let open = json!({
+            "type": "object",
+            "properties": {"service": {"type": "string"},
+                           "request": {"type": "object", "additionalProperties": true}},
+            "required": ["service"],
+            "additionalProperties": false,
+        });
+        typed_by_name(
+            &self.0,
+            g.services(),
+            ("service", "request", "_Request"),
+            false,
+            open,
+        )
     }
 }

@@ -6,7 +6,9 @@ use schemars::JsonSchema;
 use serde::Deserialize;
 use serde_json::{json, Map, Value};
 
-use super::base::{absolute, failed, with_mux, with_note, with_resolved, Resolved, Ros};
+use super::base::{
+    absolute, failed, typed_by_name, with_mux, with_note, with_resolved, Resolved, Ros,
+};
 use crate::tool::{Effect, Tool, ToolContext, ToolError};
 
 #[derive(Deserialize, JsonSchema)]
@@ -168,5 +170,21 @@ impl Tool for TopicPublish {
         let out = json!({"published": true, "topic": sent.topic, "type": crate::ros::msg::normalize_type(&ty),
                          "message": sent.sent.clone().unwrap_or(message)});
         Ok(with_note(with_mux(out, &topic, &sent), sent.note))
+    }
+
+    /// One branch per topic of a known type, its message typed by that type, and one
+    /// for a topic the robot lacks (`agent::bound` holds its name to those the operator
+    /// wrote), which needs `message_type`.
+    fn live_parameters(&self) -> Option<Value> {
+        let g = crate::ros::graph_now(self.0.graph.as_ref())?;
+        let open = json!({
+            "type": "object",
+            "properties": {"topic": {"type": "string"},
+                           "message": {"type": "object", "additionalProperties": true},
+                           "message_type": {"type": "string"}},
+            "required": ["topic", "message", "message_type"],
+            "additionalProperties": false,
+        });
+        typed_by_name(&self.0, g.topics(), ("topic", "message", ""), true, open)
     }
 }
