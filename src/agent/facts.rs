@@ -156,12 +156,12 @@ pub fn facts(summary: &str) -> Vec<String> {
 }
 
 /// The answer the operator reads: `reply` with a repeated sentence said once, or, when
-/// the last call succeeded (`last_ok`) and the reply states none of the facts of its
-/// `summary`, that summary. Facts the `request` itself states ("move 1 m" and a result's
+/// it states none of the facts of the `summary` of the result it answers (a call that
+/// succeeded), that summary. Facts the `request` itself states ("move 1 m" and a result's
 /// 1.0) do not show the reply read the result, unless there are no others.
-pub fn grounded(reply: &str, summary: Option<&str>, last_ok: bool, request: &str) -> String {
+pub fn grounded(reply: &str, summary: Option<&str>, request: &str) -> String {
     let reply = once(unlooped(reply));
-    let Some(summary) = summary.filter(|_| last_ok) else {
+    let Some(summary) = summary else {
         return reply;
     };
     let all = facts(summary);
@@ -344,7 +344,6 @@ mod tests {
             grounded(
                 "pose x 5.54 pose x 5.54 pose x 5.54 pose x 5.54",
                 Some(pose),
-                true,
                 ""
             ),
             "pose x 5.54"
@@ -354,47 +353,43 @@ mod tests {
     #[test]
     fn numbers_count_as_stated_to_the_precision_written() {
         let s = "expression 6 * 7, result 42.0";
-        assert_eq!(grounded("It is 42.", Some(s), true, ""), "It is 42.");
+        assert_eq!(grounded("It is 42.", Some(s), ""), "It is 42.");
         let pose = "x 5.544, y 2.1";
-        assert_eq!(grounded("At 5.54.", Some(pose), true, ""), "At 5.54.");
-        assert_eq!(grounded("At 5.6.", Some(pose), true, ""), pose);
+        assert_eq!(grounded("At 5.54.", Some(pose), ""), "At 5.54.");
+        assert_eq!(grounded("At 5.6.", Some(pose), ""), pose);
     }
 
     #[test]
     fn facts_the_request_states_show_nothing_read() {
         let s = "requested_m 1.0, moved_m 1.0, pose.x 6.54, pose.y 5.54";
         let q = "mueve la tortuga 1 metro";
-        assert_eq!(grounded("Mueve la tortuga 1 metro.", Some(s), true, q), s);
+        assert_eq!(grounded("Mueve la tortuga 1 metro.", Some(s), q), s);
         assert_eq!(
-            grounded("Movida 1 m, ahora en x 6.54.", Some(s), true, q),
+            grounded("Movida 1 m, ahora en x 6.54.", Some(s), q),
             "Movida 1 m, ahora en x 6.54."
         );
         // When the request states every fact, saying one is enough.
         let set = "node /turtlesim, name background_r, value 100";
         let q = "set background_r of /turtlesim to 100";
-        assert_eq!(grounded("Set to 100.", Some(set), true, q), "Set to 100.");
+        assert_eq!(grounded("Set to 100.", Some(set), q), "Set to 100.");
     }
 
     #[test]
     fn an_answer_that_states_no_fact_is_replaced_by_the_summary() {
         let s = "1 node: /turtlesim";
+        assert_eq!(grounded("The response is a response.", Some(s), ""), s);
         assert_eq!(
-            grounded("The response is a response.", Some(s), true, ""),
-            s
-        );
-        assert_eq!(
-            grounded("Running: /turtlesim.", Some(s), true, ""),
+            grounded("Running: /turtlesim.", Some(s), ""),
             "Running: /turtlesim."
         );
         // Numbers count as facts in any language.
         let pose = "x 5.54, y 5.54, theta 0";
         assert_eq!(
-            grounded("La tortuga está en x 5.54.", Some(pose), true, ""),
+            grounded("La tortuga está en x 5.54.", Some(pose), ""),
             "La tortuga está en x 5.54."
         );
-        // After a failure the model's own words stay.
-        assert_eq!(grounded("It failed.", Some(s), false, ""), "It failed.");
-        assert_eq!(grounded("Hello.", None, true, ""), "Hello.");
+        // With no result to answer (only failures), the model's own words stay.
+        assert_eq!(grounded("Hello.", None, ""), "Hello.");
     }
 
     #[test]

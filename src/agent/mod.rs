@@ -24,10 +24,12 @@
 //! - `prompt`: robot system prompts (ROSA's fields) from TOML
 //! - `memory`: chat history, trimming, output truncation
 //! - `select`: choosing tools when their specs exceed the budget
+//! - `bound`: name arguments held to the names the robot has and the operator wrote
 //! - `event`: the typed event stream every front end consumes
 //! - `trace`: JSONL session traces
 
 pub mod answer;
+pub mod bound;
 pub mod concepts;
 pub mod config;
 pub mod event;
@@ -96,8 +98,7 @@ impl Agent {
             timings: Timings::default(),
             answer: String::new(),
             last_observation: String::new(),
-            last_summary: None,
-            last_ok: false,
+            grounds: Vec::new(),
             copy_from: queries,
             answer_only: false,
             step_first_token: None,

@@ -20,6 +20,7 @@ use std::time::Instant;
 use serde_json::{json, Value};
 
 use super::answer::{self, ANSWER_CHARS, ANSWER_TOOL};
+use super::bound;
 use super::config::STOP_TOOL;
 use super::facts;
 use super::guard::{Came, Guards, Verdict};
@@ -59,10 +60,9 @@ pub(super) struct Run<'a> {
     pub answer: String,
     /// What the last tool returned, as shown.
     pub last_observation: String,
-    /// The summary of the run's last result, and whether that call succeeded: what an
-    /// answer is held to (`facts::grounded`).
-    pub last_summary: Option<String>,
-    pub last_ok: bool,
+    /// The summaries of the calls of the part being worked that succeeded, each with its
+    /// tool, in the order they ran: what an answer is held to (`ground`).
+    pub grounds: Vec<(String, String)>,
     /// What argument values may be copied from: what the operator said, what tools
     /// returned.
     pub copy_from: Vec<String>,
@@ -159,6 +159,7 @@ impl Run<'_> {
         let part = self.parts[self.part].clone();
         self.guards.next_part(&part);
         self.answer_only = false;
+        self.grounds.clear();
         if let Some(t) = &mut self.agent.trace {
             t.record("next_part", json!({ "part": self.part, "text": part }));
         }
@@ -180,6 +181,17 @@ impl Run<'_> {
         }
         self.answer = said.join(" ");
         Thought::Done(Finish::Answer)
+    }
+
+    /// What the part's answer is held to: of the part's calls that succeeded, the latest
+    /// of those whose tool the part's words meet best (`select::grounding`). A call the
+    /// request did not ask for (the pose read after the battery) does not replace the
+    /// result the operator asked for.
+    fn ground(&self) -> Option<&str> {
+        let tools: Vec<&str> = self.grounds.iter().map(|(t, _)| t.as_str()).collect();
+        let priors = self.agent.prior(&self.parts[self.part], &tools);
+        let i = super::select::grounding(&priors)?;
+        Some(self.grounds[i].1.as_str())
     }
 
     /// The step's turn: the model writes calls, or the answer.
@@ -274,12 +286,7 @@ impl Run<'_> {
                 a.arguments["text"].as_str().unwrap_or_default(),
                 ANSWER_CHARS,
             );
-            let grounded = facts::grounded(
-                &said,
-                self.last_summary.as_deref(),
-                self.last_ok,
-                self.query,
-            );
+            let grounded = facts::grounded(&said, self.ground(), self.query);
             return Ok(self.answered(grounded));
         }
         if turn.calls.is_empty() {
@@ -394,11 +401,9 @@ impl Run<'_> {
         } else {
             output
         };
-        self.last_summary = output
-            .get("summary")
-            .and_then(Value::as_str)
-            .map(str::to_string);
-        self.last_ok = ok;
+        if let Some(summary) = output.get("summary").and_then(Value::as_str).filter(|_| ok) {
+            self.grounds.push((call.name.clone(), summary.to_string()));
+        }
         self.emit(Event::ToolResult {
             step,
             index,
@@ -483,26 +488,32 @@ impl Run<'_> {
         let messages = self
             .agent
             .context(&self.parts[0], &self.scratch, &self.offered)?;
-        let allowed_specs: Option<Vec<ToolSpec>> = allowed.map(|names| {
-            self.offered
-                .iter()
-                .filter(|s| names.contains(&s.name))
-                .cloned()
-                .collect()
-        });
+        // The grammar takes each tool's arguments as the robot can take them now
+        // (`Tool::live_parameters`), name arguments held to the names that exist
+        // (`bound`).
+        let registry = self.agent.exec.registry();
+        let allowed_specs: Vec<ToolSpec> = self
+            .offered
+            .iter()
+            .filter(|s| allowed.as_ref().is_none_or(|names| names.contains(&s.name)))
+            .map(|s| {
+                registry
+                    .get(&s.name)
+                    .and_then(|t| t.live_spec())
+                    .unwrap_or_else(|| s.clone())
+            })
+            .collect();
+        let robot_names = self.agent.names.as_ref().map(|n| n()).unwrap_or_default();
+        let allowed_specs = bound::bind(&allowed_specs, &robot_names, &self.parts[self.part]);
         let sources: Vec<&str> = self.copy_from.iter().map(String::as_str).collect();
         // A part's first step: nothing since the operator's words but the part itself.
         let fresh = self.scratch.last().is_none_or(|m| m.role == Role::User);
-        let candidates = allowed_specs.as_deref().unwrap_or(&self.offered);
-        let pick = fresh.then_some((self.parts[self.part].as_str(), candidates));
+        let candidates: Vec<&str> = allowed_specs.iter().map(|s| s.name.as_str()).collect();
+        let pick = fresh.then_some((self.parts[self.part].as_str(), candidates.as_slice()));
         let mut pipeline = self.agent.pipeline(&sources, pick);
-        let req = self.agent.request(
-            &messages,
-            &self.offered,
-            allowed_specs
-                .as_deref()
-                .filter(|a| a.len() < self.offered.len()),
-        );
+        let req = self
+            .agent
+            .request(&messages, &self.offered, Some(&allowed_specs));
         let cancel = self.agent.cancel.clone();
         let start = self.start;
         self.step_first_token = None;

@@ -325,6 +325,17 @@ const FALLBACK_SHARE: f64 = 0.3;
 /// The least share a tool is held at (a tool the request does not meet at all).
 const PRIOR_FLOOR: f64 = 1e-3;
 
+/// Which of a part's results an answer is held to, given each one's tool's prior (in
+/// the order they ran): the latest of those whose tool the request meets best. A part
+/// is one request (`plan` cuts "move, then tell me where it is" in two), so a result
+/// the request asked for is not replaced by one the model went on to fetch ("what is the
+/// battery level?": the status, not the pose read after it; "what type is the /spawn
+/// service?": the service's info, not the list of services after it).
+pub fn grounding(priors: &[f64]) -> Option<usize> {
+    let best = priors.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    priors.iter().rposition(|p| *p >= best - 1e-9)
+}
+
 /// Per candidate name, its prior for the weighed tool choice: the log of its retrieval
 /// score's share of the best score among `specs` (all the tools the request could be
 /// offered, so the words' weights are those `select` uses). The answer, `fallback`,
@@ -433,5 +444,17 @@ mod tests {
         for (a, b) in sc.iter().zip(&turtle) {
             assert!((a - b).abs() < 0.2 * top, "{sc:?} {turtle:?}");
         }
+    }
+
+    #[test]
+    fn an_answer_is_held_to_the_latest_result_the_request_asked_for() {
+        // The status (share 1), then the pose the request never named (the floor).
+        assert_eq!(grounding(&[0.0, 1e-3f64.ln()]), Some(0));
+        // The service's info (share 1), then the list of services (0.56).
+        assert_eq!(grounding(&[0.0, 0.56f64.ln()]), Some(0));
+        assert_eq!(grounding(&[0.4f64.ln(), 0.0, 0.1f64.ln()]), Some(1));
+        // The same tool twice (a read, then a read after a wait): the later one.
+        assert_eq!(grounding(&[0.0, 0.5f64.ln(), 0.0]), Some(2));
+        assert_eq!(grounding(&[]), None);
     }
 }

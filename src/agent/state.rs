@@ -204,10 +204,9 @@ impl Agent {
     }
 
     /// Each candidate's prior for the weighed tool choice (`select::prior`), in order.
-    fn prior(&self, part: &str, candidates: &[ToolSpec]) -> Vec<f64> {
+    pub(super) fn prior(&self, part: &str, candidates: &[&str]) -> Vec<f64> {
         let (specs, names) = self.retrievable();
-        let candidates: Vec<&str> = candidates.iter().map(|s| s.name.as_str()).collect();
-        select::prior(part, &specs, &names, &candidates, ANSWER_TOOL)
+        select::prior(part, &specs, &names, candidates, ANSWER_TOOL)
     }
 
     /// Prompt tokens of the first step of `query` with these tools and no history.
@@ -256,7 +255,7 @@ impl Agent {
     /// step may call; after a result the question is whether to answer, which neither
     /// a content-free request nor the retrieval says anything about) and the copy bias
     /// (with its array guard), each when on.
-    pub(super) fn pipeline(&self, sources: &[&str], pick: Option<(&str, &[ToolSpec])>) -> Pipeline {
+    pub(super) fn pipeline(&self, sources: &[&str], pick: Option<(&str, &[&str])>) -> Pipeline {
         let mut p = Pipeline::new();
         let constrained = self.config.decoding == Decoding::Constrained;
         match pick.filter(|_| constrained) {
@@ -276,7 +275,12 @@ impl Agent {
             let offered = self.exec.registry().specs();
             let mut scoped = defaults(&offered);
             if let Some(names) = &self.names {
-                scoped.extend(graph_names(&offered, &names()));
+                let written: Vec<String> = sources
+                    .iter()
+                    .flat_map(|s| super::bound::written_names(s))
+                    .collect();
+                let pointed = super::bound::pointed(&names(), sources, &written);
+                scoped.extend(graph_names(&offered, &pointed));
             }
             let index = CopyIndex::new(
                 vocab,

@@ -27,8 +27,9 @@ pub struct TurnRequest<'a> {
     pub messages: &'a [ChatMessage],
     /// The tools described in the prompt.
     pub specs: &'a [ToolSpec],
-    /// The tools the grammar allows this turn, when fewer than those described (keeping
-    /// the prompt, and so the KV cache, unchanged while narrowing the choice).
+    /// The tools the grammar allows this turn, when fewer than those described or with
+    /// arguments held narrower than described (keeping the prompt, and so the KV cache,
+    /// unchanged while narrowing the choice).
     pub allowed: Option<&'a [ToolSpec]>,
     pub envelope: Envelope,
     pub choice: ToolChoice,

@@ -1,0 +1,471 @@
+//! Name arguments held to names that exist. In a turn's grammar, a required string
+//! argument that takes one of the robot's names (`node`, `topic`, `service`, `action`,
+//! `type`: the keys a `NameSource` gives) may be only a name the robot holds now under
+//! that key, or a name the operator wrote; and of the robot's names, only those the
+//! operator's words point at most (`pointed`), when they point at any.
+//!
+//! A small model writes a name it has not seen as often as one it has ("turtle1" for the
+//! node, "object" for the type, "topic_echo_topic_name"), and of real names the one it
+//! always likes (`/turtle1/teleport_absolute` for "clear the screen"). Once the value
+//! must be a real name the words point at, it chooses among a few, or none. What the
+//! operator wrote stays open, so a name the robot lacks is still asked for and still
+//! reported missing ("no topic /chatter"). A key the robot has no names for is left
+//! free.
+//!
+//! A field the operator gives a value ("at x 2 y 3") is required in the objects that
+//! have it (`require_given`), so it is written and the copy bias fills in the number.
+//!
+//! Only the grammar changes: the prompt shows the tools as before, so its cache holds.
+
+use std::collections::{BTreeMap, BTreeSet};
+
+use serde_json::{json, Value};
+
+use crate::lexicon::{folded_words, number_word};
+use crate::tool::ToolSpec;
+
+/// `specs` with each name argument held to the `names` (key, name) of its key that
+/// `request`'s words point at (`pointed`) and the names `request` writes
+/// (`written_names`). A schema that is a choice of branches, one per name
+/// (`Tool::live_parameters`), keeps the branches of names it may take. Tools with no
+/// such argument are unchanged.
+pub fn bind(specs: &[ToolSpec], names: &[(String, String)], request: &str) -> Vec<ToolSpec> {
+    let written = written_names(request);
+    let given = given_fields(request);
+    let names = pointed(names, &[request], &written);
+    let names = names.as_slice();
+    specs
+        .iter()
+        .map(|spec| {
+            let mut spec = spec.clone();
+            bind_schema(&mut spec.parameters, names, &written);
+            require_given(&mut spec.parameters, &given, 0);
+            spec
+        })
+        .collect()
+}
+
+/// The fields `request` gives a value: a word followed by a number ("at x 2 y 3",
+/// "theta=90", "width: 3", "x tres").
+pub fn given_fields(request: &str) -> BTreeSet<String> {
+    let words = folded_words(request);
+    let number = |w: &str| w.parse::<f64>().is_ok() || number_word(w).is_some();
+    words
+        .windows(2)
+        .filter(|p| number(&p[1]) && !number(&p[0]))
+        .map(|p| p[0].clone())
+        .collect()
+}
+
+/// Deepest object whose fields `require_given` looks at: the arguments and the objects
+/// they hold (a service's request), not the objects inside those. "linear x 1" would
+/// otherwise require `x` of a twist's `angular` too, and a value would be made up for it.
+const GIVEN_DEPTH: usize = 1;
+
+/// Each field of an object of `schema` that `given` names becomes required, and so does
+/// the object holding it, so the value the operator gave is written: a small model
+/// fills an object of optional fields with the ones it likes ("spawn a turtle at x 2 y
+/// 3": only `name`), or leaves the object out. Whether `schema` names any.
+fn require_given(schema: &mut Value, given: &BTreeSet<String>, depth: usize) -> bool {
+    if depth > GIVEN_DEPTH || given.is_empty() {
+        return false;
+    }
+    let mut any = false;
+    if let Some(branches) = schema.get_mut("anyOf").and_then(Value::as_array_mut) {
+        for b in branches {
+            any |= require_given(b, given, depth);
+        }
+    }
+    let Some(props) = schema.get_mut("properties").and_then(Value::as_object_mut) else {
+        return any;
+    };
+    let mut named: Vec<String> = Vec::new();
+    for (k, p) in props.iter_mut() {
+        if given.contains(&crate::lexicon::fold(k)) | require_given(p, given, depth + 1) {
+            named.push(k.clone());
+        }
+    }
+    if named.is_empty() {
+        return any;
+    }
+    let required = schema
+        .as_object_mut()
+        .map(|o| o.entry("required").or_insert_with(|| json!([])));
+    if let Some(Value::Array(required)) = required {
+        for k in named {
+            if !required.iter().any(|r| r == k.as_str()) {
+                required.push(json!(k));
+            }
+        }
+    }
+    true
+}
+
+fn bind_schema(schema: &mut Value, names: &[(String, String)], written: &[String]) {
+    let Some(branches) = schema.get("anyOf").and_then(Value::as_array) else {
+        bind_object(schema, names, written, &[]);
+        return;
+    };
+    // The names the branches spell out: the open branch is for the others.
+    let taken: Vec<(String, String)> = branches
+        .iter()
+        .flat_map(|b| b["properties"].as_object().into_iter().flatten())
+        .filter_map(|(k, p)| Some((k.clone(), p.get("const")?.as_str()?.to_string())))
+        .collect();
+    let kept: Vec<Value> = branches
+        .iter()
+        .cloned()
+        .filter_map(|mut b| bind_object(&mut b, names, written, &taken).then_some(b))
+        .collect();
+    // A robot whose every such name is fenced off, with none written: the call stays as
+    // declared, for the policy to refuse.
+    if !kept.is_empty() {
+        schema["anyOf"] = Value::Array(kept);
+    }
+}
+
+/// Hold each required string name property of `object` (`taken`: names other branches
+/// spell out); `false` when it can take no name at all.
+fn bind_object(
+    object: &mut Value,
+    names: &[(String, String)],
+    written: &[String],
+    taken: &[(String, String)],
+) -> bool {
+    let required: Vec<String> = object["required"]
+        .as_array()
+        .map(|r| {
+            r.iter()
+                .filter_map(Value::as_str)
+                .map(str::to_string)
+                .collect()
+        })
+        .unwrap_or_default();
+    let Some(props) = object["properties"].as_object_mut() else {
+        return true;
+    };
+    for (key, prop) in props.iter_mut() {
+        if prop["type"] != "string" || !required.contains(key) {
+            continue;
+        }
+        let held: Vec<&str> = names
+            .iter()
+            .filter(|(k, _)| k == key)
+            .map(|(_, n)| n.as_str())
+            .collect();
+        if held.is_empty() {
+            continue;
+        }
+        // A written name the robot holds under a longer spelling ("teleport_absolute",
+        // "turtle1/pose") is that name, not a missing one.
+        let missing = written.iter().map(String::as_str).filter(|w| {
+            let w = w.trim_start_matches('/');
+            !held
+                .iter()
+                .any(|h| h.trim_start_matches('/') == w || h.ends_with(&format!("/{w}")))
+        });
+        let mut open: Vec<&str> = held.iter().copied().chain(missing).collect();
+        if let Some(c) = prop.get("const").and_then(Value::as_str) {
+            if !open.contains(&c) {
+                return false;
+            }
+            continue;
+        }
+        open.retain(|n| !taken.iter().any(|(k, t)| k == key && t == n));
+        if open.is_empty() {
+            return false;
+        }
+        open.sort_unstable();
+        open.dedup();
+        prop["enum"] = json!(open);
+    }
+    true
+}
+
+/// Of the robot's `names` (key, name), per key, those the words of `sources` point at
+/// most: each word a name shares with them weighs more the fewer of the key's names have
+/// it ("spawn a turtle at x 2": `/spawn`, not `/turtle1/teleport_absolute`; "kill
+/// turtle1": `/kill`, which alone has "kill", over the three services under
+/// `/turtle1`). A name `written` whole ("/turtle1/cmd_vel", not the longer names that
+/// share its words) is the only one of its key. A key whose names the words meet not
+/// at all keeps them all. The copy bias favours these; the grammar allows only these
+/// (and the names written).
+pub fn pointed(
+    names: &[(String, String)],
+    sources: &[&str],
+    written: &[String],
+) -> Vec<(String, String)> {
+    let said: BTreeSet<String> = sources.iter().flat_map(|s| folded_words(s)).collect();
+    let mut by_key: BTreeMap<&str, Vec<(&str, BTreeSet<String>)>> = BTreeMap::new();
+    for (key, name) in names {
+        let words = folded_words(name).into_iter().collect();
+        by_key.entry(key).or_default().push((name, words));
+    }
+    let whole = |name: &str| {
+        written
+            .iter()
+            .any(|w| w.trim_start_matches('/') == name.trim_start_matches('/'))
+    };
+    let mut out = Vec::new();
+    for (key, entries) in by_key {
+        if entries.iter().any(|(n, _)| whole(n)) {
+            out.extend(
+                entries
+                    .iter()
+                    .filter(|(n, _)| whole(n))
+                    .map(|(n, _)| (key.to_string(), n.to_string())),
+            );
+            continue;
+        }
+        let df = |w: &String| entries.iter().filter(|(_, ws)| ws.contains(w)).count();
+        let n = entries.len() as f64;
+        let scores: Vec<f64> = entries
+            .iter()
+            .map(|(_, ws)| {
+                ws.iter()
+                    .filter(|w| said.contains(*w))
+                    .map(|w| (1.0 + n / df(w) as f64).ln())
+                    .sum()
+            })
+            .collect();
+        let best = scores.iter().copied().fold(0.0, f64::max);
+        for ((name, _), score) in entries.iter().zip(&scores) {
+            if best == 0.0 || *score >= best - 1e-9 {
+                out.push((key.to_string(), name.to_string()));
+            }
+        }
+    }
+    out
+}
+
+/// The words of `request` shaped like a ROS name or type: with a `/` or an `_` inside
+/// ("/chatter", "turtle1/pose", "battery_level", "std_msgs/msg/String"), the quotes and
+/// stops around them left off. A bare word is not a name the operator gave: it may be
+/// any word of any language.
+pub fn written_names(request: &str) -> Vec<String> {
+    request
+        .split_whitespace()
+        .map(|w| w.trim_matches(|c: char| !(c.is_alphanumeric() || c == '/' || c == '_')))
+        .map(|w| w.trim_end_matches('/'))
+        .filter(|w| {
+            let body = w.trim_start_matches('/');
+            body.chars().any(char::is_alphanumeric)
+                && body
+                    .chars()
+                    .all(|c| c.is_alphanumeric() || c == '/' || c == '_')
+                && (w.starts_with('/') || body.contains(['/', '_']))
+        })
+        .map(str::to_string)
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn spec(name: &str, parameters: Value) -> ToolSpec {
+        ToolSpec {
+            name: name.into(),
+            description: String::new(),
+            parameters,
+            alone: false,
+        }
+    }
+
+    fn names() -> Vec<(String, String)> {
+        [
+            ("node", "/turtlesim"),
+            ("topic", "/turtle1/pose"),
+            ("topic", "/battery_state"),
+            ("type", "turtlesim/msg/Pose"),
+        ]
+        .iter()
+        .map(|(k, n)| (k.to_string(), n.to_string()))
+        .collect()
+    }
+
+    #[test]
+    fn a_required_name_argument_takes_the_robots_names_and_the_operators() {
+        let specs = [spec(
+            "ros_topic_echo",
+            json!({"type": "object", "properties": {
+                "topic": {"type": "string", "description": "Topic name"},
+                "count": {"type": "integer"}},
+              "required": ["topic"]}),
+        )];
+        let bound = bind(&specs, &names(), "echo /chatter, please");
+        assert_eq!(
+            bound[0].parameters["properties"]["topic"]["enum"],
+            json!(["/battery_state", "/chatter", "/turtle1/pose"])
+        );
+        // A name the robot holds, written without its slash, is that name, and the one
+        // the words point at.
+        let bound_again = bind(&specs, &names(), "echo turtle1/pose");
+        assert_eq!(
+            bound_again[0].parameters["properties"]["topic"]["enum"],
+            json!(["/turtle1/pose"])
+        );
+        assert_eq!(
+            bound[0].parameters["properties"]["topic"]["description"],
+            "Topic name"
+        );
+        assert!(bound[0].parameters["properties"]["count"]
+            .get("enum")
+            .is_none());
+    }
+
+    #[test]
+    fn optional_arguments_and_keys_without_names_stay_free() {
+        let specs = [
+            spec(
+                "ros_log_read",
+                json!({"type": "object", "properties": {
+                    "node": {"type": ["string", "null"]}}, "required": []}),
+            ),
+            spec(
+                "ros_service_info",
+                json!({"type": "object", "properties": {
+                    "service": {"type": "string"}}, "required": ["service"]}),
+            ),
+        ];
+        let bound = bind(&specs, &names(), "what does /spawn take?");
+        assert_eq!(bound[0].parameters, specs[0].parameters);
+        // The robot gave no services: nothing to hold the argument to.
+        assert_eq!(bound[1].parameters, specs[1].parameters);
+    }
+
+    #[test]
+    fn written_names_are_the_words_shaped_like_ros_names() {
+        assert_eq!(
+            written_names("show \"turtle1/pose\", the battery_level and /clear. Then geometry_msgs/msg/Twist?"),
+            ["turtle1/pose", "battery_level", "/clear", "geometry_msgs/msg/Twist"]
+        );
+        assert!(written_names("list the nodes / topics, por favor").is_empty());
+        // Shape alone decides: "and/or" is written like a name; the grammar then
+        // allows it, and the tool reports it missing.
+        assert_eq!(written_names("and/or ___ /"), ["and/or"]);
+    }
+
+    #[test]
+    fn branches_keep_the_names_they_may_take() {
+        let branch = |service: Value| {
+            json!({"type": "object", "properties": {"service": service,
+                   "request": {"type": "object"}}, "required": ["service"]})
+        };
+        let names: Vec<(String, String)> = ["/clear", "/spawn"]
+            .iter()
+            .map(|n| ("service".to_string(), n.to_string()))
+            .collect();
+        let specs = [spec(
+            "ros_service_call",
+            json!({"anyOf": [
+                branch(json!({"type": "string", "const": "/clear"})),
+                branch(json!({"type": "string", "const": "/spawn"})),
+                // Fenced off: the robot's names leave it out.
+                branch(json!({"type": "string", "const": "/kill"})),
+                branch(json!({"type": "string"}))]}),
+        )];
+        let free = |request: &str| {
+            let bound = bind(&specs, &names, request);
+            let branches = bound[0].parameters["anyOf"].as_array().unwrap().clone();
+            let consts: Vec<Value> = branches
+                .iter()
+                .map(|b| {
+                    let s = &b["properties"]["service"];
+                    s.get("const").or(s.get("enum")).cloned().unwrap()
+                })
+                .collect();
+            consts
+        };
+        // The words point at one service: its branch alone is left.
+        assert_eq!(free("clear the screen"), [json!("/clear")]);
+        // At none: every service the robot holds, but not the fenced one, nor the open
+        // branch (nothing written).
+        assert_eq!(free("call a service"), [json!("/clear"), json!("/spawn")]);
+        // A missing name the operator wrote is open; one the robot holds is its branch.
+        assert_eq!(
+            free("call /self_destruct, then /spawn"),
+            [json!("/spawn"), json!(["/self_destruct"])]
+        );
+        // A bare word is no name: nothing to open the branch for.
+        assert_eq!(free("use clear/"), [json!("/clear")]);
+    }
+
+    #[test]
+    fn the_names_the_words_point_at_most_are_favoured() {
+        let services: Vec<(String, String)> = [
+            "/clear",
+            "/kill",
+            "/spawn",
+            "/turtle1/set_pen",
+            "/turtle1/teleport_absolute",
+            "/turtle1/teleport_relative",
+        ]
+        .iter()
+        .map(|n| ("service".to_string(), n.to_string()))
+        .chain([("node".to_string(), "/turtlesim".to_string())])
+        .collect();
+        let favoured = |q: &str| -> Vec<String> {
+            pointed(&services, &[q], &written_names(q))
+                .into_iter()
+                .filter(|(k, _)| k == "service")
+                .map(|(_, n)| n)
+                .collect()
+        };
+        assert_eq!(favoured("spawn a new turtle at x 2 y 3"), ["/spawn"]);
+        assert_eq!(favoured("kill the turtle named turtle1"), ["/kill"]);
+        assert_eq!(favoured("Borra la pantalla con CLEAR"), ["/clear"]);
+        assert_eq!(
+            favoured("teleport turtle1 to 3 4"),
+            ["/turtle1/teleport_absolute", "/turtle1/teleport_relative"]
+        );
+        // Words that meet no name: every name stays.
+        assert_eq!(favoured("do the thing").len(), 6);
+        // Keys are weighed apart: the node is kept though no word meets it.
+        assert!(pointed(&services, &["spawn"], &[]).contains(&("node".into(), "/turtlesim".into())));
+        // A name written whole is the one, not the longer names sharing its words.
+        let topics: Vec<(String, String)> = ["/turtle1/cmd_vel", "/turtle1/cmd_vel_mux/active"]
+            .iter()
+            .map(|n| ("topic".to_string(), n.to_string()))
+            .collect();
+        let q = "publish on /turtle1/cmd_vel";
+        assert_eq!(
+            pointed(&topics, &[q], &written_names(q)),
+            [("topic".to_string(), "/turtle1/cmd_vel".to_string())]
+        );
+        let q = "publish on the turtle1 cmd vel topic";
+        assert_eq!(pointed(&topics, &[q], &written_names(q)).len(), 2);
+    }
+
+    #[test]
+    fn fields_the_request_gives_a_value_are_written() {
+        assert_eq!(
+            given_fields("spawn a turtle at x 2 y 3.5, theta=90 and width: tres"),
+            ["theta", "width", "x", "y"].map(String::from).into()
+        );
+        // Any word before a number counts; one that names no field changes nothing.
+        assert_eq!(
+            given_fields("move 2 m then 3 more"),
+            ["move", "then"].map(String::from).into()
+        );
+        let specs = [spec(
+            "ros_service_call",
+            json!({"anyOf": [{"type": "object", "properties": {
+                "service": {"type": "string", "const": "/spawn"},
+                "request": {"type": "object", "properties": {
+                    "x": {"type": "number"}, "y": {"type": "number"},
+                    "name": {"type": "string"}}}},
+              "required": ["service"]}]}),
+        )];
+        let bound = bind(&specs, &[], "spawn a turtle at x 2 y 3");
+        let branch = &bound[0].parameters["anyOf"][0];
+        assert_eq!(
+            branch["properties"]["request"]["required"],
+            json!(["x", "y"])
+        );
+        assert_eq!(branch["required"], json!(["service", "request"]));
+        // Nothing given: nothing required beyond the declared.
+        let bound = bind(&specs, &[], "spawn a turtle");
+        assert_eq!(bound[0].parameters, specs[0].parameters);
+    }
+}
