@@ -189,7 +189,9 @@ impl Run<'_> {
     /// result the operator asked for.
     fn ground(&self) -> Option<&str> {
         let tools: Vec<&str> = self.grounds.iter().map(|(t, _)| t.as_str()).collect();
-        let priors = self.agent.prior(&self.parts[self.part], &tools);
+        let priors = self
+            .agent
+            .prior(&self.parts[self.part], &tools, &self.agent.robot_names());
         let i = super::select::grounding(&priors)?;
         Some(self.grounds[i].1.as_str())
     }
@@ -503,14 +505,14 @@ impl Run<'_> {
                     .unwrap_or_else(|| s.clone())
             })
             .collect();
-        let robot_names = self.agent.names.as_ref().map(|n| n()).unwrap_or_default();
+        let robot_names = self.agent.robot_names();
         let allowed_specs = bound::bind(&allowed_specs, &robot_names, &self.parts[self.part]);
         let sources: Vec<&str> = self.copy_from.iter().map(String::as_str).collect();
         // A part's first step: nothing since the operator's words but the part itself.
         let fresh = self.scratch.last().is_none_or(|m| m.role == Role::User);
         let candidates: Vec<&str> = allowed_specs.iter().map(|s| s.name.as_str()).collect();
         let pick = fresh.then_some((self.parts[self.part].as_str(), candidates.as_slice()));
-        let mut pipeline = self.agent.pipeline(&sources, pick);
+        let mut pipeline = self.agent.pipeline(&sources, pick, &robot_names);
         let req = self
             .agent
             .request(&messages, &self.offered, Some(&allowed_specs));

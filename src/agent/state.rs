@@ -178,20 +178,25 @@ impl Agent {
         token_count(self.backend.as_ref(), text)
     }
 
-    /// What retrieval reads: every tool a request could be offered (the answer too,
-    /// when answering is a tool) and the robot's names now.
-    fn retrievable(&self) -> (Vec<ToolSpec>, Vec<(String, String)>) {
+    /// The tools retrieval reads: every tool a request could be offered (the answer too,
+    /// when answering is a tool).
+    fn retrievable(&self) -> Vec<ToolSpec> {
         let mut specs = self.exec.registry().specs();
         if self.config.answer_mode == AnswerMode::Tool {
             specs.push(answer_spec());
         }
-        let names = self.names.as_ref().map(|n| n()).unwrap_or_default();
-        (specs, names)
+        specs
+    }
+
+    /// The robot's names now (`with_names`), fenced ones left out; none without a robot.
+    /// One graph snapshot: a turn reads it once and hands it on.
+    pub(super) fn robot_names(&self) -> Vec<(String, String)> {
+        self.names.as_ref().map(|n| n()).unwrap_or_default()
     }
 
     /// Which tools to offer for `query`, by the token cost of their specs.
     pub fn offered_tools(&self, query: &str) -> Vec<ToolSpec> {
-        let (specs, names) = self.retrievable();
+        let (specs, names) = (self.retrievable(), self.robot_names());
         let chosen = select::select(
             query,
             &specs,
@@ -203,10 +208,15 @@ impl Agent {
         chosen.into_iter().map(|i| specs[i].clone()).collect()
     }
 
-    /// Each candidate's prior for the weighed tool choice (`select::prior`), in order.
-    pub(super) fn prior(&self, part: &str, candidates: &[&str]) -> Vec<f64> {
-        let (specs, names) = self.retrievable();
-        select::prior(part, &specs, &names, candidates, ANSWER_TOOL)
+    /// Each candidate's prior for the weighed tool choice (`select::prior`), in order,
+    /// with the robot's `names` as the turn read them.
+    pub(super) fn prior(
+        &self,
+        part: &str,
+        candidates: &[&str],
+        names: &[(String, String)],
+    ) -> Vec<f64> {
+        select::prior(part, &self.retrievable(), names, candidates, ANSWER_TOOL)
     }
 
     /// Prompt tokens of the first step of `query` with these tools and no history.
@@ -254,8 +264,14 @@ impl Agent {
     /// first step of a request or of a part, `pick`: the part's text and the tools the
     /// step may call; after a result the question is whether to answer, which neither
     /// a content-free request nor the retrieval says anything about) and the copy bias
-    /// (with its array guard), each when on.
-    pub(super) fn pipeline(&self, sources: &[&str], pick: Option<(&str, &[&str])>) -> Pipeline {
+    /// (with its array guard), each when on. `names`: the robot's names as the turn read
+    /// them.
+    pub(super) fn pipeline(
+        &self,
+        sources: &[&str],
+        pick: Option<(&str, &[&str])>,
+        names: &[(String, String)],
+    ) -> Pipeline {
         let mut p = Pipeline::new();
         let constrained = self.config.decoding == Decoding::Constrained;
         match pick.filter(|_| constrained) {
@@ -264,7 +280,7 @@ impl Agent {
             }
             Some((part, candidates)) if self.config.pick == Pick::Weighed => {
                 p = p.with(Weighed {
-                    prior: self.prior(part, candidates),
+                    prior: self.prior(part, candidates, names),
                     weight: select::PRIOR_WEIGHT,
                 });
             }
@@ -274,14 +290,12 @@ impl Agent {
             let vocab = self.backend.vocab();
             let offered = self.exec.registry().specs();
             let mut scoped = defaults(&offered);
-            if let Some(names) = &self.names {
-                let written: Vec<String> = sources
-                    .iter()
-                    .flat_map(|s| super::bound::written_names(s))
-                    .collect();
-                let pointed = super::bound::pointed(&names(), sources, &written);
-                scoped.extend(graph_names(&offered, &pointed));
-            }
+            let written: Vec<String> = sources
+                .iter()
+                .flat_map(|s| super::bound::written_names(s))
+                .collect();
+            let pointed = super::bound::pointed(names, sources, &written);
+            scoped.extend(graph_names(&offered, &pointed));
             let index = CopyIndex::new(
                 vocab,
                 sources,
