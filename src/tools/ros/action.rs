@@ -8,7 +8,7 @@ use schemars::JsonSchema;
 use serde::Deserialize;
 use serde_json::{json, Map, Value};
 
-use super::base::{absolute, failed, not_found, Filter, ListArgs, Ros};
+use super::base::{absolute, failed, not_found, typed_by_name, Filter, ListArgs, Ros};
 use crate::ros::{GoalStatus, Graph};
 use crate::tool::{Effect, Tool, ToolContext, ToolError};
 
@@ -116,6 +116,32 @@ impl Tool for ActionSendGoal {
             "feedback": shown,
         }))
     }
+
+    /// One branch per action the robot offers, its goal typed by the action's `_Goal`
+    /// definition, and one for an action the robot lacks (`agent::bound` holds its name
+    /// to those the operator wrote), as for `ros_service_call`.
+    fn live_parameters(&self) -> Option<Value> {
+        let g = crate::ros::graph_now(self.0.graph.as_ref())?;
+        let open = json!({
+            "type": "object",
+            "properties": {"action": {"type": "string"},
+                           "goal": {"type": "object", "additionalProperties": true}},
+            "required": ["action"],
+            "additionalProperties": false,
+        });
+        let actions = g
+            .actions()
+            .into_iter()
+            .map(|a| (a.action, [a.type_name].into()))
+            .collect();
+        let mut live = typed_by_name(&self.0, actions, ("action", "goal", "_Goal"), false, open)?;
+        // Every branch may say how long to follow the goal.
+        let wait = json!({"type": "number", "minimum": 0.1, "maximum": 120.0});
+        for b in live["anyOf"].as_array_mut()? {
+            b["properties"]["wait_s"] = wait.clone();
+        }
+        Some(live)
+    }
 }
 
 #[derive(Deserialize, JsonSchema)]
@@ -205,7 +231,7 @@ mod tests {
     fn ros(fake: FakeGraph) -> (Ros, Arc<FakeGraph>) {
         let fake = Arc::new(fake.with_graph(graph()));
         let g: Arc<dyn RosGraph> = fake.clone();
-        (Ros { graph: g }, fake)
+        (Ros::new(g), fake)
     }
 
     #[test]
@@ -268,9 +294,7 @@ mod tests {
             FakeGraph::new().with_action("/turtle1/rotate_absolute", outcome(GoalStatus::Running));
         let (r, fake) = ros(fake);
         let err = run(
-            &ActionSendGoal(Ros {
-                graph: r.graph.clone(),
-            }),
+            &ActionSendGoal(Ros::new(r.graph.clone())),
             json!({"action": "/rotate_absolute", "goal": {}}),
         )
         .unwrap_err();

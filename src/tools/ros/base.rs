@@ -15,6 +15,8 @@ use crate::tool::ToolError;
 #[derive(Clone)]
 pub struct Ros {
     pub(super) graph: Arc<dyn RosGraph>,
+    /// The nodes' parameter names, shared by the parameter tools.
+    pub(super) params: Arc<super::param_names::ParamNames>,
 }
 
 /// A ROS failure as the model reads it (also used by the turtle tools).
@@ -23,6 +25,13 @@ pub(crate) fn failed(e: RosError) -> ToolError {
 }
 
 impl Ros {
+    pub(super) fn new(graph: Arc<dyn RosGraph>) -> Ros {
+        Ros {
+            graph,
+            params: Arc::default(),
+        }
+    }
+
     pub(super) async fn snapshot(&self) -> Result<Graph, ToolError> {
         self.graph.graph().await.map_err(failed)
     }

@@ -19,6 +19,7 @@ mod base;
 mod graph;
 mod iface;
 mod param;
+mod param_names;
 mod service;
 mod status;
 mod topic;
@@ -33,9 +34,8 @@ use crate::tool::Package;
 
 /// Every ROS tool over `graph`.
 pub fn package(graph: Arc<dyn RosGraph>) -> Package {
-    let g = || Ros {
-        graph: graph.clone(),
-    };
+    let ros = Ros::new(graph);
+    let g = || ros.clone();
     Package::new("ros")
         .with(graph::NodeList(g()))
         .with(graph::NodeInfo(g()))
@@ -126,7 +126,7 @@ mod tests {
 
     #[test]
     fn listings_count_and_filter() {
-        let ros = Ros { graph: fake() };
+        let ros = Ros::new(fake());
         let out = run(&NodeList(ros.clone()), json!({})).unwrap();
         assert_eq!(out["count"], 1);
         assert_eq!(out["nodes"][0], "/turtlesim");
@@ -154,7 +154,7 @@ mod tests {
 
     #[test]
     fn echo_hz_and_unknown_topics() {
-        let ros = Ros { graph: fake() };
+        let ros = Ros::new(fake());
         let out = run(
             &TopicEcho(ros.clone()),
             json!({"topic": "/turtle1/pose", "count": 2}),
@@ -185,9 +185,7 @@ mod tests {
     #[test]
     fn publish_and_call_take_types_from_the_graph() {
         let graph = fake();
-        let ros = Ros {
-            graph: graph.clone(),
-        };
+        let ros = Ros::new(graph.clone());
         run(
             &TopicPublish(ros.clone()),
             json!({"topic": "/turtle1/cmd_vel", "message": {"linear": {"x": 1.0}}}),
@@ -224,7 +222,7 @@ mod tests {
 
     #[test]
     fn interface_show_gives_definition_and_example() {
-        let ros = Ros { graph: fake() };
+        let ros = Ros::new(fake());
         let out = run(&InterfaceShow(ros), json!({"type": "turtlesim/srv/Spawn"})).unwrap();
         assert!(out["definition"].as_str().unwrap().contains("string name"));
         assert_eq!(out["example"]["request"]["name"], "");
@@ -232,7 +230,7 @@ mod tests {
 
     #[test]
     fn calls_take_arguments_typed_by_the_names_the_robot_holds() {
-        let ros = Ros { graph: fake() };
+        let ros = Ros::new(fake());
         let live = ServiceCall(ros.clone()).live_parameters().unwrap();
         let branches = live["anyOf"].as_array().unwrap();
         // One branch per service of a known type, then one for a service it lacks.
@@ -264,11 +262,90 @@ mod tests {
             json!(["topic", "message", "message_type"])
         );
         // Every branch is a value the declared arguments take.
-        let declared = crate::tool::registry::erase(TopicPublish(Ros { graph: fake() }));
+        let declared = crate::tool::registry::erase(TopicPublish(Ros::new(fake())));
         let call = json!({"topic": "/turtle1/cmd_vel", "message": {"linear": {"x": 0.5}}});
         assert!(declared.spec().validate(&call).is_ok());
         assert!(jsonschema::validator_for(&live).unwrap().is_valid(&call));
         let forged = json!({"topic": "/turtle1/cmd_vel", "message": {"type": "object"}});
         assert!(!jsonschema::validator_for(&live).unwrap().is_valid(&forged));
+    }
+
+    #[test]
+    fn a_goal_is_typed_by_the_action_the_robot_serves() {
+        let mut cache = GraphCache::default();
+        cache.update_participant(
+            gid(99),
+            vec![NodeEntities {
+                name: "turtlesim".into(),
+                namespace: "/".into(),
+                readers: vec![gid(1)],
+                writers: vec![],
+            }],
+        );
+        let graph = cache.join(&[ep(
+            1,
+            false,
+            "rq/turtle1/rotate_absolute/_action/send_goalRequest",
+            "turtlesim::action::dds_::RotateAbsolute_SendGoal_Request_",
+        )]);
+        let ros = Ros::new(Arc::new(FakeGraph::new().with_graph(graph)));
+        let live = action::ActionSendGoal(ros).live_parameters().unwrap();
+        let branches = live["anyOf"].as_array().unwrap();
+        assert_eq!(branches.len(), 2);
+        let rotate = &branches[0]["properties"];
+        assert_eq!(rotate["action"]["const"], "/turtle1/rotate_absolute");
+        assert_eq!(rotate["goal"]["properties"]["theta"]["type"], "number");
+        let typed = jsonschema::validator_for(&branches[0]).unwrap();
+        let call = json!({"action": "/turtle1/rotate_absolute", "goal": {"theta": 1.57}});
+        assert!(typed.is_valid(&call));
+        let forged = json!({"action": "/turtle1/rotate_absolute", "goal": {"type": "object"}});
+        assert!(!typed.is_valid(&forged));
+        // An action the robot lacks stays open to a name the operator wrote.
+        let valid = jsonschema::validator_for(&live).unwrap();
+        assert!(valid.is_valid(&json!({"action": "/dock", "goal": {}})));
+    }
+
+    #[test]
+    fn parameter_names_are_the_ones_each_node_lists() {
+        let mut cache = GraphCache::default();
+        cache.update_participant(
+            gid(99),
+            vec![NodeEntities {
+                name: "turtlesim".into(),
+                namespace: "/".into(),
+                readers: vec![gid(1)],
+                writers: vec![],
+            }],
+        );
+        let graph = cache.join(&[ep(
+            1,
+            false,
+            "rq/turtlesim/list_parametersRequest",
+            "rcl_interfaces::srv::dds_::ListParameters_Request_",
+        )]);
+        let listing =
+            json!({"result": {"names": ["background_b", "background_r"], "prefixes": []}});
+        let fake = Arc::new(
+            FakeGraph::new()
+                .with_graph(graph)
+                .with_service("/turtlesim/list_parameters", listing),
+        );
+        let ros = Ros::new(fake.clone());
+        let live = param::ParamGet(ros.clone()).live_parameters().unwrap();
+        let branches = live["anyOf"].as_array().unwrap();
+        assert_eq!(branches.len(), 2);
+        let turtlesim = &branches[0]["properties"];
+        assert_eq!(turtlesim["node"]["const"], "/turtlesim");
+        assert_eq!(
+            turtlesim["name"]["anyOf"][0]["enum"],
+            json!(["background_b", "background_r"])
+        );
+        // Listed once, then known: the next turn asks the robot nothing.
+        let asked = fake.sent().len();
+        param::ParamSet(ros).live_parameters().unwrap();
+        assert_eq!(fake.sent().len(), asked);
+        // Any name stays valid, for the tool to report one the node lacks.
+        let valid = jsonschema::validator_for(&live).unwrap();
+        assert!(valid.is_valid(&json!({"node": "/turtlesim", "name": "max_speed"})));
     }
 }

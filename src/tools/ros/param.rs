@@ -55,6 +55,9 @@ impl Tool for ParamList {
         .await?
         .response;
         let names = r["result"]["names"].clone();
+        self.0
+            .params
+            .record(&absolute(&a.node), super::param_names::names(&r));
         Ok(
             json!({"node": absolute(&a.node), "count": names.as_array().map_or(0, Vec::len), "parameters": names}),
         )
@@ -115,6 +118,10 @@ impl Tool for ParamGet {
             )));
         }
         Ok(json!({"node": absolute(&a.node), "name": a.name, "value": value}))
+    }
+
+    fn live_parameters(&self) -> Option<Value> {
+        by_node(&self.0, &[])
     }
 }
 
@@ -194,4 +201,47 @@ impl Tool for ParamSet {
             r.note,
         ))
     }
+
+    fn live_parameters(&self) -> Option<Value> {
+        let value = json!({"anyOf": [{"type": "boolean"}, {"type": "number"}, {"type": "string"}]});
+        by_node(&self.0, &[("value", value)])
+    }
+}
+
+/// A parameter tool's arguments as the robot can take them: one branch per node whose
+/// parameters are known (`ParamNames`), its `name` one of them or another (which
+/// `agent::bound` holds to those the request points at and those the operator wrote),
+/// and one for a node the robot lacks (`agent::bound` holds its node to names the operator
+/// wrote; the call then reports it missing). `more`: the tool's other arguments, all
+/// required. `None` when no node's parameters are known.
+fn by_node(ros: &Ros, more: &[(&str, Value)]) -> Option<Value> {
+    let g = crate::ros::graph_now(ros.graph.as_ref())?;
+    let known = ros.params.of(&ros.graph, &g);
+    let branch = |node: Value, name: Value| {
+        let mut properties = serde_json::Map::new();
+        properties.insert("node".into(), node);
+        properties.insert("name".into(), name);
+        let mut required = vec![json!("node"), json!("name")];
+        for (k, v) in more {
+            properties.insert(k.to_string(), v.clone());
+            required.push(json!(k));
+        }
+        json!({"type": "object", "properties": properties, "required": required,
+               "additionalProperties": false})
+    };
+    let mut branches: Vec<Value> = known
+        .into_iter()
+        .filter(|(_, names)| !names.is_empty())
+        .map(|(node, names)| {
+            branch(
+                json!({"type": "string", "const": node}),
+                json!({"anyOf": [{"type": "string", "enum": names}, {"type": "string"}]}),
+            )
+        })
+        .collect();
+    if branches.is_empty() {
+        return None;
+    }
+    branches.push(branch(json!({"type": "string"}), json!({"type": "string"})));
+    Some(json!({ "anyOf": branches }))
 }

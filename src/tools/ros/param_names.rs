@@ -1,0 +1,148 @@
+//! The parameter names of the robot's nodes, for what is built inside a model's turn:
+//! the parameter tools' arguments as the robot can take them (`Tool::live_parameters`),
+//! so "set the background blue to 255" can only name a parameter `/turtlesim` has, and
+//! `agent::bound` can hold it to `background_b`.
+//!
+//! Listing a node's parameters is a service call (`<node>/list_parameters`), and a turn
+//! never waits on the robot for long: the catalog answers from what it knows, and
+//! fetches the nodes it does not know on a thread of its own, waiting at most
+//! `FIRST_WAIT` for that fetch. A node is asked again after `RETRY`, whether it
+//! answered or not. A listing the agent made (`ros_param_list`) is recorded too. The fetch goes
+//! through the same graph as the tools, so the fence refuses what it refuses for them.
+
+use std::collections::BTreeMap;
+use std::sync::mpsc;
+use std::sync::{Arc, Mutex, PoisonError};
+use std::time::{Duration, Instant};
+
+use serde_json::{json, Value};
+
+use crate::ros::{Graph, RosGraph};
+
+/// Longest a turn waits for a fetch it started.
+const FIRST_WAIT: Duration = Duration::from_millis(800);
+/// Each node's time limit in a fetch.
+const CALL_LIMIT: Duration = Duration::from_secs(2);
+/// How soon a node is asked again: one that did not answer, or one whose parameters
+/// were listed this long ago (a node may declare more, or restart).
+const RETRY: Duration = Duration::from_secs(30);
+
+#[derive(Default)]
+pub struct ParamNames {
+    state: Mutex<State>,
+}
+
+#[derive(Default)]
+struct State {
+    /// Per node, its parameter names, as last listed, and when.
+    known: BTreeMap<String, (Instant, Vec<String>)>,
+    /// Per node, when a fetch last asked it.
+    asked: BTreeMap<String, Instant>,
+}
+
+impl ParamNames {
+    /// The parameter names known now of the nodes of `g` that serve `list_parameters`.
+    /// Nodes not known are fetched first, waiting at most `FIRST_WAIT` for them.
+    pub fn of(&self, graph: &Arc<dyn RosGraph>, g: &Graph) -> BTreeMap<String, Vec<String>> {
+        let services = g.services();
+        let serving: Vec<String> = g
+            .nodes
+            .iter()
+            .filter(|n| services.contains_key(&list_service(n)))
+            .cloned()
+            .collect();
+        let missing: Vec<String> = {
+            let mut s = self.lock();
+            let now = Instant::now();
+            let missing: Vec<String> = serving
+                .iter()
+                .filter(|n| s.known.get(*n).is_none_or(|(t, _)| now - *t >= RETRY))
+                .filter(|n| s.asked.get(*n).is_none_or(|t| now - *t >= RETRY))
+                .cloned()
+                .collect();
+            for n in &missing {
+                s.asked.insert(n.clone(), now);
+            }
+            missing
+        };
+        if !missing.is_empty() {
+            for (node, names) in fetch(graph.clone(), missing) {
+                self.record(&node, names);
+            }
+        }
+        let s = self.lock();
+        serving
+            .into_iter()
+            .filter_map(|n| Some((n.clone(), s.known.get(&n)?.1.clone())))
+            .collect()
+    }
+
+    /// Record `node`'s parameters as a listing gave them.
+    pub fn record(&self, node: &str, names: Vec<String>) {
+        self.lock()
+            .known
+            .insert(node.to_string(), (Instant::now(), names));
+    }
+
+    fn lock(&self) -> std::sync::MutexGuard<'_, State> {
+        self.state.lock().unwrap_or_else(PoisonError::into_inner)
+    }
+}
+
+fn list_service(node: &str) -> String {
+    format!("{}/list_parameters", node.trim_end_matches('/'))
+}
+
+/// The names of `nodes`' parameters, each as it came within `FIRST_WAIT`; the fetch
+/// goes on after, and what comes later is dropped (the node is asked again after
+/// `RETRY`).
+fn fetch(graph: Arc<dyn RosGraph>, nodes: Vec<String>) -> Vec<(String, Vec<String>)> {
+    let (tx, rx) = mpsc::channel();
+    let spawned = std::thread::Builder::new()
+        .name("param-names".into())
+        .spawn(move || {
+            let Ok(rt) = tokio::runtime::Builder::new_current_thread()
+                .enable_all()
+                .build()
+            else {
+                return;
+            };
+            for node in nodes {
+                let service = list_service(&node);
+                let call = graph.call_service(
+                    &service,
+                    "rcl_interfaces/srv/ListParameters",
+                    json!({"prefixes": [], "depth": 0}),
+                    CALL_LIMIT,
+                );
+                if let Ok(reply) = rt.block_on(call) {
+                    if tx.send((node, names(&reply.response))).is_err() {
+                        return;
+                    }
+                }
+            }
+        });
+    let mut out = Vec::new();
+    if spawned.is_err() {
+        return out;
+    }
+    let deadline = Instant::now() + FIRST_WAIT;
+    while let Some(left) = deadline.checked_duration_since(Instant::now()) {
+        match rx.recv_timeout(left) {
+            Ok(item) => out.push(item),
+            Err(_) => break,
+        }
+    }
+    out
+}
+
+/// The names a `ListParameters` response holds.
+pub fn names(response: &Value) -> Vec<String> {
+    response["result"]["names"]
+        .as_array()
+        .into_iter()
+        .flatten()
+        .filter_map(Value::as_str)
+        .map(str::to_string)
+        .collect()
+}
