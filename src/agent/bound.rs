@@ -38,7 +38,7 @@ pub fn bind(specs: &[ToolSpec], names: &[(String, String)], request: &str) -> Ve
         .iter()
         .map(|spec| {
             let mut spec = spec.clone();
-            bind_schema(&mut spec.parameters, names, &written);
+            bind_schema(&mut spec.parameters, names, &written, request);
             require_given(&mut spec.parameters, &given, 0);
             spec
         })
@@ -101,9 +101,9 @@ fn require_given(schema: &mut Value, given: &BTreeSet<String>, depth: usize) -> 
     true
 }
 
-fn bind_schema(schema: &mut Value, names: &[(String, String)], written: &[String]) {
+fn bind_schema(schema: &mut Value, names: &[(String, String)], written: &[String], request: &str) {
     let Some(branches) = schema.get("anyOf").and_then(Value::as_array) else {
-        bind_object(schema, names, written, &[]);
+        bind_object(schema, (names, written, request), &[]);
         return;
     };
     // The names the branches spell out: the open branch is for the others.
@@ -115,7 +115,7 @@ fn bind_schema(schema: &mut Value, names: &[(String, String)], written: &[String
     let kept: Vec<Value> = branches
         .iter()
         .cloned()
-        .filter_map(|mut b| bind_object(&mut b, names, written, &taken).then_some(b))
+        .filter_map(|mut b| bind_object(&mut b, (names, written, request), &taken).then_some(b))
         .collect();
     // A robot whose every such name is fenced off, with none written: the call stays as
     // declared, for the policy to refuse.
@@ -125,11 +125,11 @@ fn bind_schema(schema: &mut Value, names: &[(String, String)], written: &[String
 }
 
 /// Hold each required string name property of `object` (`taken`: names other branches
-/// spell out); `false` when it can take no name at all.
+/// spell out), and each required property that suggests names (`suggested`); `false`
+/// when it can take no name at all.
 fn bind_object(
     object: &mut Value,
-    names: &[(String, String)],
-    written: &[String],
+    (names, written, request): (&[(String, String)], &[String], &str),
     taken: &[(String, String)],
 ) -> bool {
     let required: Vec<String> = object["required"]
@@ -145,7 +145,14 @@ fn bind_object(
         return true;
     };
     for (key, prop) in props.iter_mut() {
-        if prop["type"] != "string" || !required.contains(key) {
+        if !required.contains(key) {
+            continue;
+        }
+        if let Some(known) = suggested(prop) {
+            *prop = json!({"type": "string", "enum": held_to(&known, names, request, written)});
+            continue;
+        }
+        if prop["type"] != "string" {
             continue;
         }
         let held: Vec<&str> = names
@@ -180,6 +187,51 @@ fn bind_object(
         prop["enum"] = json!(open);
     }
     true
+}
+
+/// The names a property suggests, when it is a choice of known names or any other
+/// (`{"anyOf": [{"enum": [...]}, {"type": "string"}]}`: a node's parameters, which the
+/// node may lack one of).
+fn suggested(prop: &Value) -> Option<Vec<String>> {
+    let [known, other] = prop.get("anyOf")?.as_array()?.as_slice() else {
+        return None;
+    };
+    if other.get("type")? != "string" || other.get("enum").is_some() {
+        return None;
+    }
+    known
+        .get("enum")?
+        .as_array()?
+        .iter()
+        .map(|v| v.as_str().map(str::to_string))
+        .collect()
+}
+
+/// Of the `known` names, those `request`'s words point at (all when they point at none),
+/// with the names `written` that are neither among them nor one of the robot's other
+/// `names` ("/turtlesim" is a node, not a missing parameter): what the operator wrote
+/// stays possible, and the tool reports it missing.
+fn held_to(
+    known: &[String],
+    names: &[(String, String)],
+    request: &str,
+    written: &[String],
+) -> Vec<String> {
+    let entries: Vec<(String, String)> = known.iter().map(|n| (String::new(), n.clone())).collect();
+    let mut out: Vec<String> = pointed(&entries, &[request], written)
+        .into_iter()
+        .map(|(_, n)| n)
+        .collect();
+    let bare = |n: &str| n.trim_start_matches('/').to_string();
+    for w in written {
+        let held = known.iter().chain(names.iter().map(|(_, n)| n));
+        if !held.into_iter().any(|k| bare(k) == bare(w)) {
+            out.push(w.clone());
+        }
+    }
+    out.sort_unstable();
+    out.dedup();
+    out
 }
 
 /// Of the robot's `names` (key, name), per key, those the words of `sources` point at
@@ -222,8 +274,12 @@ pub fn pointed(
         let scores: Vec<f64> = entries
             .iter()
             .map(|(_, ws)| {
+                // A shortened word counts only beside one said whole.
+                if !ws.iter().any(|w| said.contains(w)) {
+                    return 0.0;
+                }
                 ws.iter()
-                    .filter(|w| said.contains(*w))
+                    .filter(|w| meets(w, ws, &said))
                     .map(|w| (1.0 + n / df(w) as f64).ln())
                     .sum()
             })
@@ -236,6 +292,19 @@ pub fn pointed(
         }
     }
     out
+}
+
+/// Whether the word `w` of a name (whose words are `own`) is one of the words `said`, or
+/// the start of one that is not itself a word of the name: names shorten what the
+/// operator says in full ("b" in `background_b` for "blue", "vel" in `cmd_vel` for
+/// "velocity"), but the "b" of `background_b` does not meet "background", which the
+/// name has whole. (`pointed` counts a shortened word only beside a whole one: "get"
+/// alone does not point at `background_g`.)
+fn meets(w: &str, own: &BTreeSet<String>, said: &BTreeSet<String>) -> bool {
+    said.contains(w)
+        || said
+            .iter()
+            .any(|s| s.len() > w.len() && s.starts_with(w) && !own.contains(s))
 }
 
 /// The words of `request` shaped like a ROS name or type: with a `/` or an `_` inside
@@ -467,5 +536,50 @@ mod tests {
         // Nothing given: nothing required beyond the declared.
         let bound = bind(&specs, &[], "spawn a turtle");
         assert_eq!(bound[0].parameters, specs[0].parameters);
+    }
+
+    #[test]
+    fn a_choice_of_known_names_is_held_to_those_the_words_point_at() {
+        let params = [
+            "background_b",
+            "background_g",
+            "background_r",
+            "use_sim_time",
+        ];
+        let specs = [spec(
+            "ros_param_get",
+            json!({"anyOf": [{"type": "object", "properties": {
+                "node": {"type": "string", "const": "/turtlesim"},
+                "name": {"anyOf": [{"type": "string", "enum": params}, {"type": "string"}]}},
+              "required": ["node", "name"]}]}),
+        )];
+        let names = [("node".to_string(), "/turtlesim".to_string())];
+        let held = |request: &str| {
+            let bound = bind(&specs, &names, request);
+            bound[0].parameters["anyOf"][0]["properties"]["name"]["enum"].clone()
+        };
+        // A name's short word meets the word it shortens, not one the name has whole.
+        assert_eq!(
+            held("set the background blue to 255"),
+            json!(["background_b"])
+        );
+        assert_eq!(
+            held("what's the red component of the background color?"),
+            json!(["background_r"])
+        );
+        // A name written whole is the only one; one the node lacks stays possible (but
+        // not a name the robot has for something else).
+        assert_eq!(
+            held("read the background_g parameter"),
+            json!(["background_g"])
+        );
+        let mut lacked = params.to_vec();
+        lacked.insert(3, "max_speed");
+        assert_eq!(
+            held("get the max_speed parameter of /turtlesim"),
+            json!(lacked)
+        );
+        // Words that point at none leave them all.
+        assert_eq!(held("show me a parameter"), json!(params));
     }
 }

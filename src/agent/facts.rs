@@ -5,10 +5,12 @@
 //! name background_r, value 69"; for messages read from a topic, the newest message's
 //! fields). A small model copies a line far more reliably than it reads nested JSON.
 //!
-//! An answer is held to the run's last result: when that call succeeded and the answer
-//! states none of its facts (the numbers and names in its summary), the answer is that
+//! An answer is held to the result it answers (`Run::ground` chooses it): when the
+//! answer states none of its facts (the numbers and names in its summary), or speaks
+//! of something else than the request and the result (`on_topic`), the answer is that
 //! summary; a sentence said twice in a row is said once. Nothing here reads the
-//! operator's language: facts are numbers and names, compared as written.
+//! operator's language: facts are numbers and names, compared as written, and words
+//! are compared by how they start.
 //!
 //! Cost: one walk of each result (bounded by `MAX_ITEMS`); one scan of the answer.
 
@@ -181,10 +183,43 @@ pub fn grounded(reply: &str, summary: Option<&str>, request: &str) -> String {
         Ok(n) => said.iter().any(|(s, tol)| (s - n).abs() <= *tol + 1e-9),
         Err(_) => lower.contains(f.as_str()),
     };
-    if facts.is_empty() || facts.iter().any(stated) {
+    if (facts.is_empty() || facts.iter().any(stated)) && on_topic(&reply, &[summary, request]) {
         return reply;
     }
     summary.to_string()
+}
+
+/// Share of an answer's words that must meet the words of the request or the result.
+const ON_TOPIC: f64 = 0.4;
+/// Fewest words an answer must have for its share to be judged.
+const JUDGED_WORDS: usize = 3;
+
+/// Whether `reply` speaks of what `sources` (the request, the result's summary) speak
+/// of: at least `ON_TOPIC` of its words (of three letters or more, each once) meet
+/// theirs. A word meets another when the two start alike (four letters, or the whole
+/// of the shorter), in any language: "moved" meets "move", "nodos" meets "nodo". A
+/// small model may name one fact of the result inside a sentence about something else
+/// ("Please use the `/turtlesim` protocol to send a response to the user."), which the
+/// facts alone would take for an answer.
+fn on_topic(reply: &str, sources: &[&str]) -> bool {
+    let long = |w: &String| w.chars().count() >= 3;
+    let stem = |w: &str| w.chars().take(4).collect::<String>();
+    let theirs: std::collections::BTreeSet<String> = sources
+        .iter()
+        .flat_map(|s| crate::lexicon::folded_words(s))
+        .filter(long)
+        .map(|w| stem(&w))
+        .collect();
+    let mine: std::collections::BTreeSet<String> = crate::lexicon::folded_words(reply)
+        .into_iter()
+        .filter(long)
+        .map(|w| stem(&w))
+        .collect();
+    if mine.len() < JUDGED_WORDS {
+        return true;
+    }
+    let met = mine.iter().filter(|w| theirs.contains(*w)).count();
+    met as f64 >= ON_TOPIC * mine.len() as f64
 }
 
 /// The numbers `text` writes, each with half a unit of its last written place ("5.54":
@@ -407,5 +442,18 @@ mod tests {
             facts("2 topics: /a/b, /c; value 0.5, name background_r."),
             ["2", "/a/b", "/c", "0.5", "background_r"]
         );
+    }
+
+    #[test]
+    fn an_answer_about_something_else_is_replaced_by_the_result() {
+        let summary = "1 node: /turtlesim";
+        let request = "list the ROS nodes";
+        let off = "Hello, World! This is a response to your request. Please use the `/turtlesim` protocol to send a response to the user.";
+        assert_eq!(grounded(off, Some(summary), request), summary);
+        let on = "There is 1 node running: /turtlesim.";
+        assert_eq!(grounded(on, Some(summary), request), on);
+        // In another language: the result's names and the request's words are met.
+        let es = "Hay 1 nodo: /turtlesim.";
+        assert_eq!(grounded(es, Some(summary), "lista los nodos de ROS"), es);
     }
 }

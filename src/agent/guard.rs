@@ -26,7 +26,7 @@ use std::sync::Arc;
 use serde_json::Value;
 
 use super::concepts::{acts_of, asked_acts, clauses, Act};
-use super::intent::{is_generic, name_words, Intent};
+use super::intent::{is_generic, name_words, Intent, TARGET_KEYS};
 use crate::strategy::ground::Grounding;
 use crate::strategy::Strategy;
 use crate::tool::{Effect, Policy, ToolCall, ToolSpec};
@@ -63,6 +63,12 @@ pub trait Guard {
 
     /// Before the model's turn: the tools this step may call, of those `offered` (`None`:
     /// all of them).
+    /// Whether a tool (`declared`), its arguments as this step's grammar takes them
+    /// (`bound`, see `agent::bound`), may be offered: `false` when every call it could
+    /// write would be refused.
+    fn keeps(&self, _declared: &ToolSpec, _bound: &ToolSpec) -> bool {
+        true
+    }
     fn narrow(&self, _offered: &[ToolSpec]) -> Option<Vec<String>> {
         None
     }
@@ -127,6 +133,11 @@ impl Guards {
             }
         }
         allowed
+    }
+
+    /// Whether every guard keeps a tool with its arguments as bound (`Guard::keeps`).
+    pub fn keeps(&self, declared: &ToolSpec, bound: &ToolSpec) -> bool {
+        self.guards.iter().all(|g| g.keeps(declared, bound))
     }
 
     /// Each call's verdict: the first guard that does not pass it decides.
@@ -343,6 +354,26 @@ impl Guard for AskedFor {
         (askable.len() < offered.len()).then_some(askable)
     }
 
+    /// A generic actuator whose grammar holds its targets to names (`agent::bound`) is
+    /// kept only when the request asks for one of them: "send the map to the cloud" asks
+    /// nothing of `/clear`, `/kill` or `/spawn`, so the service call is not written (and
+    /// refused).
+    fn keeps(&self, declared: &ToolSpec, bound: &ToolSpec) -> bool {
+        if !self.asked.actuators.contains(&bound.name) || !is_generic(declared) {
+            return true;
+        }
+        let Some(targets) = bound_targets(&bound.parameters) else {
+            return true;
+        };
+        targets.into_iter().any(|(key, target)| {
+            let call = ToolCall {
+                name: bound.name.clone(),
+                arguments: serde_json::json!({ key: target }),
+            };
+            self.intent.asks_for(&call, declared, &self.asked.observing)
+        })
+    }
+
     fn check(&mut self, calls: &mut [ToolCall], offered: &[ToolSpec]) -> Vec<Verdict> {
         calls
             .iter()
@@ -363,6 +394,37 @@ impl Guard for AskedFor {
             })
             .collect()
     }
+}
+
+/// The names the target arguments (`intent::TARGET_KEYS`) of `schema` (an object, or a
+/// choice of objects) may take, each with its key; `None` when one of them may be any
+/// string, or when there is none.
+fn bound_targets(schema: &Value) -> Option<Vec<(String, String)>> {
+    let objects: Vec<&Value> = match schema.get("anyOf").and_then(Value::as_array) {
+        Some(branches) => branches.iter().collect(),
+        None => vec![schema],
+    };
+    let mut out = Vec::new();
+    for object in objects {
+        let props = object.get("properties")?.as_object()?;
+        let mut any = false;
+        for (key, prop) in props
+            .iter()
+            .filter(|(k, _)| TARGET_KEYS.contains(&k.as_str()))
+        {
+            let values: Vec<&str> = match (prop.get("const"), prop.get("enum")) {
+                (Some(c), _) => vec![c.as_str()?],
+                (None, Some(Value::Array(e))) => e.iter().filter_map(Value::as_str).collect(),
+                _ => return None,
+            };
+            out.extend(values.into_iter().map(|v| (key.clone(), v.to_string())));
+            any = true;
+        }
+        if !any {
+            return None;
+        }
+    }
+    (!out.is_empty()).then_some(out)
 }
 
 /// The acts a request (part) asks for, until a step has called.
@@ -578,5 +640,39 @@ mod tests {
                 "{q}: {first:?}"
             );
         }
+    }
+
+    #[test]
+    fn a_generic_actuator_is_written_only_toward_a_target_the_request_asks_for() {
+        let declared = ToolSpec::new(
+            "ros_service_call",
+            "",
+            json!({"type": "object", "properties": {"service": {"type": "string"}}}),
+        )
+        .unwrap();
+        let bound = |services: &[&str]| {
+            let branches: Vec<Value> = services
+                .iter()
+                .map(|s| json!({"type": "object", "properties": {"service": {"const": s}}}))
+                .collect();
+            ToolSpec {
+                parameters: json!({ "anyOf": branches }),
+                ..declared.clone()
+            }
+        };
+        let keeps = |q: &str, b: &ToolSpec| {
+            Guards::standard(q, &[q], Some(asked(&["ros_service_call"]))).keeps(&declared, b)
+        };
+        let services = bound(&["/clear", "/kill", "/spawn"]);
+        assert!(keeps("clear the screen", &services));
+        assert!(keeps("spawn a turtle at x 2 y 3", &services));
+        assert!(!keeps("send the map to the cloud", &services));
+        assert!(!keeps("what is the weather in Paris?", &services));
+        // A target that may be any name: the call is judged once written.
+        let open = ToolSpec {
+            parameters: json!({"anyOf": [{"type": "object", "properties": {"service": {"type": "string"}}}]}),
+            ..declared.clone()
+        };
+        assert!(keeps("send the map to the cloud", &open));
     }
 }

@@ -38,7 +38,7 @@ pub(super) fn name_words(name: &str) -> Vec<String> {
 }
 
 /// String arguments that name a ROS thing (what a generic tool acts on).
-const TARGET_KEYS: &[&str] = &["service", "topic", "action", "node", "name", "goal_id"];
+pub(super) const TARGET_KEYS: &[&str] = &["service", "topic", "action", "node", "name", "goal_id"];
 
 /// A tool that acts on a ROS thing its arguments name (a service call, a publish).
 pub(super) fn is_generic(spec: &ToolSpec) -> bool {

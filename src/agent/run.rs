@@ -196,6 +196,54 @@ impl Run<'_> {
         Some(self.grounds[i].1.as_str())
     }
 
+    /// Once a call of the part succeeded, the part's next step may answer, or call a
+    /// tool the part's words point at more than at every tool whose call succeeded
+    /// (the retrieval prior); one that acts (or cancels) only when the part asks for an
+    /// act. So a
+    /// first call of the tool the request names best is followed by the answer, and a
+    /// first call of a weaker match may be followed by a better one. A small model
+    /// otherwise goes on with calls nobody asked for (`ros_action_cancel` after a
+    /// service's info, a service call after a parameter read, the stop tool it is
+    /// always shown). A part that asks for two things in one clause may lose its second
+    /// tool; `plan` cuts most such requests in two.
+    fn settled(&self, allowed: Option<Vec<String>>) -> Option<Vec<String>> {
+        if self.grounds.is_empty() {
+            return allowed;
+        }
+        let names: Vec<String> =
+            allowed.unwrap_or_else(|| self.offered.iter().map(|s| s.name.clone()).collect());
+        let part = &self.parts[self.part];
+        let mut candidates: Vec<&str> = names.iter().map(String::as_str).collect();
+        candidates.extend(self.grounds.iter().map(|(t, _)| t.as_str()));
+        let priors = self
+            .agent
+            .prior(part, &candidates, &self.agent.robot_names());
+        let (offered, done) = priors.split_at(names.len());
+        let further = super::select::beyond(offered, done);
+        let part_acts = {
+            use super::concepts::{asked_acts, clauses, Act};
+            asked_acts(&clauses(part))
+                .iter()
+                .any(|a| !matches!(a, Act::Stop | Act::Fence))
+        };
+        let registry = self.agent.exec.registry();
+        let acts = |n: &str| {
+            registry
+                .get(n)
+                .is_some_and(|t| t.effect() != crate::tool::Effect::Observes)
+        };
+        let kept: Vec<String> = names
+            .iter()
+            .zip(further)
+            .filter(|(n, further)| {
+                *n == ANSWER_TOOL || (*further && *n != STOP_TOOL && (part_acts || !acts(n)))
+            })
+            .map(|(n, _)| n.clone())
+            .collect();
+        // Answering in prose needs no tool; a grammar needs one to write.
+        Some(if kept.is_empty() { names } else { kept })
+    }
+
     /// The step's turn: the model writes calls, or the answer.
     fn think(&mut self, step: usize) -> Result<Thought, AgentError> {
         let allowed = if self.answer_only {
@@ -203,6 +251,7 @@ impl Run<'_> {
         } else {
             self.guards.narrow(&self.offered)
         };
+        let allowed = self.settled(allowed);
         let allowed = match allowed {
             Some(names) if self.stop_withdrawn => {
                 Some(names.into_iter().filter(|n| n != STOP_TOOL).collect())
@@ -403,7 +452,13 @@ impl Run<'_> {
         } else {
             output
         };
-        if let Some(summary) = output.get("summary").and_then(Value::as_str).filter(|_| ok) {
+        // A brake answers no request: it is not what an answer is held to.
+        let answers = ok && call.name != STOP_TOOL;
+        if let Some(summary) = output
+            .get("summary")
+            .and_then(Value::as_str)
+            .filter(|_| answers)
+        {
             self.grounds.push((call.name.clone(), summary.to_string()));
         }
         self.emit(Event::ToolResult {
@@ -506,7 +561,14 @@ impl Run<'_> {
             })
             .collect();
         let robot_names = self.agent.robot_names();
-        let allowed_specs = bound::bind(&allowed_specs, &robot_names, &self.parts[self.part]);
+        let mut allowed_specs = bound::bind(&allowed_specs, &robot_names, &self.parts[self.part]);
+        // A tool every call of which the guards would refuse is not written.
+        allowed_specs.retain(|b| {
+            self.offered
+                .iter()
+                .find(|s| s.name == b.name)
+                .is_none_or(|declared| self.guards.keeps(declared, b))
+        });
         let sources: Vec<&str> = self.copy_from.iter().map(String::as_str).collect();
         // A part's first step: nothing since the operator's words but the part itself.
         let fresh = self.scratch.last().is_none_or(|m| m.role == Role::User);

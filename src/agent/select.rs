@@ -6,7 +6,8 @@
 //!   description and of its parameters; a tool that acts on a ROS thing by name
 //!   (`topic`, `service`, `node`, `action`, `type` arguments) also holds the words of the
 //!   robot's names of that kind (weighing twice): "clear the screen" meets the service
-//!   `/clear`, "the color sensor" the topic `/turtle1/color_sensor`;
+//!   `/clear`, "the color sensor" the topic `/turtle1/color_sensor`; a name the request
+//!   writes whole ("/turtle1/pose") weighs more than a tool's own name;
 //! - a request word meets a document word when they are the same word folded, one is a
 //!   prefix of the other (four letters at least) or they share five first letters, when
 //!   both name the same act (`concepts`: "mueve" and `turtle_move`), or when both are
@@ -157,10 +158,24 @@ struct Word {
 impl Word {
     fn new(text: String) -> Word {
         let acts = acts_of(std::slice::from_ref(&text));
-        let concepts = CONCEPTS
+        // The concepts whose entry for the word is the longest: "times" is arithmetic
+        // ("times"), not time ("time").
+        let matched: Vec<(usize, usize)> = CONCEPTS
             .iter()
             .enumerate()
-            .filter(|(_, words)| words.iter().any(|p| word_matches(&text, p)))
+            .filter_map(|(i, words)| {
+                let len = words
+                    .iter()
+                    .filter(|p| word_matches(&text, p))
+                    .map(|p| p.len())
+                    .max()?;
+                Some((i, len))
+            })
+            .collect();
+        let longest = matched.iter().map(|(_, l)| *l).max().unwrap_or(0);
+        let concepts = matched
+            .into_iter()
+            .filter(|(_, l)| *l == longest)
             .map(|(i, _)| i)
             .collect();
         Word {
@@ -170,15 +185,18 @@ impl Word {
         }
     }
 
-    /// Whether two words say the same (see the module header).
+    /// Whether two words say the same (see the module header). Two words the lexicon
+    /// gives different concepts do not meet by their letters ("times" and "time").
     fn meets(&self, other: &Word) -> bool {
         let (a, b) = (self.text.as_str(), other.text.as_str());
         let (short, long) = if a.len() <= b.len() { (a, b) } else { (b, a) };
+        let shared = self.concepts.iter().any(|c| other.concepts.contains(c));
+        let apart = !shared && !self.concepts.is_empty() && !other.concepts.is_empty();
         a == b
-            || (short.len() >= 4 && long.starts_with(short))
-            || a.bytes().zip(b.bytes()).take_while(|(x, y)| x == y).count() >= 5
+            || (!apart && short.len() >= 4 && long.starts_with(short))
+            || (!apart && a.bytes().zip(b.bytes()).take_while(|(x, y)| x == y).count() >= 5)
             || self.acts.iter().any(|x| other.acts.contains(x))
-            || self.concepts.iter().any(|c| other.concepts.contains(c))
+            || shared
     }
 }
 
@@ -192,14 +210,19 @@ fn words_of(text: &str) -> Vec<Word> {
 
 /// A tool as retrieval reads it, with the weight of each field.
 struct Document {
-    fields: [(f64, Vec<Word>); 3],
+    fields: [(f64, Vec<Word>); 4],
 }
+
+/// Weight of the words of a robot's name the request writes whole ("/turtle1/pose"):
+/// above a tool's own name, so "print 3 messages from /turtle1/pose" is for a tool that
+/// takes a topic, not `turtle_pose`.
+const WRITTEN_NAME: f64 = 4.0;
 
 /// Arguments that name a ROS thing of the robot's graph (the kinds of `names`).
 const NAME_KINDS: &[&str] = &["node", "topic", "service", "action", "type"];
 
 impl Document {
-    fn new(spec: &ToolSpec, names: &[(String, String)]) -> Document {
+    fn new(spec: &ToolSpec, names: &[(String, String)], written: &[String]) -> Document {
         let props = spec.parameters["properties"].as_object();
         let mut text = spec.description.clone();
         for (key, p) in props.into_iter().flatten() {
@@ -215,17 +238,18 @@ impl Document {
             .copied()
             .filter(|k| props.is_some_and(|p| p.get(*k).is_some_and(|v| v["type"] == "string")))
             .collect();
-        let graph: String = names
+        let bare = |n: &str| n.trim_start_matches('/').to_string();
+        let (whole, graph): (Vec<&str>, Vec<&str>) = names
             .iter()
             .filter(|(kind, _)| kinds.contains(&kind.as_str()))
             .map(|(_, name)| name.as_str())
-            .collect::<Vec<_>>()
-            .join(" ");
+            .partition(|name| written.iter().any(|w| bare(w) == bare(name)));
         Document {
             fields: [
                 (3.0, words_of(&spec.name)),
                 (1.0, words_of(&text)),
-                (2.0, words_of(&graph)),
+                (2.0, words_of(&graph.join(" "))),
+                (WRITTEN_NAME, words_of(&whole.join(" "))),
             ],
         }
     }
@@ -244,7 +268,11 @@ impl Document {
 /// each meets times how rare the word is among the tools. `names` are the robot's
 /// (kind, name) pairs.
 pub fn scores(query: &str, specs: &[ToolSpec], names: &[(String, String)]) -> Vec<f64> {
-    let docs: Vec<Document> = specs.iter().map(|s| Document::new(s, names)).collect();
+    let written = super::bound::written_names(query);
+    let docs: Vec<Document> = specs
+        .iter()
+        .map(|s| Document::new(s, names, &written))
+        .collect();
     let n = docs.len() as f64;
     let mut out = vec![0.0; docs.len()];
     for w in words_of(query) {
@@ -322,6 +350,14 @@ pub const PRIOR_WEIGHT: f64 = 8.0;
 /// or less.
 const FALLBACK_SHARE: f64 = 0.3;
 
+/// Which candidates (by their priors) the request points at more than at every tool
+/// whose call already answered it (`done`, their priors): what may follow a result
+/// (`Run::settled`).
+pub fn beyond(candidates: &[f64], done: &[f64]) -> Vec<bool> {
+    let bar = done.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    candidates.iter().map(|p| *p > bar + 1e-9).collect()
+}
+
 /// The least share a tool is held at (a tool the request does not meet at all).
 const PRIOR_FLOOR: f64 = 1e-3;
 
@@ -387,6 +423,8 @@ mod tests {
             spec("ros_topic_list", "List topics with their types.", json!({})),
             spec("ros_node_list", "List the running nodes.", json!({})),
             spec("calc_stats", "Mean, median of numbers.", json!({})),
+            spec("calc_eval", "Evaluate arithmetic.", json!({})),
+            spec("system_time", "The current time.", json!({})),
             spec("turtle_move", "Drive the turtle forward.", json!({})),
             spec("turtle_pose", "Where the turtle is.", json!({})),
             spec("ros_service_call", "Call a service.", target("service")),
@@ -404,9 +442,42 @@ mod tests {
     }
 
     #[test]
+    fn after_a_result_only_a_better_match_may_follow() {
+        let s = specs();
+        let names: [(String, String); 0] = [];
+        let q = "which topics are there? list them";
+        let cands = ["ros_topic_list", "ros_node_list", "turtle_pose"];
+        let priors = prior(q, &s, &names, &cands, "reply");
+        // The best match answered: nothing follows but the answer.
+        assert_eq!(beyond(&priors, &priors[..1]), [false, false, false]);
+        // One it does not meet answered: those it meets more may follow.
+        assert_eq!(beyond(&priors, &priors[2..]), [true, true, false]);
+        assert_eq!(beyond(&priors, &priors[1..2]), [true, false, false]);
+    }
+
+    #[test]
+    fn a_name_written_whole_points_at_the_tools_that_take_it() {
+        let s = vec![
+            spec("turtle_pose", "Where the turtle is.", json!({})),
+            spec(
+                "ros_topic_hz",
+                "How often a topic is published.",
+                json!({"topic": {"type": "string"}}),
+            ),
+        ];
+        let names = [("topic".to_string(), "/turtle1/pose".to_string())];
+        let sc = scores("how fast is /turtle1/pose published?", &s, &names);
+        assert!(sc[1] > sc[0], "{sc:?}");
+        // Its words alone still point at the tool named for them.
+        let sc = scores("where is the turtle's pose?", &s, &names);
+        assert!(sc[0] > sc[1], "{sc:?}");
+    }
+
+    #[test]
     fn picks_relevant_tools_within_budget_in_any_language() {
         assert_eq!(pick("what topics are there?"), ["ros_topic_list", "reply"]);
         assert_eq!(pick("what is the mean of 3 and 5"), ["calc_stats", "reply"]);
+        assert_eq!(pick("what is 12 times 7?")[0], "calc_eval");
         assert_eq!(pick("mueve la tortuga 1 metro")[0], "turtle_move");
         assert_eq!(pick("¿dónde está la tortuga?")[0], "turtle_pose");
         assert_eq!(pick("Zeige die laufenden Knoten")[0], "ros_node_list");
@@ -414,7 +485,7 @@ mod tests {
         assert_eq!(pick("clear the screen")[0], "ros_service_call");
         assert_eq!(pick("hello"), ["reply"]);
         // Everything fits: everything is offered.
-        assert_eq!(select("hi", &specs(), &[], &[], 1000, |_| 10).len(), 7);
+        assert_eq!(select("hi", &specs(), &[], &[], 1000, |_| 10).len(), 9);
     }
 
     #[test]
