@@ -9,8 +9,9 @@
 //! always likes (`/turtle1/teleport_absolute` for "clear the screen"). Once the value
 //! must be a real name the words point at, it chooses among a few, or none. What the
 //! operator wrote stays open, so a name the robot lacks is still asked for and still
-//! reported missing ("no topic /chatter"). A key the robot has no names for is left
-//! free.
+//! reported missing ("no topic /chatter"); when the words point at none of the robot's
+//! names of that key, a ROS name written (`/odom`) is the only one. A key the robot has
+//! no names for is left free.
 //!
 //! A field the operator gives a value ("at x 2 y 3") is required in the objects that
 //! have it (`require_given`), so it is written and the copy bias fills in the number.
@@ -32,13 +33,18 @@ use crate::tool::ToolSpec;
 pub fn bind(specs: &[ToolSpec], names: &[(String, String)], request: &str) -> Vec<ToolSpec> {
     let written = written_names(request);
     let given = given_fields(request);
-    let names = pointed(names, &[request], &written);
-    let names = names.as_slice();
+    let (names, met) = pointing(names, &[request], &written);
+    let held = Held {
+        names: &names,
+        met: &met,
+        written: &written,
+        request,
+    };
     specs
         .iter()
         .map(|spec| {
             let mut spec = spec.clone();
-            bind_schema(&mut spec.parameters, names, &written, request);
+            bind_schema(&mut spec.parameters, &held);
             require_given(&mut spec.parameters, &given, 0);
             spec
         })
@@ -101,9 +107,20 @@ fn require_given(schema: &mut Value, given: &BTreeSet<String>, depth: usize) -> 
     true
 }
 
-fn bind_schema(schema: &mut Value, names: &[(String, String)], written: &[String], request: &str) {
+/// What a turn's name arguments are held to.
+struct Held<'a> {
+    /// The robot's names the words point at (all of a key's when they point at none).
+    names: &'a [(String, String)],
+    /// The keys of which the words point at some name.
+    met: &'a BTreeSet<String>,
+    /// The names the request writes.
+    written: &'a [String],
+    request: &'a str,
+}
+
+fn bind_schema(schema: &mut Value, held: &Held) {
     let Some(branches) = schema.get("anyOf").and_then(Value::as_array) else {
-        bind_object(schema, (names, written, request), &[]);
+        bind_object(schema, held, &[]);
         return;
     };
     // The names the branches spell out: the open branch is for the others.
@@ -115,7 +132,7 @@ fn bind_schema(schema: &mut Value, names: &[(String, String)], written: &[String
     let kept: Vec<Value> = branches
         .iter()
         .cloned()
-        .filter_map(|mut b| bind_object(&mut b, (names, written, request), &taken).then_some(b))
+        .filter_map(|mut b| bind_object(&mut b, held, &taken).then_some(b))
         .collect();
     // A robot whose every such name is fenced off, with none written: the call stays as
     // declared, for the policy to refuse.
@@ -127,11 +144,8 @@ fn bind_schema(schema: &mut Value, names: &[(String, String)], written: &[String
 /// Hold each required string name property of `object` (`taken`: names other branches
 /// spell out), and each required property that suggests names (`suggested`); `false`
 /// when it can take no name at all.
-fn bind_object(
-    object: &mut Value,
-    (names, written, request): (&[(String, String)], &[String], &str),
-    taken: &[(String, String)],
-) -> bool {
+fn bind_object(object: &mut Value, h: &Held, taken: &[(String, String)]) -> bool {
+    let (names, written, request) = (h.names, h.written, h.request);
     let required: Vec<String> = object["required"]
         .as_array()
         .map(|r| {
@@ -165,13 +179,32 @@ fn bind_object(
         }
         // A written name the robot holds under a longer spelling ("teleport_absolute",
         // "turtle1/pose") is that name, not a missing one.
-        let missing = written.iter().map(String::as_str).filter(|w| {
-            let w = w.trim_start_matches('/');
-            !held
-                .iter()
-                .any(|h| h.trim_start_matches('/') == w || h.ends_with(&format!("/{w}")))
-        });
-        let mut open: Vec<&str> = held.iter().copied().chain(missing).collect();
+        let missing: Vec<&str> = written
+            .iter()
+            .map(String::as_str)
+            .filter(|w| {
+                let w = w.trim_start_matches('/');
+                !held
+                    .iter()
+                    .any(|h| h.trim_start_matches('/') == w || h.ends_with(&format!("/{w}")))
+            })
+            .collect();
+        // A ROS name written (with its slash) that the robot lacks, under no other key
+        // either, and words that point at none of the key's names ("echo the /odom
+        // topic"): what is asked for is the name written, which the tool reports
+        // missing, not any of the robot's.
+        let bare = |n: &str| n.trim_start_matches('/').to_string();
+        let asked: Vec<&str> = missing
+            .iter()
+            .copied()
+            .filter(|w| w.starts_with('/'))
+            .filter(|w| !names.iter().any(|(k, n)| k != key && bare(n) == bare(w)))
+            .collect();
+        let mut open: Vec<&str> = if asked.is_empty() || h.met.contains(key) {
+            held.iter().copied().chain(missing).collect()
+        } else {
+            asked
+        };
         if let Some(c) = prop.get("const").and_then(Value::as_str) {
             if !open.contains(&c) {
                 return false;
@@ -247,6 +280,16 @@ pub fn pointed(
     sources: &[&str],
     written: &[String],
 ) -> Vec<(String, String)> {
+    pointing(names, sources, written).0
+}
+
+/// `pointed`, and the keys of which the words point at some name (or a name is
+/// written whole).
+fn pointing(
+    names: &[(String, String)],
+    sources: &[&str],
+    written: &[String],
+) -> (Vec<(String, String)>, BTreeSet<String>) {
     let said: BTreeSet<String> = sources.iter().flat_map(|s| folded_words(s)).collect();
     let mut by_key: BTreeMap<&str, Vec<(&str, BTreeSet<String>)>> = BTreeMap::new();
     for (key, name) in names {
@@ -259,8 +302,10 @@ pub fn pointed(
             .any(|w| w.trim_start_matches('/') == name.trim_start_matches('/'))
     };
     let mut out = Vec::new();
+    let mut met = BTreeSet::new();
     for (key, entries) in by_key {
         if entries.iter().any(|(n, _)| whole(n)) {
+            met.insert(key.to_string());
             out.extend(
                 entries
                     .iter()
@@ -285,13 +330,16 @@ pub fn pointed(
             })
             .collect();
         let best = scores.iter().copied().fold(0.0, f64::max);
+        if best > 0.0 {
+            met.insert(key.to_string());
+        }
         for ((name, _), score) in entries.iter().zip(&scores) {
             if best == 0.0 || *score >= best - 1e-9 {
                 out.push((key.to_string(), name.to_string()));
             }
         }
     }
-    out
+    (out, met)
 }
 
 /// Whether the word `w` of a name (whose words are `own`) is one of the words `said`, or
@@ -362,10 +410,17 @@ mod tests {
                 "count": {"type": "integer"}},
               "required": ["topic"]}),
         )];
+        // A name the robot lacks, and words that point at none it holds: that name.
         let bound = bind(&specs, &names(), "echo /chatter, please");
         assert_eq!(
             bound[0].parameters["properties"]["topic"]["enum"],
-            json!(["/battery_state", "/chatter", "/turtle1/pose"])
+            json!(["/chatter"])
+        );
+        // Words that point at one it holds too: both.
+        let either = bind(&specs, &names(), "echo /chatter or the pose");
+        assert_eq!(
+            either[0].parameters["properties"]["topic"]["enum"],
+            json!(["/chatter", "/turtle1/pose"])
         );
         // A name the robot holds, written without its slash, is that name, and the one
         // the words point at.
