@@ -206,7 +206,11 @@ impl Run<'_> {
     /// service's info, a service call after a parameter read, the stop tool it is
     /// always shown). A part that asks for two things in one clause may lose its second
     /// tool; `plan` cuts most such requests in two.
-    fn settled(&self, allowed: Option<Vec<String>>) -> Option<Vec<String>> {
+    fn settled(
+        &self,
+        allowed: Option<Vec<String>>,
+        robot_names: &[(String, String)],
+    ) -> Option<Vec<String>> {
         if self.grounds.is_empty() {
             return allowed;
         }
@@ -215,9 +219,7 @@ impl Run<'_> {
         let part = &self.parts[self.part];
         let mut candidates: Vec<&str> = names.iter().map(String::as_str).collect();
         candidates.extend(self.grounds.iter().map(|(t, _)| t.as_str()));
-        let priors = self
-            .agent
-            .prior(part, &candidates, &self.agent.robot_names());
+        let priors = self.agent.prior(part, &candidates, robot_names);
         let (offered, done) = priors.split_at(names.len());
         let further = super::select::beyond(offered, done);
         let part_acts = {
@@ -251,7 +253,9 @@ impl Run<'_> {
         } else {
             self.guards.narrow(&self.offered)
         };
-        let allowed = self.settled(allowed);
+        // One graph snapshot for the step: the follow-up rule, the grammar, the pick.
+        let robot_names = self.agent.robot_names();
+        let allowed = self.settled(allowed, &robot_names);
         let allowed = match allowed {
             Some(names) if self.stop_withdrawn => {
                 Some(names.into_iter().filter(|n| n != STOP_TOOL).collect())
@@ -266,7 +270,7 @@ impl Run<'_> {
             other => other,
         };
         let t_model = Instant::now();
-        let result = self.turn(allowed);
+        let result = self.turn(allowed, &robot_names);
         self.timings.model_ms += t_model.elapsed().as_secs_f64() * 1e3;
         let r = match result {
             Ok(r) => r,
@@ -541,7 +545,11 @@ impl Run<'_> {
 
     /// Decode one turn with `allowed` tools (all offered when `None`), tokens streamed
     /// as events as they come.
-    fn turn(&mut self, allowed: Option<Vec<String>>) -> Result<TurnResult, DecodeError> {
+    fn turn(
+        &mut self,
+        allowed: Option<Vec<String>>,
+        robot_names: &[(String, String)],
+    ) -> Result<TurnResult, DecodeError> {
         let messages = self
             .agent
             .context(&self.parts[0], &self.scratch, &self.offered)?;
@@ -560,8 +568,7 @@ impl Run<'_> {
                     .unwrap_or_else(|| s.clone())
             })
             .collect();
-        let robot_names = self.agent.robot_names();
-        let mut allowed_specs = bound::bind(&allowed_specs, &robot_names, &self.parts[self.part]);
+        let mut allowed_specs = bound::bind(&allowed_specs, robot_names, &self.parts[self.part]);
         // A tool every call of which the guards would refuse is not written.
         allowed_specs.retain(|b| {
             self.offered
@@ -574,7 +581,7 @@ impl Run<'_> {
         let fresh = self.scratch.last().is_none_or(|m| m.role == Role::User);
         let candidates: Vec<&str> = allowed_specs.iter().map(|s| s.name.as_str()).collect();
         let pick = fresh.then_some((self.parts[self.part].as_str(), candidates.as_slice()));
-        let mut pipeline = self.agent.pipeline(&sources, pick, &robot_names);
+        let mut pipeline = self.agent.pipeline(&sources, pick, robot_names);
         let req = self
             .agent
             .request(&messages, &self.offered, Some(&allowed_specs));

@@ -189,29 +189,15 @@ mod tests {
 
     use super::*;
     use crate::ros::fake::{FakeGraph, Sent};
-    use crate::ros::graph::testing::{ep, gid};
-    use crate::ros::graph::{GraphCache, NodeEntities};
     use crate::ros::{GoalOutcome, RosGraph, Sample};
     use crate::tools::ros::tests::run;
 
     /// `/turtlesim` serving `/turtle1/rotate_absolute`.
     fn graph() -> Graph {
-        let mut cache = GraphCache::default();
-        cache.update_participant(
-            gid(99),
-            vec![NodeEntities {
-                name: "turtlesim".into(),
-                namespace: "/".into(),
-                readers: vec![gid(1)],
-                writers: vec![],
-            }],
-        );
-        cache.join(&[ep(
-            1,
-            false,
+        crate::tools::ros::tests::serving(
             "rq/turtle1/rotate_absolute/_action/send_goalRequest",
             "turtlesim::action::dds_::RotateAbsolute_SendGoal_Request_",
-        )])
+        )
     }
 
     fn outcome(status: GoalStatus) -> GoalOutcome {

@@ -111,6 +111,22 @@ mod tests {
         )
     }
 
+    /// `/turtlesim` serving one service (`rq/...Request` DDS name and type), alone
+    /// (also the action tests').
+    pub(super) fn serving(dds_request: &str, dds_type: &str) -> crate::ros::Graph {
+        let mut cache = GraphCache::default();
+        cache.update_participant(
+            gid(99),
+            vec![NodeEntities {
+                name: "turtlesim".into(),
+                namespace: "/".into(),
+                readers: vec![gid(1)],
+                writers: vec![],
+            }],
+        );
+        cache.join(&[ep(1, false, dds_request, dds_type)])
+    }
+
     /// Run a tool on a current-thread runtime with a 5 s limit (also the action tests').
     pub(super) fn run<T: Tool>(t: &T, args: Value) -> Result<Value, ToolError> {
         let args: T::Args = serde_json::from_value(args).unwrap();
@@ -272,22 +288,10 @@ mod tests {
 
     #[test]
     fn a_goal_is_typed_by_the_action_the_robot_serves() {
-        let mut cache = GraphCache::default();
-        cache.update_participant(
-            gid(99),
-            vec![NodeEntities {
-                name: "turtlesim".into(),
-                namespace: "/".into(),
-                readers: vec![gid(1)],
-                writers: vec![],
-            }],
-        );
-        let graph = cache.join(&[ep(
-            1,
-            false,
+        let graph = serving(
             "rq/turtle1/rotate_absolute/_action/send_goalRequest",
             "turtlesim::action::dds_::RotateAbsolute_SendGoal_Request_",
-        )]);
+        );
         let ros = Ros::new(Arc::new(FakeGraph::new().with_graph(graph)));
         let live = action::ActionSendGoal(ros).live_parameters().unwrap();
         let branches = live["anyOf"].as_array().unwrap();
@@ -307,22 +311,10 @@ mod tests {
 
     #[test]
     fn parameter_names_are_the_ones_each_node_lists() {
-        let mut cache = GraphCache::default();
-        cache.update_participant(
-            gid(99),
-            vec![NodeEntities {
-                name: "turtlesim".into(),
-                namespace: "/".into(),
-                readers: vec![gid(1)],
-                writers: vec![],
-            }],
-        );
-        let graph = cache.join(&[ep(
-            1,
-            false,
+        let graph = serving(
             "rq/turtlesim/list_parametersRequest",
             "rcl_interfaces::srv::dds_::ListParameters_Request_",
-        )]);
+        );
         let listing =
             json!({"result": {"names": ["background_b", "background_r"], "prefixes": []}});
         let fake = Arc::new(
