@@ -111,12 +111,14 @@ fn main() {
         prompt: None,
         trace_dir: None,
         log_dirs: Vec::new(),
+        tools: Vec::new(),
         max_steps: 10,
         decoding: Decoding::Constrained,
         answer_mode: AnswerMode::Tool,
         robot: Robot::Sim,
         copy_bias: ferrosa::ui::agent::DEFAULT_COPY_BIAS,
         pick: Default::default(),
+        language: None,
     };
     header::print(
         "ferrosa agent benchmark",

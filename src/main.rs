@@ -165,6 +165,10 @@ struct AgentOpts {
     /// Directories `log_read` may read.
     #[arg(long = "log-dir")]
     log_dirs: Vec<PathBuf>,
+    /// Robot tools declared in a TOML file (repeatable; see the README's Robot tools):
+    /// loaded and checked at start, under the same policy as every tool.
+    #[arg(long = "tools")]
+    tools: Vec<PathBuf>,
     #[arg(long, default_value_t = 10)]
     max_steps: usize,
     #[arg(long, value_enum, default_value_t = DecodingArg::Constrained)]
@@ -186,6 +190,20 @@ struct AgentOpts {
     /// model's likeliest name).
     #[arg(long, value_enum, default_value_t = PickArg::Weighed)]
     pick: PickArg,
+    /// The language answers are written in: auto (each request's own) or a code
+    /// (en, es, fr, de, it, pt).
+    #[arg(long, default_value = "auto", value_parser = parse_language)]
+    lang: LanguageArg,
+}
+
+/// `--lang`: `None` for auto.
+type LanguageArg = Option<ferrosa::agent::language::Language>;
+
+fn parse_language(text: &str) -> Result<LanguageArg, String> {
+    if text.trim().eq_ignore_ascii_case("auto") {
+        return Ok(None);
+    }
+    ferrosa::agent::language::Language::parse(text).map(Some)
 }
 
 impl AgentOpts {
@@ -204,12 +222,14 @@ impl AgentOpts {
             prompt: self.prompt,
             trace_dir: self.trace_dir,
             log_dirs: self.log_dirs,
+            tools: self.tools,
             max_steps: self.max_steps,
             decoding: self.decoding.into(),
             answer_mode: self.answer_mode.into(),
             robot: self.robot,
             copy_bias: self.copy_bias,
             pick: self.pick.into(),
+            language: self.lang,
         }
     }
 }
@@ -246,6 +266,9 @@ enum EvalCommand {
         /// How a step's tool is chosen (see `chat --help`).
         #[arg(long, value_enum, default_value_t = PickArg::Weighed)]
         pick: PickArg,
+        /// The language answers are written in (see `chat --help`).
+        #[arg(long, default_value = "auto", value_parser = parse_language)]
+        lang: LanguageArg,
         #[arg(long, value_enum, default_value_t = BackendArg::Llama)]
         backend: BackendArg,
         #[arg(short, long)]
@@ -405,6 +428,7 @@ fn main() -> ExitCode {
                     retrieval,
                     copy_bias,
                     pick,
+                    lang,
                     backend,
                     threads,
                 },
@@ -424,12 +448,14 @@ fn main() -> ExitCode {
                 prompt: None,
                 trace_dir: None,
                 log_dirs: Vec::new(),
+                tools: Vec::new(),
                 max_steps,
                 decoding: Decoding::Constrained,
                 answer_mode: AnswerMode::Tool,
                 robot: ui::agent::Robot::Sim,
                 copy_bias,
                 pick: pick.into(),
+                language: lang,
             },
             suite,
             decoding,

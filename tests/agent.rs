@@ -769,6 +769,7 @@ message = { data = "{{angle}}" }
 "#,
         "test",
         graph.clone(),
+        &Default::default(),
     )
     .unwrap();
     let rec = Arc::new(Recorder {

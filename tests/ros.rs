@@ -538,12 +538,14 @@ fn the_agent_serves_operator_requests_with_the_real_model() {
         prompt: None,
         trace_dir: None,
         log_dirs: Vec::new(),
+        tools: Vec::new(),
         max_steps: 6,
         decoding: ferrosa::decode::Decoding::Constrained,
         answer_mode: Default::default(),
         robot: Robot::Sim,
         copy_bias: ferrosa::ui::agent::DEFAULT_COPY_BIAS,
         pick: Default::default(),
+        language: None,
     };
     let operator = Arc::new(Approver::default());
     let estop = ferrosa::estop::EStop::new();

@@ -296,12 +296,14 @@ fn stack(setup: &Setup, script: &[String]) -> Stack {
         prompt: None,
         trace_dir: None,
         log_dirs: setup.log_dir.iter().cloned().collect(),
+        tools: Vec::new(),
         max_steps: 6,
         decoding: Decoding::Constrained,
         answer_mode: Default::default(),
         robot: Robot::Sim,
         copy_bias: 0.0,
         pick: ferrosa::agent::config::Pick::Likeliest,
+        language: None,
     };
     let operator = Arc::new(Operator {
         approves: setup.approves,

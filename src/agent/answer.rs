@@ -3,6 +3,7 @@
 
 use serde_json::json;
 
+use super::language::{Language, Phrase};
 use crate::tool::ToolSpec;
 
 /// Name of the pseudo-tool the model calls to give its final answer.
@@ -37,12 +38,17 @@ pub fn tidy(text: &str, cap: usize) -> String {
     }
 }
 
-/// What the last observation said, for a run that ends without an answer.
-pub fn last_result(last: &str) -> String {
+/// What the last observation said, for a run that ends without an answer, in
+/// `language`.
+pub fn last_result(last: &str, language: Language) -> String {
     if last.is_empty() {
-        "No tool returned anything yet.".to_string()
+        language.say(Phrase::NothingYet)
     } else {
-        format!("Last result: {}", super::memory::truncate_output(last, 300))
+        format!(
+            "{}: {}",
+            language.say(Phrase::LastResult),
+            super::memory::truncate_output(last, 300)
+        )
     }
 }
 

@@ -2,6 +2,7 @@
 //! budgets of its context, and the strategies it uses.
 
 use super::answer::ANSWER_TOOL;
+use super::language::Language;
 
 /// The e-stop tool (`tools::stop`), offered whatever the request.
 pub const STOP_TOOL: &str = "robot_stop";
@@ -65,6 +66,9 @@ pub struct AgentConfig {
     pub copy_bias: f32,
     /// How the first step of a request (and of each of its parts) picks its tool.
     pub pick: Pick,
+    /// The language answers are written in; `None`: each request's own
+    /// (`language::Language::of`).
+    pub language: Option<Language>,
     pub sampler: SamplerConfig,
 }
 
@@ -84,6 +88,7 @@ impl AgentConfig {
             output_chars: 1500,
             copy_bias: 0.0,
             pick: Pick::default(),
+            language: None,
             sampler: SamplerConfig::default(),
         }
     }

@@ -21,6 +21,7 @@
 //! - `concepts`: what a request asks for, forbids or asks about (acts, negation, mood),
 //!   in six languages
 //! - `intent`: whether the operator's request asks for an actuating call
+//! - `language`: the language an answer is written in
 //! - `prompt`: robot system prompts (ROSA's fields) from TOML
 //! - `memory`: chat history, trimming, output truncation
 //! - `select`: choosing tools when their specs exceed the budget
@@ -36,6 +37,7 @@ pub mod event;
 pub mod facts;
 pub mod guard;
 pub mod intent;
+pub mod language;
 pub mod memory;
 pub mod outcome;
 pub mod plan;
@@ -86,6 +88,7 @@ impl Agent {
                        "tools_total": self.exec.registry().len(), "guards": guards.names()}),
             );
         }
+        let language = language::Language::for_request(self.config.language, query);
         run::Run {
             agent: self,
             query,
@@ -106,6 +109,7 @@ impl Agent {
             parts,
             part: 0,
             partial_answers: Vec::new(),
+            language,
         }
         .run()
     }

@@ -3,7 +3,7 @@
 //! rendered too (ROSA defines the field but never renders it).
 
 use std::collections::BTreeMap;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use serde::Deserialize;
 
@@ -37,6 +37,10 @@ pub struct RobotPrompt {
     pub mission_and_objectives: String,
     #[serde(default)]
     pub environment_variables: BTreeMap<String, String>,
+    /// Files of declared robot tools (`tools::declared`) this robot has, relative to
+    /// the prompt file's directory. Not part of the rendered prompt.
+    #[serde(default)]
+    pub tools: Vec<PathBuf>,
 }
 
 impl RobotPrompt {
@@ -52,7 +56,12 @@ impl RobotPrompt {
             origin: path.display().to_string(),
             message: e.to_string(),
         })?;
-        RobotPrompt::parse(&text, &path.display().to_string())
+        let mut prompt = RobotPrompt::parse(&text, &path.display().to_string())?;
+        let dir = path.parent().unwrap_or(Path::new(""));
+        for t in &mut prompt.tools {
+            *t = dir.join(&*t);
+        }
+        Ok(prompt)
     }
 
     pub fn default_robot() -> RobotPrompt {

@@ -24,6 +24,7 @@ use super::bound;
 use super::config::STOP_TOOL;
 use super::facts;
 use super::guard::{Came, Guards, Verdict};
+use super::language::{Language, Phrase};
 use super::memory::truncate_output;
 use super::{Agent, AgentError, Event, Finish, RunResult, StepRecord, Timings};
 use crate::backend::BackendError;
@@ -78,6 +79,8 @@ pub(super) struct Run<'a> {
     pub parts: Vec<String>,
     pub part: usize,
     pub partial_answers: Vec<String>,
+    /// The language the answer is written in.
+    pub language: Language,
 }
 
 impl Run<'_> {
@@ -183,6 +186,21 @@ impl Run<'_> {
         Thought::Done(Finish::Answer)
     }
 
+    /// The answer the operator reads for what the model `said`: held to the result it
+    /// answers (`facts::grounded`) and to the run's language. A reply plainly in another
+    /// language is replaced by the result as one that states none of its facts is, and a
+    /// result given in place of a reply is led by a word in the run's language.
+    fn held(&self, said: &str) -> String {
+        let ground = self.ground();
+        let grounded = facts::grounded(said, ground, self.query);
+        match ground {
+            Some(summary) if grounded == summary || self.language.differs(&grounded) => {
+                self.language.lead(summary)
+            }
+            _ => grounded,
+        }
+    }
+
     /// What the part's answer is held to: of the part's calls that succeeded, the latest
     /// of those whose tool the part's words meet best (`select::grounding`). A call the
     /// request did not ask for (the pose read after the battery) does not replace the
@@ -277,7 +295,7 @@ impl Run<'_> {
             Err(DecodeError::Backend(BackendError::ContextFull { needed, limit })) => {
                 self.answer = format!(
                     "I ran out of context ({needed} tokens needed, {limit} available) before finishing. {}",
-                    answer::last_result(&self.last_observation)
+                    answer::last_result(&self.last_observation, self.language)
                 );
                 let message = self.answer.clone();
                 self.emit(Event::Error { message });
@@ -341,8 +359,8 @@ impl Run<'_> {
                 a.arguments["text"].as_str().unwrap_or_default(),
                 ANSWER_CHARS,
             );
-            let grounded = facts::grounded(&said, self.ground(), self.query);
-            return Ok(self.answered(grounded));
+            let held = self.held(&said);
+            return Ok(self.answered(held));
         }
         if turn.calls.is_empty() {
             return Ok(self.answered(turn.prose));
@@ -504,13 +522,18 @@ impl Run<'_> {
         match finish {
             Finish::MaxSteps if self.answer.is_empty() => {
                 self.answer = format!(
-                    "I stopped after {} steps without a final answer. {}",
-                    self.agent.config.max_steps,
-                    answer::last_result(&self.last_observation)
+                    "{} {}",
+                    self.language
+                        .say(Phrase::StoppedAfter(self.agent.config.max_steps)),
+                    answer::last_result(&self.last_observation, self.language)
                 );
             }
             Finish::Cancelled => {
-                self.answer = format!("Cancelled. {}", answer::last_result(&self.last_observation));
+                self.answer = format!(
+                    "{} {}",
+                    self.language.say(Phrase::Cancelled),
+                    answer::last_result(&self.last_observation, self.language)
+                );
             }
             _ => {}
         }
@@ -550,9 +573,13 @@ impl Run<'_> {
         allowed: Option<Vec<String>>,
         robot_names: &[(String, String)],
     ) -> Result<TurnResult, DecodeError> {
-        let messages = self
-            .agent
-            .context(&self.parts[0], &self.scratch, &self.offered)?;
+        // The request as the model reads it: with a note of the answer's language when
+        // that is not the prompt's.
+        let first = match self.language.note() {
+            Some(note) => format!("{}\n{note}", self.parts[0]),
+            None => self.parts[0].clone(),
+        };
+        let messages = self.agent.context(&first, &self.scratch, &self.offered)?;
         // The grammar takes each tool's arguments as the robot can take them now
         // (`Tool::live_parameters`), name arguments held to the names that exist
         // (`bound`).

@@ -37,12 +37,16 @@ pub struct AgentArgs {
     pub prompt: Option<PathBuf>,
     pub trace_dir: Option<PathBuf>,
     pub log_dirs: Vec<PathBuf>,
+    /// Files of declared robot tools (`tools::declared`), after the prompt file's.
+    pub tools: Vec<PathBuf>,
     pub max_steps: usize,
     pub decoding: Decoding,
     pub answer_mode: AnswerMode,
     pub robot: Robot,
     pub copy_bias: f32,
     pub pick: crate::agent::config::Pick,
+    /// The language answers are written in; `None`: each request's own.
+    pub language: Option<crate::agent::language::Language>,
 }
 
 /// `ferrosa sim`: the robot alone, until Ctrl-C.
@@ -93,9 +97,27 @@ pub fn tools_and_policy(
         }
         None => RobotPrompt::default_robot(),
     };
-    if let Some(raw) = graph {
-        let guarded = robot::guard(raw, &policy, args.robot);
-        robot::add_ros_tools(&mut registry, guarded, args.robot);
+    let files: Vec<PathBuf> = prompt.tools.iter().chain(&args.tools).cloned().collect();
+    match graph {
+        Some(raw) => {
+            let guarded = robot::guard(raw, &policy, args.robot);
+            robot::add_ros_tools(&mut registry, guarded.clone(), args.robot);
+            // Declared tools act through the same guarded graph, and may not take a
+            // name a tool already has.
+            for f in &files {
+                let taken = registry.specs().into_iter().map(|s| s.name).collect();
+                registry.add(crate::tools::declared::load(f, guarded.clone(), &taken)?);
+            }
+        }
+        None if !files.is_empty() => anyhow::bail!(
+            "declared tools ({}) act on a ROS robot: add --robot sim or --robot ros2",
+            files
+                .iter()
+                .map(|f| f.display().to_string())
+                .collect::<Vec<_>>()
+                .join(", ")
+        ),
+        None => {}
     }
     Ok((registry, policy, prompt))
 }
@@ -158,6 +180,7 @@ pub fn build_with(
     config.answer_mode = args.answer_mode;
     config.copy_bias = args.copy_bias;
     config.pick = args.pick;
+    config.language = args.language;
     let mut agent = Agent::new(model, registry, policy, prompt.render(), config)?;
     if let Some(g) = graph {
         let fence = agent.fence().clone();

@@ -10,6 +10,7 @@ use std::sync::Arc;
 
 use anyhow::Context;
 
+use crate::agent::language::Language;
 use crate::agent::Event;
 use crate::decode::envelope::Envelope;
 use crate::decode::{Decoding, Grammars, Session};
@@ -160,6 +161,9 @@ pub fn ros(args: &RosArgs) -> anyhow::Result<()> {
     let mut used = false;
     let (jsonl, mut file) = case_file(&args.out, "ros_cases.jsonl")?;
     let mut results: Vec<CaseResult> = Vec::new();
+    // The answers to requests in another language than English: in it, in another one,
+    // or data alone (names and numbers, words no language shows).
+    let mut answered_in = [0usize; 3];
     let total = cases.len() * args.decoding.modes().len();
     let mut model_name = String::new();
     for &mode in args.decoding.modes() {
@@ -209,6 +213,17 @@ pub fn ros(args: &RosArgs) -> anyhow::Result<()> {
             })?;
             let tokens = r.timings.generated_tokens;
             let verdict = eval::ros::check(case, &calls, &r.answer);
+            match Language::of(&case.query) {
+                Some(l) if l != Language::English => {
+                    let i = match Language::of(&r.answer) {
+                        Some(a) if a == l => 0,
+                        _ if l.differs(&r.answer) => 1,
+                        _ => 2,
+                    };
+                    answered_in[i] += 1;
+                }
+                _ => {}
+            }
             let model_s = r.timings.model_ms / 1e3;
             let result = CaseResult {
                 id: case.id.clone(),
@@ -282,6 +297,13 @@ pub fn ros(args: &RosArgs) -> anyhow::Result<()> {
         "{}",
         eval::markdown(&[summaries, by_half, overall].concat())
     );
+    let [own, other, data] = answered_in;
+    if own + other + data > 0 {
+        println!(
+            "\nanswers to the {} requests not in English: {own} in their language, {other} in another, {data} data alone (names and numbers; the agent's lead word)",
+            own + other + data
+        );
+    }
     eprintln!("per-case results: {}", jsonl.display());
     Ok(())
 }
