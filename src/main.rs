@@ -115,6 +115,17 @@ enum Command {
         #[command(flatten)]
         agent: AgentOpts,
     },
+    /// Serve the robot's tools to MCP clients (stdio, or streamable HTTP on loopback with
+    /// --http), under the same policy; actuating calls need the operator's approval (MCP
+    /// elicitation, or --yes). No model runs: the model options are unused.
+    Mcp {
+        /// Serve streamable HTTP on this loopback address (e.g. 127.0.0.1:8765; port 0
+        /// picks one and prints it) instead of stdio.
+        #[arg(long)]
+        http: Option<std::net::SocketAddr>,
+        #[command(flatten)]
+        agent: AgentOpts,
+    },
     /// The built-in robot and the default model: `chat --robot sim`.
     Demo {
         #[command(flatten)]
@@ -407,6 +418,10 @@ fn main() -> ExitCode {
             arguments,
             agent,
         } => ui::call::run(&agent.into_args(dir), &name, &arguments),
+        Command::Mcp { http, agent } => ui::mcp::run(&ui::mcp::McpArgs {
+            agent: agent.into_args(dir),
+            http,
+        }),
         Command::Demo { agent } => {
             let mut args = agent.into_args(dir);
             if args.robot == ui::agent::Robot::None {

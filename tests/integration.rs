@@ -24,6 +24,7 @@ mod declared;
 mod decoding;
 mod estop;
 mod eval;
+mod mcp;
 mod ros;
 mod runtime;
 mod safety;

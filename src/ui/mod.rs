@@ -16,6 +16,7 @@ pub mod call;
 pub mod choice;
 pub mod eval;
 pub mod generate;
+pub mod mcp;
 pub mod models;
 pub mod robot;
 pub mod term;
