@@ -11,7 +11,8 @@
 //! and the fix: a name a built-in tool (or an earlier file) has, a parameter without a
 //! type, a placeholder that names no parameter, an optional parameter placed without a
 //! default, a ROS name that is not absolute, a type that is not `pkg/msg/Name` (or
-//! `pkg/srv/Name` for a call). An actuating tool's parameters must be bounded: numbers
+//! `pkg/srv/Name` for a call), a publishing tool declared as observing (a message sent
+//! acts on the robot). An actuating tool's parameters must be bounded: numbers
 //! with `minimum` and `maximum`, strings with `enum` or `maxLength`, so the grammar and
 //! the policy hold the model to the range the integrator allows. The same policy applies
 //! as to every tool: the deny-list, read-only, the e-stop, the operator's confirmation,
@@ -367,6 +368,14 @@ fn build(
             ))
         }
     };
+    if matches!(action, Action::Publish(_)) && effect != Effect::Actuates {
+        // A message published is an act on the robot: declared as observing, it would
+        // skip confirmation and survive --read-only.
+        return Err((
+            "effect",
+            format!("tool {name} publishes, which acts on the robot: write effect = \"actuates\""),
+        ));
+    }
     check_action(&spec, &action)?;
     Ok(Declared {
         spec,
@@ -665,6 +674,7 @@ message = { data = "{{angle}}", note = "raise by {{angle}} deg" }
             ("name = \"x\"\ndescription = \"d\"\neffect = \"actuates\"\n[tool.publish]\ntopic = \"/cmd\"\ntype = \"std_msgs/msg/Float64\"\nmessage = { data = \"{{speed}}\" }\n", 12, "declare speed under parameters.properties"),
             ("name = \"x\"\ndescription = \"d\"\neffect = \"actuates\"\nparameters = { type = \"object\", properties = { v = { type = \"number\", minimum = 0, maximum = 1 } } }\n[tool.publish]\ntopic = \"/cmd\"\ntype = \"std_msgs/msg/Float64\"\nmessage = { data = \"{{v}}\" }\n", 13, "add v to required"),
             ("name = \"x\"\ndescription = \"\"\neffect = \"observes\"\n[tool.read]\ntopic = \"/a\"\n", 10, "description is empty"),
+            ("name = \"x\"\ndescription = \"d\"\neffect = \"observes\"\n[tool.publish]\ntopic = \"/cmd\"\ntype = \"std_msgs/msg/Float64\"\nmessage = { data = 1.0 }\n", 11, "write effect = \"actuates\""),
         ];
         for (body, line, fix) in cases {
             let e = mistake(&one(body));
