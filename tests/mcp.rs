@@ -52,6 +52,8 @@ fn judge(transport: &str, seen: &Value) {
     }
     assert_eq!(none["read_only"]["ros_node_list"], true, "{transport}");
     assert_eq!(none["read_only"]["turtle_move"], false, "{transport}");
+    assert_eq!(none["destructive"]["turtle_move"], true, "{transport}");
+    assert_eq!(none["destructive"]["robot_stop"], false, "{transport}");
     assert_eq!(
         none["move_schema"]["properties"]["distance"]["type"], "number",
         "{transport}: {:#}",

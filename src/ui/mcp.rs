@@ -10,7 +10,9 @@
 //! An approval is for that one call, with those arguments.
 //!
 //! Tools are listed with their JSON schemas and `readOnlyHint` (observing tools) or
-//! `destructiveHint` (actuating ones); a result is the call's report (`{"name",
+//! `destructiveHint` (actuating ones; the stop is neither); with `--read-only` the tools
+//! that only act are not listed, as a read-only agent is not offered them. A result is
+//! the call's report (`{"name",
 //! "arguments", "decision", "output", "ok", "ms"}`) as text and as structured content,
 //! flagged as an error when the call did not run or failed.
 //!
@@ -115,7 +117,6 @@ impl RobotServer {
             .map(|t| {
                 let spec = t.spec();
                 let schema = spec.parameters.as_object().cloned().unwrap_or_default();
-                let observes = t.effect() == Effect::Observes;
                 Tool::new(
                     spec.name.clone(),
                     spec.description.clone(),
@@ -123,8 +124,8 @@ impl RobotServer {
                 )
                 .with_annotations(
                     ToolAnnotations::new()
-                        .read_only(observes)
-                        .destructive(!observes),
+                        .read_only(t.effect() == Effect::Observes)
+                        .destructive(t.effect() == Effect::Actuates),
                 )
             })
             .collect()
@@ -255,6 +256,12 @@ pub fn run(args: &McpArgs) -> anyhow::Result<()> {
     if let Some(g) = &robot.graph {
         g.set_fence(policy.fence().clone());
     }
+    // Read-only lists what a read-only agent is offered: no tool that only acts.
+    let registry = if policy.read_only {
+        registry.without_actuators(|name| policy.may_observe(name))
+    } else {
+        registry
+    };
     let server = RobotServer {
         exec: Arc::new(Executor::new(registry, policy)?),
         approvals,

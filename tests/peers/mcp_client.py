@@ -45,6 +45,7 @@ async def session(streams, elicit):
         return {
             "tools": [t.name for t in tools.tools],
             "read_only": {t.name: bool(t.annotations and t.annotations.read_only_hint) for t in tools.tools},
+            "destructive": {t.name: bool(t.annotations and t.annotations.destructive_hint) for t in tools.tools},
             "move_schema": next(t.input_schema for t in tools.tools if t.name == "turtle_move"),
             "nodes": text_of(nodes),
             "nodes_error": bool(nodes.is_error),
