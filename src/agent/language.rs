@@ -29,7 +29,7 @@ pub enum Language {
     Portuguese,
 }
 
-/// Every language, in the order of `WORDS`.
+/// Every language, in the order of `NAMES` and `WORDS`.
 const ALL: [Language; 6] = [
     Language::English,
     Language::Spanish,
@@ -37,6 +37,17 @@ const ALL: [Language; 6] = [
     Language::German,
     Language::Italian,
     Language::Portuguese,
+];
+
+/// Each language's ISO 639-1 code, name in English (as the model is told it), own name
+/// folded, and code in the trigram detector.
+const NAMES: [(&str, &str, &str, whatlang::Lang); 6] = [
+    ("en", "English", "english", whatlang::Lang::Eng),
+    ("es", "Spanish", "espanol", whatlang::Lang::Spa),
+    ("fr", "French", "francais", whatlang::Lang::Fra),
+    ("de", "German", "deutsch", whatlang::Lang::Deu),
+    ("it", "Italian", "italiano", whatlang::Lang::Ita),
+    ("pt", "Portuguese", "portugues", whatlang::Lang::Por),
 ];
 
 /// Closed-class words of each language, folded (lowercase, no accents).
@@ -184,26 +195,12 @@ const LETTERS: &[(char, &[Language])] = &[
 impl Language {
     /// ISO 639-1 code.
     pub fn code(self) -> &'static str {
-        match self {
-            Language::English => "en",
-            Language::Spanish => "es",
-            Language::French => "fr",
-            Language::German => "de",
-            Language::Italian => "it",
-            Language::Portuguese => "pt",
-        }
+        NAMES[self as usize].0
     }
 
     /// The language's name in English, as the model is told it.
     pub fn name(self) -> &'static str {
-        match self {
-            Language::English => "English",
-            Language::Spanish => "Spanish",
-            Language::French => "French",
-            Language::German => "German",
-            Language::Italian => "Italian",
-            Language::Portuguese => "Portuguese",
-        }
+        NAMES[self as usize].1
     }
 
     /// A language by its code or its name, in English or in itself ("es", "Spanish",
@@ -211,15 +208,8 @@ impl Language {
     pub fn parse(text: &str) -> Result<Language, String> {
         let t = fold(text.trim());
         let found = ALL.into_iter().find(|l| {
-            let own = match l {
-                Language::English => "english",
-                Language::Spanish => "espanol",
-                Language::French => "francais",
-                Language::German => "deutsch",
-                Language::Italian => "italiano",
-                Language::Portuguese => "portugues",
-            };
-            t == l.code() || t == l.name().to_lowercase() || t == own
+            let (code, name, own, _) = NAMES[*l as usize];
+            t == code || t == name.to_lowercase() || t == own
         });
         found.ok_or_else(|| {
             let codes: Vec<&str> = ALL.iter().map(|l| l.code()).collect();
@@ -236,33 +226,8 @@ impl Language {
     /// kept to the tied languages: on a short request its own guess across all
     /// languages is often wrong).
     pub fn of(text: &str) -> Option<Language> {
-        let scores = evidence(text);
-        let top = scores.iter().copied().fold(0.0, f64::max);
-        if top <= 0.0 {
-            return None;
-        }
-        let tied: Vec<Language> = ALL
-            .into_iter()
-            .filter(|l| scores[*l as usize] == top)
-            .collect();
-        if let [only] = tied[..] {
-            return Some(only);
-        }
-        let allow = tied.iter().map(|l| l.trigram_code()).collect();
-        let prose = prose(text).join(" ");
-        let guess = whatlang::Detector::with_allowlist(allow).detect_lang(&prose)?;
-        tied.into_iter().find(|l| l.trigram_code() == guess)
-    }
-
-    fn trigram_code(self) -> whatlang::Lang {
-        match self {
-            Language::English => whatlang::Lang::Eng,
-            Language::Spanish => whatlang::Lang::Spa,
-            Language::French => whatlang::Lang::Fra,
-            Language::German => whatlang::Lang::Deu,
-            Language::Italian => whatlang::Lang::Ita,
-            Language::Portuguese => whatlang::Lang::Por,
-        }
+        let prose = prose(text);
+        chosen(&evidence(&prose), &prose)
     }
 
     /// The language a request's answer is written in: `set`, else the request's own,
@@ -274,9 +239,10 @@ impl Language {
     /// Whether `text` is plainly in another language than this one: it shows another
     /// language clearly (`of`) and this one in at most half as much.
     pub fn differs(self, text: &str) -> bool {
-        let scores = evidence(text);
+        let prose = prose(text);
+        let scores = evidence(&prose);
         let mine = scores[self as usize];
-        match Language::of(text) {
+        match chosen(&scores, &prose) {
             Some(other) if other != self => mine * 2.0 <= scores[other as usize],
             _ => false,
         }
@@ -365,10 +331,28 @@ pub enum Phrase {
     StoppedAfter(usize),
 }
 
-/// Each language's evidence in `text`, in the order of `ALL`.
-fn evidence(text: &str) -> [f64; 6] {
+/// The language `scores` (the evidence of the words `prose`) show more than any other;
+/// a tie is settled by letter trigrams (see `Language::of`).
+fn chosen(scores: &[f64; 6], prose: &[&str]) -> Option<Language> {
+    let top = scores.iter().copied().fold(0.0, f64::max);
+    if top <= 0.0 {
+        return None;
+    }
+    let tied: Vec<Language> = ALL
+        .into_iter()
+        .filter(|l| scores[*l as usize] == top)
+        .collect();
+    if let [only] = tied[..] {
+        return Some(only);
+    }
+    let allow = tied.iter().map(|l| NAMES[*l as usize].3).collect();
+    let guess = whatlang::Detector::with_allowlist(allow).detect_lang(&prose.join(" "))?;
+    tied.into_iter().find(|l| NAMES[*l as usize].3 == guess)
+}
+
+/// Each language's evidence in `prose` (the words `prose` keeps), in the order of `ALL`.
+fn evidence(prose: &[&str]) -> [f64; 6] {
     let mut scores = [0.0; 6];
-    let prose = prose(text);
     for c in prose
         .iter()
         .flat_map(|t| t.chars())

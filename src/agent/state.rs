@@ -68,11 +68,7 @@ impl Agent {
     ) -> Result<Agent, AgentError> {
         let grammars = Grammars::new(backend.vocab(), backend.tokenizer())
             .map_err(|e| AgentError::Decode(e.into()))?;
-        let registry = if policy.read_only {
-            registry.without_actuators(|name| policy.may_observe(name))
-        } else {
-            registry
-        };
+        let registry = policy.offered(registry);
         // Tools whose every call changes the robot (no `observes` rule may cover one),
         // and the words of all the others, for telling which actuation a request asks for.
         let actuators: BTreeSet<String> = registry

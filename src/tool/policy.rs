@@ -236,6 +236,16 @@ impl Policy {
         &self.estop
     }
 
+    /// The tools a caller is offered under this policy: read-only drops every tool
+    /// that only acts (those some of whose calls count as observing stay).
+    pub fn offered(&self, registry: super::registry::Registry) -> super::registry::Registry {
+        if self.read_only {
+            registry.without_actuators(|name| self.may_observe(name))
+        } else {
+            registry
+        }
+    }
+
     /// Whether some calls of `tool` count as observing (an `observes` rule names it).
     pub fn may_observe(&self, tool: &str) -> bool {
         self.observes.iter().any(|(re, _, _)| re.is_match(tool))

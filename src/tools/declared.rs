@@ -150,32 +150,49 @@ pub struct Declared {
     ros: Arc<dyn RosGraph>,
 }
 
-/// Replace `"{{name}}"` placeholders in `template` with values from `args`.
+/// The `{{name}}` placeholders of a template string: byte start, byte end and name of
+/// each, in order.
+fn slots(s: &str) -> Result<Vec<(usize, usize, String)>, String> {
+    let mut out = Vec::new();
+    let mut from = 0;
+    while let Some(start) = s[from..].find("{{").map(|i| i + from) {
+        let end = s[start..]
+            .find("}}")
+            .ok_or_else(|| format!("unclosed {{{{ in {s:?}"))?
+            + start
+            + 2;
+        out.push((start, end, s[start + 2..end - 2].trim().to_string()));
+        from = end;
+    }
+    Ok(out)
+}
+
+/// Replace `"{{name}}"` placeholders in `template` with values from `args`. Only the
+/// template is read for placeholders: a value that holds `{{…}}` is placed as it is.
 fn fill(template: &Value, args: &Value) -> Result<Value, String> {
+    let arg = |name: &str| {
+        args.get(name)
+            .ok_or_else(|| format!("argument {name} is missing"))
+    };
     Ok(match template {
         Value::String(s) => {
-            let t = s.trim();
-            if let Some(name) = t.strip_prefix("{{").and_then(|r| r.strip_suffix("}}")) {
-                if !name.contains("{{") {
-                    return args
-                        .get(name.trim())
-                        .cloned()
-                        .ok_or_else(|| format!("argument {} is missing", name.trim()));
+            let slots = slots(s)?;
+            if let [(start, end, name)] = &slots[..] {
+                if s[..*start].trim().is_empty() && s[*end..].trim().is_empty() {
+                    return arg(name).cloned();
                 }
             }
-            let mut out = s.clone();
-            while let Some(start) = out.find("{{") {
-                let end = out[start..].find("}}").ok_or("unclosed {{ in template")? + start;
-                let name = out[start + 2..end].trim().to_string();
-                let v = args
-                    .get(&name)
-                    .ok_or_else(|| format!("argument {name} is missing"))?;
-                let text = match v {
-                    Value::String(x) => x.clone(),
-                    other => other.to_string(),
-                };
-                out.replace_range(start..end + 2, &text);
+            let mut out = String::with_capacity(s.len());
+            let mut at = 0;
+            for (start, end, name) in &slots {
+                out.push_str(&s[at..*start]);
+                match arg(name)? {
+                    Value::String(x) => out.push_str(x),
+                    other => out.push_str(&other.to_string()),
+                }
+                at = *end;
             }
+            out.push_str(&s[at..]);
             Value::String(out)
         }
         Value::Array(a) => Value::Array(a.iter().map(|x| fill(x, args)).collect::<Result<_, _>>()?),
@@ -189,23 +206,14 @@ fn fill(template: &Value, args: &Value) -> Result<Value, String> {
 }
 
 /// The names `"{{name}}"` placeholders in `template` place, in order.
-fn placeholders(template: &Value, out: &mut Vec<String>) {
+fn placeholders(template: &Value, out: &mut Vec<String>) -> Result<(), String> {
     match template {
-        Value::String(s) => {
-            let mut rest = s.as_str();
-            while let Some(start) = rest.find("{{") {
-                let Some(end) = rest[start..].find("}}") else {
-                    out.push(rest[start + 2..].trim().to_string());
-                    return;
-                };
-                out.push(rest[start + 2..start + end].trim().to_string());
-                rest = &rest[start + end + 2..];
-            }
-        }
-        Value::Array(a) => a.iter().for_each(|x| placeholders(x, out)),
-        Value::Object(m) => m.values().for_each(|x| placeholders(x, out)),
+        Value::String(s) => out.extend(slots(s)?.into_iter().map(|(_, _, name)| name)),
+        Value::Array(a) => a.iter().try_for_each(|x| placeholders(x, out))?,
+        Value::Object(m) => m.values().try_for_each(|x| placeholders(x, out))?,
         _ => {}
     }
+    Ok(())
 }
 
 /// `args` with each parameter the call left out that declares a `default` set to it.
@@ -449,19 +457,18 @@ fn check_action(spec: &ToolSpec, action: &Action) -> Result<(), Mistake> {
         ),
         Action::Read(r) => ("read", &r.topic, r.type_name.as_ref(), "msg", None),
     };
-    let valid_name = ros_name.starts_with('/')
-        && ros_name.len() > 1
-        && ros_name
-            .chars()
-            .all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '/');
-    if !valid_name {
+    // The fence's reading of a ROS name, which every call's name goes through: written
+    // already in that form.
+    if crate::fence::canonical(ros_name).ok().as_ref() != Some(ros_name) {
         return Err((
             key,
-            format!("tool {name}: {ros_name:?} is not an absolute ROS name; write it like /robot/cmd (letters, digits, _ and /)"),
+            format!("tool {name}: {ros_name:?} is not an absolute ROS name; write it like /robot/cmd (letters, digits, _ and /, no segment starting with a digit)"),
         ));
     }
     if let Some(t) = type_name {
-        let parts: Vec<&str> = t.split('/').collect();
+        // As the graph reads types (`pkg/Name` is `pkg/msg/Name`).
+        let full = crate::ros::msg::normalize_type(t);
+        let parts: Vec<&str> = full.split('/').collect();
         let ok = parts.len() == 3
             && parts[1] == kind
             && parts
@@ -489,7 +496,8 @@ fn check_action(spec: &ToolSpec, action: &Action) -> Result<(), Mistake> {
     }
     let mut placed = Vec::new();
     if let Some(t) = template {
-        placeholders(t, &mut placed);
+        placeholders(t, &mut placed)
+            .map_err(|e| (key, format!("tool {name}: {e}; close it with }}}}")))?;
     }
     let props = spec.parameters["properties"].as_object();
     let required: Vec<&str> = spec.parameters["required"]
@@ -686,6 +694,23 @@ message = { data = "{{angle}}", note = "raise by {{angle}} deg" }
         }
         let e = mistake("# nothing here\n");
         assert!(e.contains("declares no tool"), "{e}");
+    }
+
+    #[test]
+    fn only_the_template_is_read_for_placeholders() {
+        // A value holding a placeholder is placed as it is (it was expanded again, and
+        // one naming itself never ended).
+        let args = json!({"text": "{{text}}", "n": 2});
+        assert_eq!(
+            fill(
+                &json!({"a": "say {{ text }} {{n}} times", "b": "{{n}}"}),
+                &args
+            ),
+            Ok(json!({"a": "say {{text}} 2 times", "b": 2}))
+        );
+        assert!(fill(&json!("{{open"), &args)
+            .unwrap_err()
+            .contains("unclosed"));
     }
 
     #[test]

@@ -122,6 +122,22 @@ pub fn tools_and_policy(
     Ok((registry, policy, prompt))
 }
 
+/// The robot joined, and its tools and policy over it, the fence set on the graph: what
+/// `call` and `mcp` run calls with, without a model.
+pub fn robot_tools(
+    args: &AgentArgs,
+    confirm: Arc<dyn Confirm>,
+    estop: Arc<EStop>,
+) -> anyhow::Result<(RobotLink, Registry, Arc<Policy>)> {
+    let robot = connect(args.robot, false)?;
+    let graph = robot.graph.clone().map(|g| g as Arc<dyn RosGraph>);
+    let (registry, policy, _) = tools_and_policy(args, confirm, graph, estop)?;
+    if let Some(g) = &robot.graph {
+        g.set_fence(policy.fence().clone());
+    }
+    Ok((robot, registry, policy))
+}
+
 /// A front end's agent and what it runs with: the robot link, the e-stop, the cancel
 /// flag, and the operator's input (when there is a terminal).
 pub struct Running {

@@ -8,11 +8,9 @@ use std::io::IsTerminal;
 use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
 
-use super::agent::{tools_and_policy, AgentArgs};
-use super::robot::connect;
+use super::agent::{robot_tools, AgentArgs};
 use super::term::{parse_call, report_call, Input, TerminalConfirm};
 use crate::estop::EStop;
-use crate::ros::RosGraph;
 use crate::tool::exec::Executor;
 use crate::tool::policy::NoOperator;
 use crate::tool::Confirm;
@@ -29,12 +27,7 @@ pub fn run(args: &AgentArgs, name: &str, arguments: &str) -> anyhow::Result<()> 
     } else {
         Arc::new(NoOperator)
     };
-    let robot = connect(args.robot, false)?;
-    let graph = robot.graph.clone().map(|g| g as Arc<dyn RosGraph>);
-    let (registry, policy, _) = tools_and_policy(args, confirm, graph, estop)?;
-    if let Some(g) = &robot.graph {
-        g.set_fence(policy.fence().clone());
-    }
+    let (_robot, registry, policy) = robot_tools(args, confirm, estop)?;
     if registry.get(&call.name).is_none() {
         let names: Vec<String> = registry.specs().into_iter().map(|s| s.name).collect();
         anyhow::bail!(

@@ -35,11 +35,9 @@ use rmcp::service::RequestContext;
 use rmcp::{ErrorData, RoleServer, ServerHandler, ServiceExt};
 use serde_json::Value;
 
-use super::agent::{tools_and_policy, AgentArgs};
-use super::robot::connect;
+use super::agent::{robot_tools, AgentArgs};
 use super::term::report_call;
 use crate::estop::EStop;
-use crate::ros::RosGraph;
 use crate::tool::exec::Executor;
 use crate::tool::{Confirm, Effect, ToolCall};
 
@@ -249,19 +247,9 @@ pub fn run(args: &McpArgs) -> anyhow::Result<()> {
         );
     }
     let approvals = Arc::new(Approvals::default());
-    let robot = connect(args.agent.robot, false)?;
-    let graph = robot.graph.clone().map(|g| g as Arc<dyn RosGraph>);
-    let (registry, policy, _) =
-        tools_and_policy(&args.agent, approvals.clone(), graph, EStop::new())?;
-    if let Some(g) = &robot.graph {
-        g.set_fence(policy.fence().clone());
-    }
+    let (robot, registry, policy) = robot_tools(&args.agent, approvals.clone(), EStop::new())?;
     // Read-only lists what a read-only agent is offered: no tool that only acts.
-    let registry = if policy.read_only {
-        registry.without_actuators(|name| policy.may_observe(name))
-    } else {
-        registry
-    };
+    let registry = policy.offered(registry);
     let server = RobotServer {
         exec: Arc::new(Executor::new(registry, policy)?),
         approvals,

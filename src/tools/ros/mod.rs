@@ -71,21 +71,27 @@ mod tests {
     use super::*;
     use crate::ros::fake::{FakeGraph, Sent};
     use crate::ros::graph::testing::{ep, gid};
-    use crate::ros::graph::{GraphCache, NodeEntities};
+    use crate::ros::graph::{DdsEndpoint, GraphCache, NodeEntities};
     use crate::tool::{Tool, ToolContext, ToolError};
 
-    fn fake() -> Arc<FakeGraph> {
+    /// `/turtlesim` as the only node, with these endpoints (each one's gid its number).
+    fn turtlesim(endpoints: &[DdsEndpoint]) -> crate::ros::Graph {
         let mut cache = GraphCache::default();
+        let (writers, readers): (Vec<_>, Vec<_>) = endpoints.iter().partition(|e| e.writer);
         cache.update_participant(
             gid(99),
             vec![NodeEntities {
                 name: "turtlesim".into(),
                 namespace: "/".into(),
-                readers: vec![gid(1), gid(3)],
-                writers: vec![gid(2)],
+                readers: readers.iter().map(|e| e.gid).collect(),
+                writers: writers.iter().map(|e| e.gid).collect(),
             }],
         );
-        let graph = cache.join(&[
+        cache.join(endpoints)
+    }
+
+    fn fake() -> Arc<FakeGraph> {
+        let graph = turtlesim(&[
             ep(
                 1,
                 false,
@@ -114,17 +120,7 @@ mod tests {
     /// `/turtlesim` serving one service (`rq/...Request` DDS name and type), alone
     /// (also the action tests').
     pub(super) fn serving(dds_request: &str, dds_type: &str) -> crate::ros::Graph {
-        let mut cache = GraphCache::default();
-        cache.update_participant(
-            gid(99),
-            vec![NodeEntities {
-                name: "turtlesim".into(),
-                namespace: "/".into(),
-                readers: vec![gid(1)],
-                writers: vec![],
-            }],
-        );
-        cache.join(&[ep(1, false, dds_request, dds_type)])
+        turtlesim(&[ep(1, false, dds_request, dds_type)])
     }
 
     /// Run a tool on a current-thread runtime with a 5 s limit (also the action tests').
