@@ -26,5 +26,6 @@ mod estop;
 mod eval;
 mod mcp;
 mod ros;
+mod ros1;
 mod runtime;
 mod safety;

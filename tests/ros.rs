@@ -514,7 +514,7 @@ impl ferrosa::tool::Confirm for Approver {
 #[ignore = "needs the model weights (or a ROS peer): cargo test --release -- --include-ignored"]
 fn the_agent_serves_operator_requests_with_the_real_model() {
     use ferrosa::agent::StepRecord;
-    use ferrosa::ui::agent::{build_with, connect, AgentArgs, Robot};
+    use ferrosa::ui::agent::{build_with, connect, Robot};
     use std::sync::Arc;
     if rerun_in_loopback_netns(
         "ros::the_agent_serves_operator_requests_with_the_real_model",
@@ -524,45 +524,12 @@ fn the_agent_serves_operator_requests_with_the_real_model() {
     }
     let link = connect(Robot::Sim, false).unwrap();
     let graph = link.graph.clone().unwrap();
-    let args = AgentArgs {
-        model: ferrosa::ui::ModelArgs {
-            models_dir: crate::util::models_dir(),
-            model: None,
-            backend: ferrosa::backend::BackendKind::Llama,
-            threads: Some(2),
-            max_context: 8192,
-        },
-        yes: false,
-        read_only: false,
-        policy: None,
-        prompt: None,
-        trace_dir: None,
-        log_dirs: Vec::new(),
-        tools: Vec::new(),
-        max_steps: 6,
-        decoding: ferrosa::decode::Decoding::Constrained,
-        answer_mode: Default::default(),
-        robot: Robot::Sim,
-        copy_bias: ferrosa::ui::agent::DEFAULT_COPY_BIAS,
-        pick: Default::default(),
-        language: None,
-    };
+    let args = crate::util::agent_args(Robot::Sim, false);
     let operator = Arc::new(Approver::default());
     let estop = ferrosa::estop::EStop::new();
     let mut agent = build_with(&args, operator.clone(), Some(graph.clone()), estop).unwrap();
     graph.set_fence(agent.fence().clone());
-    let mut ask = |q: &str| {
-        agent.clear();
-        let r = agent.ask(q, &mut |_| {}).unwrap();
-        let shown: Vec<String> = r
-            .steps
-            .iter()
-            .map(|s| format!("{} {} ok={} {}", s.name, s.arguments, s.ok, s.output))
-            .collect();
-        eprintln!("{q}\n  {}\n  → {}", shown.join("\n  "), r.answer);
-        let why = format!("{q}: {shown:#?} → {:?}", r.answer);
-        (r, why)
-    };
+    let mut ask = |q: &str| crate::util::ask_shown(&mut agent, q);
     let ok =
         |steps: &[StepRecord], name: &str| steps.iter().find(|s| s.name == name && s.ok).cloned();
 

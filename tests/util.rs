@@ -94,3 +94,49 @@ pub fn runtime() -> tokio::runtime::Runtime {
         .build()
         .expect("tokio runtime")
 }
+
+/// The agent's arguments as an operator's defaults give them, on `robot` with the
+/// default model on 2 threads; `yes` approves every actuating call.
+pub fn agent_args(robot: ferrosa::ui::agent::Robot, yes: bool) -> ferrosa::ui::agent::AgentArgs {
+    ferrosa::ui::agent::AgentArgs {
+        model: ferrosa::ui::ModelArgs {
+            models_dir: models_dir(),
+            model: None,
+            backend: ferrosa::backend::BackendKind::Llama,
+            threads: Some(2),
+            max_context: 8192,
+        },
+        yes,
+        read_only: false,
+        policy: None,
+        prompt: None,
+        trace_dir: None,
+        log_dirs: Vec::new(),
+        tools: Vec::new(),
+        max_steps: 6,
+        decoding: ferrosa::decode::Decoding::Constrained,
+        answer_mode: Default::default(),
+        robot,
+        copy_bias: ferrosa::ui::agent::DEFAULT_COPY_BIAS,
+        pick: Default::default(),
+        language: None,
+    }
+}
+
+/// Ask `q` afresh, print the steps and the answer, and return the run with that text
+/// (for assertion messages).
+pub fn ask_shown(
+    agent: &mut ferrosa::agent::Agent,
+    q: &str,
+) -> (ferrosa::agent::RunResult, String) {
+    agent.clear();
+    let r = agent.ask(q, &mut |_| {}).unwrap();
+    let shown: Vec<String> = r
+        .steps
+        .iter()
+        .map(|s| format!("{} {} ok={} {}", s.name, s.arguments, s.ok, s.output))
+        .collect();
+    eprintln!("{q}\n  {}\n  → {}", shown.join("\n  "), r.answer);
+    let why = format!("{q}: {shown:#?} → {:?}", r.answer);
+    (r, why)
+}

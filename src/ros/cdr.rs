@@ -7,6 +7,9 @@
 //! payload nested after other data (an action result after its status byte) decodes
 //! with its real offset.
 //!
+//! ROS 1's serialisation is the same walk without alignment, with strings unterminated and
+//! empty messages empty (`Wire::Ros1`, `encode_ros1` / `decode_ros1`).
+//!
 //! JSON uses the definition's field names. Encoding fills absent fields with their
 //! declared default or zero, and refuses unknown fields, wrong types and out-of-range
 //! numbers with the field's path, so the model can correct a call.
@@ -53,17 +56,31 @@ fn width(p: Primitive) -> usize {
     }
 }
 
+/// The two serialisations the codec writes and reads.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Wire {
+    /// ROS 2: aligned to each primitive's width, strings NUL-terminated, an empty
+    /// structure one placeholder byte.
+    Cdr,
+    /// ROS 1: packed, strings without a terminator, an empty message no bytes.
+    Ros1,
+}
+
 // ---------------------------------------------------------------- encoding
 
 struct Writer {
     buf: Vec<u8>,
     origin: usize,
+    wire: Wire,
     /// Offsets of alignment padding (other stacks leave garbage there; tests skip them).
     pads: Vec<usize>,
 }
 
 impl Writer {
     fn align(&mut self, n: usize) {
+        if self.wire == Wire::Ros1 {
+            return;
+        }
         while (self.origin + self.buf.len()) % n != 0 {
             self.pads.push(self.buf.len());
             self.buf.push(0);
@@ -85,7 +102,16 @@ pub fn encode(
     value: &Value,
     origin: usize,
 ) -> Result<Vec<u8>, CodecError> {
-    encode_traced(ifaces, type_name, value, origin).map(|(bytes, _)| bytes)
+    encode_traced(ifaces, type_name, value, origin, Wire::Cdr).map(|(bytes, _)| bytes)
+}
+
+/// Encode `value` as `type_name` in ROS 1's serialisation.
+pub fn encode_ros1(
+    ifaces: &Interfaces,
+    type_name: &str,
+    value: &Value,
+) -> Result<Vec<u8>, CodecError> {
+    encode_traced(ifaces, type_name, value, 0, Wire::Ros1).map(|(bytes, _)| bytes)
 }
 
 /// `encode`, also returning the offsets of padding bytes.
@@ -94,11 +120,13 @@ fn encode_traced(
     type_name: &str,
     value: &Value,
     origin: usize,
+    wire: Wire,
 ) -> Result<(Vec<u8>, Vec<usize>), CodecError> {
     let def = ifaces.message(type_name)?;
     let mut w = Writer {
         buf: Vec::new(),
         origin,
+        wire,
         pads: Vec::new(),
     };
     encode_message(ifaces, &def, value, "", 0, &mut w)?;
@@ -140,7 +168,9 @@ fn encode_message(
     }
     if def.fields.is_empty() {
         // ROS 2 gives an empty structure one placeholder byte.
-        w.put(&[0]);
+        if w.wire == Wire::Cdr {
+            w.put(&[0]);
+        }
         return Ok(());
     }
     for field in &def.fields {
@@ -237,9 +267,12 @@ fn encode_elem(
             if s.contains('\0') {
                 return Err(value_err(path, "strings cannot hold NUL"));
             }
-            w.put_len(s.len() + 1);
+            let terminated = w.wire == Wire::Cdr;
+            w.put_len(s.len() + usize::from(terminated));
             w.buf.extend_from_slice(s.as_bytes());
-            w.buf.push(0);
+            if terminated {
+                w.buf.push(0);
+            }
             Ok(())
         }
         BaseType::Primitive(p) => encode_primitive(*p, v, path, w),
@@ -453,11 +486,12 @@ struct Reader<'a> {
     buf: &'a [u8],
     pos: usize,
     origin: usize,
+    wire: Wire,
 }
 
 impl<'a> Reader<'a> {
     fn take(&mut self, n: usize, align: usize, path: &str) -> Result<&'a [u8], CodecError> {
-        while (self.origin + self.pos) % align != 0 {
+        while self.wire == Wire::Cdr && (self.origin + self.pos) % align != 0 {
             self.pos += 1;
         }
         let end = self.pos + n;
@@ -498,11 +532,31 @@ pub fn decode(
     bytes: &[u8],
     origin: usize,
 ) -> Result<Value, CodecError> {
+    decode_wire(ifaces, type_name, bytes, origin, Wire::Cdr)
+}
+
+/// Decode a ROS 1 payload of `type_name`.
+pub fn decode_ros1(
+    ifaces: &Interfaces,
+    type_name: &str,
+    bytes: &[u8],
+) -> Result<Value, CodecError> {
+    decode_wire(ifaces, type_name, bytes, 0, Wire::Ros1)
+}
+
+fn decode_wire(
+    ifaces: &Interfaces,
+    type_name: &str,
+    bytes: &[u8],
+    origin: usize,
+    wire: Wire,
+) -> Result<Value, CodecError> {
     let def = ifaces.message(type_name)?;
     let mut r = Reader {
         buf: bytes,
         pos: 0,
         origin,
+        wire,
     };
     decode_message(ifaces, &def, "", 0, &mut r)
 }
@@ -518,7 +572,7 @@ fn decode_message(
     let mut out = Map::new();
     if def.fields.is_empty() {
         // The placeholder byte; tolerate its absence at the very end.
-        if r.pos < r.buf.len() {
+        if r.wire == Wire::Cdr && r.pos < r.buf.len() {
             r.take(1, 1, path)?;
         }
         return Ok(Value::Object(out));
@@ -745,7 +799,7 @@ mod tests {
                 .collect();
             let decoded = decode(&ifaces, ty, &theirs, 0).unwrap_or_else(|e| panic!("{ty}: {e}"));
             assert_eq!(decoded, case["message"], "{ty} decoded");
-            let (ours, pads) = encode_traced(&ifaces, ty, &case["message"], 0).unwrap();
+            let (ours, pads) = encode_traced(&ifaces, ty, &case["message"], 0, Wire::Cdr).unwrap();
             // Fast CDR may leave unset bytes after the end, and leaves padding unset.
             assert!(
                 theirs.len() >= ours.len(),

@@ -276,9 +276,14 @@ impl Guarded {
         let topic = self.name(topic)?;
         let ty = normalize_type(type_name);
         self.stopped()?;
-        let (message, clamp) = self.limited(&ty, &message)?;
         // The agent's motion goes to its own, lower-priority input of the mux.
         let out = self.motion.mux.get(&topic).unwrap_or(&topic).clone();
+        if !now {
+            // The limits read the message by its definition: one the graph learns from
+            // its peers must be known first.
+            self.inner.learn_type(&out, &ty).await?;
+        }
+        let (message, clamp) = self.limited(&ty, &message)?;
         self.check_type(&out, &ty).await?;
         let mut overridden_by = None;
         if crate::limits::carries_twist(&message) {
@@ -318,6 +323,7 @@ impl Guarded {
         if !READ_ONLY_SERVICES.contains(&ty.as_str()) {
             self.stopped()?;
         }
+        self.inner.learn_type(&service, &ty).await?;
         let (request, note) = self.limited(&format!("{ty}_Request"), &request)?;
         let mut reply = self
             .inner

@@ -12,6 +12,7 @@
 //! - `guard`: the boundary every tool goes through: deny-list, e-stop, motion limits,
 //!   mux, redaction, and the brake
 //! - `ros2`: the ROS 2 implementation over ros2-client (RustDDS), localhost-only by default
+//! - `ros1`: the ROS 1 implementation (XML-RPC and TCPROS), loopback unless told otherwise
 //! - `sim`: the built-in turtlesim-compatible robot
 //! - `msg`: interface definitions (.msg/.srv/.action), the shipped bundle, lookup
 //! - `cdr`: CDR <-> JSON driven by those definitions
@@ -24,6 +25,7 @@ pub mod fake;
 pub mod graph;
 pub mod guard;
 pub mod msg;
+pub mod ros1;
 pub mod ros2;
 pub mod sim;
 pub mod switch;
@@ -191,6 +193,19 @@ pub trait RosGraph: Send + Sync {
     ) -> BoxFuture<'a, Result<Delivery, RosError>> {
         self.publish(topic, type_name, message)
     }
+    /// Make `type_name`, used on `topic`, known to `interfaces()` where the graph learns
+    /// types from its peers when they are used (ROS 1: from a publisher's or a
+    /// subscriber's connection header); the default knows every type it can encode.
+    fn learn_type<'a>(
+        &'a self,
+        _topic: &'a str,
+        _type_name: &'a str,
+    ) -> BoxFuture<'a, Result<(), RosError>> {
+        Box::pin(async { Ok(()) })
+    }
+    /// The fence applied to what this graph asks of other nodes by itself (type
+    /// descriptions, service probes); tools' requests meet it at `ros::guard`.
+    fn set_fence(&self, _fence: std::sync::Arc<crate::fence::Fence>) {}
 }
 
 /// What went out when a message was published: where, and what the boundary changed.

@@ -183,6 +183,9 @@ fn parse_base(token: &str, package: &str) -> Result<(BaseType, Option<usize>), S
     }
     let full = match token.split('/').collect::<Vec<_>>().as_slice() {
         [ty] if *ty == "Header" => "std_msgs/msg/Header".to_string(),
+        // ROS 1's two built-in time types, as messages of their own (`ros1::wire`).
+        [ty] if *ty == "time" => "rostime/msg/Time".to_string(),
+        [ty] if *ty == "duration" => "rostime/msg/Duration".to_string(),
         [ty] => format!("{package}/msg/{ty}"),
         [pkg, ty] => format!("{pkg}/msg/{ty}"),
         [pkg, kind, ty] => format!("{pkg}/{kind}/{ty}"),
@@ -362,6 +365,27 @@ impl Interfaces {
         Interfaces {
             inner: Arc::new(RwLock::new(known)),
         }
+    }
+
+    /// A table of nothing but `defs` (`name`, text), searching no installed ROS: the
+    /// ROS 1 graph's, whose definitions come from its peers.
+    pub fn of(defs: &[(&str, &str)]) -> Result<Interfaces, MsgError> {
+        let mut known = Known::default();
+        for (name, text) in defs {
+            known.add(name, text)?;
+        }
+        Ok(Interfaces {
+            inner: Arc::new(RwLock::new(known)),
+        })
+    }
+
+    /// Whether `type_name` is in the table now (no search of installed files).
+    pub fn has(&self, type_name: &str) -> bool {
+        self.inner
+            .read()
+            .expect("interfaces lock")
+            .messages
+            .contains_key(&normalize_type(type_name))
     }
 
     /// Add definitions from text (a `.msg`, `.srv` or `.action` file) under `name`

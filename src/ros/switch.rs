@@ -32,6 +32,15 @@ impl SwitchGraph {
 }
 
 impl RosGraph for SwitchGraph {
+    fn learn_type<'a>(
+        &'a self,
+        topic: &'a str,
+        type_name: &'a str,
+    ) -> BoxFuture<'a, Result<(), RosError>> {
+        let g = self.get();
+        Box::pin(async move { g.learn_type(topic, type_name).await })
+    }
+
     fn watch<'a>(
         &'a self,
         topic: &'a str,

@@ -110,7 +110,7 @@ pub fn tools_and_policy(
             }
         }
         None if !files.is_empty() => anyhow::bail!(
-            "declared tools ({}) act on a ROS robot: add --robot sim or --robot ros2",
+            "declared tools ({}) act on a ROS robot: add --robot sim, --robot ros2 or --robot ros1",
             files
                 .iter()
                 .map(|f| f.display().to_string())
@@ -130,7 +130,7 @@ pub fn robot_tools(
     estop: Arc<EStop>,
 ) -> anyhow::Result<(RobotLink, Registry, Arc<Policy>)> {
     let robot = connect(args.robot, false)?;
-    let graph = robot.graph.clone().map(|g| g as Arc<dyn RosGraph>);
+    let graph = robot.graph.clone();
     let (registry, policy, _) = tools_and_policy(args, confirm, graph, estop)?;
     if let Some(g) = &robot.graph {
         g.set_fence(policy.fence().clone());
@@ -163,7 +163,7 @@ pub fn start(args: &AgentArgs) -> anyhow::Result<Running> {
         None => Arc::new(NoOperator),
     };
     let robot = connect(args.robot, true)?;
-    let graph = robot.graph.clone().map(|g| g as Arc<dyn RosGraph>);
+    let graph = robot.graph.clone();
     let agent = build_with(args, confirm, graph, estop.clone())?.with_cancel(cancel.clone());
     if let Some(g) = &robot.graph {
         g.set_fence(agent.fence().clone());

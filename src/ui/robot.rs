@@ -1,4 +1,5 @@
-//! The robot the front ends act on: joining ROS 2 (and starting the built-in sim), the
+//! The robot the front ends act on: joining ROS 2 (and starting the built-in sim) or
+//! ROS 1's master, the
 //! guarded graph every tool goes through (`ros::guard`: the deny-list, the e-stop, the
 //! motion limits, the mux), the tools that come with it, and the e-stop's ROS trigger
 //! (`/ferrosa/estop`, std_msgs/msg/Bool: `true` engages it, from any node or teleop).
@@ -9,6 +10,7 @@ use std::time::{Duration, Instant};
 use crate::estop::EStop;
 use crate::limits::Motion;
 use crate::ros::guard::Guarded;
+use crate::ros::ros1::{Ros1Graph, Ros1Options};
 use crate::ros::ros2::{Ros2Graph, Ros2Options};
 use crate::ros::sim::{Sim, ARENA};
 use crate::ros::RosGraph;
@@ -22,12 +24,15 @@ pub enum Robot {
     None,
     Sim,
     Ros2,
+    Ros1,
 }
 
 /// What keeps the robot connection alive for the agent's lifetime.
 pub struct RobotLink {
-    pub graph: Option<Arc<Ros2Graph>>,
+    pub graph: Option<Arc<dyn RosGraph>>,
     pub sim: Option<Sim>,
+    /// ROS 1: unregisters from the master when the link goes.
+    pub ros1: Option<crate::ros::ros1::Leave>,
 }
 
 /// Join ROS 2 (and start the sim first when asked), then wait until the graph shows it;
@@ -37,7 +42,11 @@ pub fn connect(robot: Robot, verbose: bool) -> anyhow::Result<RobotLink> {
         return Ok(RobotLink {
             graph: None,
             sim: None,
+            ros1: None,
         });
+    }
+    if robot == Robot::Ros1 {
+        return connect_ros1(verbose);
     }
     let opts = Ros2Options::from_env()?;
     let start = Instant::now();
@@ -75,8 +84,29 @@ pub fn connect(robot: Robot, verbose: bool) -> anyhow::Result<RobotLink> {
         (false, _) => eprintln!("robot: no ROS 2 node found within {limit:?} (domain {}, {:?}); check ROS_DOMAIN_ID and ROS_AUTOMATIC_DISCOVERY_RANGE", opts.domain_id, opts.range),
     }
     Ok(RobotLink {
-        graph: Some(graph),
+        graph: Some(graph as Arc<dyn RosGraph>),
         sim,
+        ros1: None,
+    })
+}
+
+/// Register with ROS 1's master (`ROS_MASTER_URI`): an error when it cannot be reached.
+fn connect_ros1(verbose: bool) -> anyhow::Result<RobotLink> {
+    let opts = Ros1Options::from_env();
+    let start = Instant::now();
+    let graph = Ros1Graph::start(&opts, "ferrosa")?;
+    if verbose {
+        let nodes = crate::ros::graph_now(&graph).map_or(0, |g| g.nodes.len());
+        eprintln!(
+            "robot: {nodes} ROS 1 node(s) from the master at {} in {} ms",
+            opts.master_uri,
+            start.elapsed().as_millis()
+        );
+    }
+    Ok(RobotLink {
+        ros1: Some(graph.leave_on_drop()),
+        graph: Some(Arc::new(graph)),
+        sim: None,
     })
 }
 

@@ -251,12 +251,6 @@ impl Ros2Graph {
         })
     }
 
-    /// The fence applied to what this graph asks of other nodes by itself (type
-    /// descriptions); tools' requests meet it at `ros::guard`.
-    pub fn set_fence(&self, fence: Arc<crate::fence::Fence>) {
-        let _ = self.fence.set(fence);
-    }
-
     async fn do_subscribe(
         &self,
         topic: &str,
@@ -539,6 +533,10 @@ impl Ros2Graph {
 }
 
 impl RosGraph for Ros2Graph {
+    fn set_fence(&self, fence: Arc<crate::fence::Fence>) {
+        let _ = self.fence.set(fence);
+    }
+
     fn graph(&self) -> BoxFuture<'_, Result<Graph, RosError>> {
         Box::pin(async move { Ok(self.snapshot()) })
     }

@@ -176,8 +176,13 @@ pub(super) fn typed_by_name(
         .into_iter()
         .filter_map(|(name, types)| {
             let ty = crate::ros::msg::normalize_type(types.iter().next()?);
-            let body =
-                crate::ros::cdr::schema(ros.graph.interfaces(), &format!("{ty}{suffix}")).ok()?;
+            if ty.is_empty() {
+                return None;
+            }
+            // A type whose definition is not known yet (ROS 1 learns one from the peers
+            // when it is used): the name is still the robot's, the body any object.
+            let body = crate::ros::cdr::schema(ros.graph.interfaces(), &format!("{ty}{suffix}"))
+                .unwrap_or_else(|_| json!({"type": "object", "additionalProperties": true}));
             Some(json!({
                 "type": "object",
                 "properties": {name_key: {"type": "string", "const": name}, body_key: body},

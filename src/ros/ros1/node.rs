@@ -1,0 +1,708 @@
+//! ferrosa's own ROS 1 node: the XML-RPC API other nodes and the master call on it
+//! (`requestTopic`, `publisherUpdate`, `getPid`, …), the TCPROS server its topics'
+//! subscribers connect to, its publications and its subscriptions.
+//!
+//! A publication's definition is the one its subscribers send when theirs differs from
+//! ours and hashes to its md5sum (ferrosa's bundle has ROS 2's definitions; where ROS 1's
+//! differ, a `std_msgs/Header` for one, the peer's wins). A subscription takes whatever
+//! its publishers send (md5sum `*`) and learns the type from their connection header.
+
+use std::collections::BTreeMap;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex, Weak};
+use std::time::Duration;
+
+use serde_json::Value;
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::net::{TcpListener, TcpStream};
+use tokio::task::JoinHandle;
+
+use super::master::Master;
+use super::wire::{self, ros1_type};
+use super::xmlrpc::{self, XValue};
+use crate::ros::msg::{normalize_type, BaseType, Interfaces, Shape};
+use crate::ros::{cdr, RosError};
+
+/// How long a peer has to answer a connection or a call.
+pub const PEER_LIMIT: Duration = Duration::from_secs(3);
+
+/// ROS 1's `std_msgs/Header`, used where a ROS 2 definition names ROS 2's.
+const HEADER: &str = "uint32 seq\ntime stamp\nstring frame_id\n";
+
+pub struct Node {
+    this: Weak<Node>,
+    /// The ROS 1 runtime (with I/O): every task of the node runs on it.
+    rt: tokio::runtime::Handle,
+    pub master: Master,
+    pub api_uri: String,
+    host: String,
+    tcpros_port: u16,
+    /// ROS 1 definitions: learnt from peers, or translated from the bundle.
+    pub wire: Interfaces,
+    publications: Mutex<BTreeMap<String, Arc<Publication>>>,
+    subscriptions: Mutex<BTreeMap<String, Subscription>>,
+    next_listener: AtomicU64,
+    /// Types the graph's refresh has tried to learn (once each).
+    tried: Mutex<std::collections::BTreeSet<String>>,
+}
+
+/// One topic this node publishes, and the subscribers connected to it.
+pub struct Publication {
+    pub type_name: String,
+    connections: tokio::sync::Mutex<Vec<tokio::net::tcp::OwnedWriteHalf>>,
+    /// Subscribers the master listed when the topic was registered.
+    pub expected: usize,
+}
+
+struct Subscription {
+    type_name: Option<String>,
+    listeners: Vec<(u64, tokio::sync::mpsc::UnboundedSender<Value>)>,
+    readers: BTreeMap<String, JoinHandle<()>>,
+}
+
+/// A listener on a topic; dropping it ends its share of the subscription.
+pub struct Listener {
+    node: Arc<Node>,
+    topic: String,
+    id: u64,
+    pub rx: tokio::sync::mpsc::UnboundedReceiver<Value>,
+}
+
+impl Drop for Listener {
+    fn drop(&mut self) {
+        let node = self.node.clone();
+        let (topic, id) = (self.topic.clone(), self.id);
+        self.node
+            .rt
+            .spawn(async move { node.unlisten(&topic, id).await });
+    }
+}
+
+fn other(what: &str, e: impl std::fmt::Display) -> RosError {
+    RosError::Other(format!("{what}: {e}"))
+}
+
+impl Node {
+    /// Open the node's two listeners on `bind` (inside the ROS 1 runtime), advertised
+    /// as `host`.
+    pub async fn start(master: Master, host: &str, bind: &str) -> Result<Arc<Node>, RosError> {
+        let api = TcpListener::bind((bind, 0))
+            .await
+            .map_err(|e| other("bind", e))?;
+        let tcpros = TcpListener::bind((bind, 0))
+            .await
+            .map_err(|e| other("bind", e))?;
+        let api_port = api.local_addr().map_err(|e| other("bind", e))?.port();
+        let tcpros_port = tcpros.local_addr().map_err(|e| other("bind", e))?.port();
+        let node = Arc::new_cyclic(|this| Node {
+            this: this.clone(),
+            rt: tokio::runtime::Handle::current(),
+            master,
+            api_uri: format!("http://{host}:{api_port}/"),
+            host: host.to_string(),
+            tcpros_port,
+            wire: wire::table(),
+            publications: Mutex::new(BTreeMap::new()),
+            subscriptions: Mutex::new(BTreeMap::new()),
+            next_listener: AtomicU64::new(0),
+            tried: Mutex::new(Default::default()),
+        });
+        let weak = Arc::downgrade(&node);
+        tokio::spawn(async move {
+            while let Ok((stream, _)) = api.accept().await {
+                let Some(node) = weak.upgrade() else { return };
+                tokio::spawn(async move { node.serve_api(stream).await });
+            }
+        });
+        let weak = Arc::downgrade(&node);
+        tokio::spawn(async move {
+            while let Ok((stream, _)) = tcpros.accept().await {
+                let Some(node) = weak.upgrade() else { return };
+                tokio::spawn(async move {
+                    if let Err(e) = node.accept_subscriber(stream).await {
+                        tracing::debug!("TCPROS connection: {e}");
+                    }
+                });
+            }
+        });
+        Ok(node)
+    }
+
+    // ------------------------------------------------------------ the node's API
+
+    async fn serve_api(&self, mut stream: TcpStream) {
+        let answer = match xmlrpc::read_http(&mut stream).await {
+            Ok((_, body)) => match xmlrpc::parse_call(&body) {
+                Ok((method, params)) => self.dispatch(&method, &params).await,
+                Err(e) => reply(-1, &e, XValue::Int(0)),
+            },
+            Err(e) => {
+                tracing::debug!("XML-RPC request: {e}");
+                return;
+            }
+        };
+        let doc = xmlrpc::response_document(&answer);
+        let http = format!(
+            "HTTP/1.0 200 OK\r\nContent-Type: text/xml\r\nContent-Length: {}\r\n\r\n{doc}",
+            doc.len()
+        );
+        let _ = stream.write_all(http.as_bytes()).await;
+    }
+
+    async fn dispatch(&self, method: &str, params: &[XValue]) -> XValue {
+        let arg = |i: usize| params.get(i).and_then(XValue::as_str).unwrap_or_default();
+        match method {
+            "getPid" => reply(1, "", XValue::Int(std::process::id().into())),
+            "getMasterUri" => reply(1, "", XValue::str(&self.master.uri)),
+            "getBusInfo" => reply(1, "", XValue::Array(vec![])),
+            "shutdown" | "paramUpdate" => reply(1, "", XValue::Int(0)),
+            "getPublications" | "getSubscriptions" => {
+                let pairs: Vec<XValue> = if method == "getPublications" {
+                    let pubs = self.publications.lock().expect("publications");
+                    pubs.iter()
+                        .map(|(t, p)| {
+                            XValue::Array(vec![
+                                XValue::str(t),
+                                XValue::str(&ros1_type(&p.type_name)),
+                            ])
+                        })
+                        .collect()
+                } else {
+                    let subs = self.subscriptions.lock().expect("subscriptions");
+                    subs.iter()
+                        .map(|(t, s)| {
+                            let ty = s.type_name.as_deref().map_or("*".into(), ros1_type);
+                            XValue::Array(vec![XValue::str(t), XValue::str(&ty)])
+                        })
+                        .collect()
+                };
+                reply(1, "", XValue::Array(pairs))
+            }
+            "requestTopic" => {
+                if self
+                    .publications
+                    .lock()
+                    .expect("publications")
+                    .contains_key(arg(1))
+                {
+                    let endpoint = vec![
+                        XValue::str("TCPROS"),
+                        XValue::str(&self.host),
+                        XValue::Int(self.tcpros_port.into()),
+                    ];
+                    reply(1, "ready", XValue::Array(endpoint))
+                } else {
+                    reply(
+                        0,
+                        &format!("not a publisher of {}", arg(1)),
+                        XValue::Array(vec![]),
+                    )
+                }
+            }
+            "publisherUpdate" => {
+                let uris: Vec<String> = params
+                    .get(2)
+                    .map(XValue::as_array)
+                    .unwrap_or_default()
+                    .iter()
+                    .filter_map(|u| u.as_str().map(str::to_string))
+                    .collect();
+                self.connect_publishers(arg(1), &uris, true);
+                reply(1, "", XValue::Int(0))
+            }
+            other => reply(-1, &format!("no method {other}"), XValue::Int(0)),
+        }
+    }
+
+    // ------------------------------------------------------------ publishing
+
+    /// The publication of `topic`, registered with the master on first use.
+    pub async fn publication(
+        self: &Arc<Self>,
+        topic: &str,
+        type_name: &str,
+    ) -> Result<Arc<Publication>, RosError> {
+        let ty = normalize_type(type_name);
+        if !valid_type(&ty) {
+            return Err(RosError::Encode {
+                type_name: type_name.to_string(),
+                reason: "not a message type (package/Name)".into(),
+            });
+        }
+        if let Some(p) = self.publications.lock().expect("publications").get(topic) {
+            if p.type_name == ty {
+                return Ok(p.clone());
+            }
+            return Err(RosError::Other(format!(
+                "{topic} is already published here as {}, not {ty}",
+                p.type_name
+            )));
+        }
+        if let Err(e) = self.ensure_definition(&ty) {
+            // Not bundled: the subscribers' connection headers will carry it.
+            tracing::debug!("{topic}: {e}");
+        }
+        let subscribers = self
+            .master
+            .call(
+                "registerPublisher",
+                &[
+                    XValue::str(topic),
+                    XValue::str(&ros1_type(&ty)),
+                    XValue::str(&self.api_uri),
+                ],
+            )
+            .await?;
+        let publication = Arc::new(Publication {
+            type_name: ty,
+            connections: tokio::sync::Mutex::new(Vec::new()),
+            expected: subscribers.as_array().len(),
+        });
+        let mut pubs = self.publications.lock().expect("publications");
+        Ok(pubs.entry(topic.to_string()).or_insert(publication).clone())
+    }
+
+    async fn accept_subscriber(&self, mut stream: TcpStream) -> Result<(), String> {
+        stream.set_nodelay(true).map_err(|e| e.to_string())?;
+        let header = tokio::time::timeout(PEER_LIMIT, wire::read_header(&mut stream))
+            .await
+            .map_err(|_| "no connection header")??;
+        let topic = header.get("topic").cloned().unwrap_or_default();
+        let publication = self
+            .publications
+            .lock()
+            .expect("publications")
+            .get(&topic)
+            .cloned();
+        let Some(publication) = publication else {
+            let refuse = wire::encode_header(&[("error", &format!("not a publisher of {topic}"))]);
+            let _ = stream.write_all(&refuse).await;
+            return Err(format!(
+                "a subscriber asked for {topic}, which is not published here"
+            ));
+        };
+        let ty = &publication.type_name;
+        let theirs = header.get("md5sum").map(String::as_str).unwrap_or("*");
+        // Ours may be missing: a type neither bundled nor yet seen is learnt from the
+        // first subscriber that sends it.
+        let mut ours = wire::md5sum(&self.wire, ty).ok();
+        if theirs != "*" && Some(theirs) != ours.as_deref() {
+            // Their definition of the same type, if it hashes to what they sent.
+            let same_type = header.get("type").is_some_and(|t| normalize_type(t) == *ty);
+            let text = header.get("message_definition").filter(|t| !t.is_empty());
+            match (same_type, text) {
+                (true, Some(text)) => {
+                    wire::learn(&self.wire, ty, text, theirs)?;
+                    ours = Some(theirs.to_string());
+                }
+                _ => {
+                    let why = format!("{topic}: the subscriber wants {:?} with md5sum {theirs}, this publisher has {ty} with {ours:?}", header.get("type"));
+                    let _ = stream
+                        .write_all(&wire::encode_header(&[("error", &why)]))
+                        .await;
+                    return Err(why);
+                }
+            }
+        }
+        let Some(ours) = ours else {
+            let why =
+                format!("{topic}: no definition of {ty} is known yet (the subscriber sent none)");
+            let _ = stream
+                .write_all(&wire::encode_header(&[("error", &why)]))
+                .await;
+            return Err(why);
+        };
+        let definition = wire::full_text(&self.wire, ty)?;
+        let ros1 = ros1_type(ty);
+        let caller = self.master.caller_id.clone();
+        let answer = wire::encode_header(&[
+            ("callerid", &caller),
+            ("md5sum", &ours),
+            ("type", &ros1),
+            ("message_definition", &definition),
+            ("latching", "0"),
+            ("topic", &topic),
+        ]);
+        stream.write_all(&answer).await.map_err(|e| e.to_string())?;
+        let (mut read, write) = stream.into_split();
+        publication.connections.lock().await.push(write);
+        // Subscribers send nothing more; reading finds the connection's end.
+        let mut sink = Vec::new();
+        let _ = read.read_to_end(&mut sink).await;
+        Ok(())
+    }
+
+    /// ROS 1 definitions of `ty` and what it nests, translated from the bundle where no
+    /// peer has sent one.
+    pub fn ensure_definition(&self, ty: &str) -> Result<(), RosError> {
+        let ty = normalize_type(ty);
+        let kind = ty.split('/').nth(1).unwrap_or("msg");
+        if kind == "srv" {
+            let parts = ["_Request", "_Response"].map(|s| format!("{ty}{s}"));
+            if parts.iter().all(|p| self.wire.has(p)) {
+                return Ok(());
+            }
+            let texts: Vec<String> = parts
+                .iter()
+                .map(|p| self.translate(p))
+                .collect::<Result<_, _>>()?;
+            return self
+                .wire
+                .add(&ty, &texts.join("---\n"))
+                .map_err(|e| other(&ty, e));
+        }
+        if self.wire.has(&ty) {
+            return Ok(());
+        }
+        let text = self.translate(&ty)?;
+        self.wire.add(&ty, &text).map_err(|e| other(&ty, e))
+    }
+
+    /// The ROS 1 text of a bundled ROS 2 definition (nested types added on the way).
+    fn translate(&self, ty: &str) -> Result<String, RosError> {
+        let bundled = Interfaces::bundled();
+        let def = bundled.message(ty).map_err(|e| other(ty, e))?;
+        let mut text = String::new();
+        for c in &def.constants {
+            text.push_str(&format!("{} {}={}\n", c.type_name, c.name, c.value));
+        }
+        for f in &def.fields {
+            let token = match &f.base {
+                BaseType::Primitive(p) => p.name().to_string(),
+                BaseType::Message(m) if m == "builtin_interfaces/msg/Time" => "time".into(),
+                BaseType::Message(m) if m == "builtin_interfaces/msg/Duration" => "duration".into(),
+                BaseType::Message(m) if m == "std_msgs/msg/Header" => {
+                    if !self.wire.has(m) {
+                        self.wire.add(m, HEADER).map_err(|e| other(m, e))?;
+                    }
+                    "std_msgs/Header".into()
+                }
+                BaseType::Message(m) => {
+                    self.ensure_definition(m)?;
+                    ros1_type(m)
+                }
+            };
+            let shape = match f.shape {
+                Shape::Single => String::new(),
+                Shape::Array(n) => format!("[{n}]"),
+                Shape::Sequence { .. } => "[]".into(),
+            };
+            text.push_str(&format!("{token}{shape} {}\n", f.name));
+        }
+        Ok(text)
+    }
+
+    // ------------------------------------------------------------ subscribing
+
+    /// Listen to `topic` (registering with the master on the first listener).
+    pub async fn listen(
+        self: &Arc<Self>,
+        topic: &str,
+        type_name: Option<&str>,
+    ) -> Result<Listener, RosError> {
+        let (tx, rx) = tokio::sync::mpsc::unbounded_channel();
+        let id = self.next_listener.fetch_add(1, Ordering::Relaxed);
+        let first = {
+            let mut subs = self.subscriptions.lock().expect("subscriptions");
+            let entry = subs
+                .entry(topic.to_string())
+                .or_insert_with(|| Subscription {
+                    type_name: type_name.map(normalize_type),
+                    listeners: Vec::new(),
+                    readers: BTreeMap::new(),
+                });
+            entry.listeners.push((id, tx));
+            entry.listeners.len() == 1 && entry.readers.is_empty()
+        };
+        let listener = Listener {
+            node: self.clone(),
+            topic: topic.to_string(),
+            id,
+            rx,
+        };
+        if first {
+            let ty = type_name.map_or("*".to_string(), ros1_type);
+            let publishers = self
+                .master
+                .call(
+                    "registerSubscriber",
+                    &[
+                        XValue::str(topic),
+                        XValue::str(&ty),
+                        XValue::str(&self.api_uri),
+                    ],
+                )
+                .await?;
+            let uris: Vec<String> = publishers
+                .as_array()
+                .iter()
+                .filter_map(|u| u.as_str().map(str::to_string))
+                .collect();
+            self.connect_publishers(topic, &uris, false);
+        }
+        Ok(listener)
+    }
+
+    async fn unlisten(self: &Arc<Self>, topic: &str, id: u64) {
+        let ended = {
+            let mut subs = self.subscriptions.lock().expect("subscriptions");
+            let Some(sub) = subs.get_mut(topic) else {
+                return;
+            };
+            sub.listeners.retain(|(i, _)| *i != id);
+            if sub.listeners.is_empty() {
+                for r in sub.readers.values() {
+                    r.abort();
+                }
+                subs.remove(topic);
+                true
+            } else {
+                false
+            }
+        };
+        if ended {
+            let _ = self
+                .master
+                .call(
+                    "unregisterSubscriber",
+                    &[XValue::str(topic), XValue::str(&self.api_uri)],
+                )
+                .await;
+        }
+    }
+
+    /// Read from each publisher in `uris` not yet read from; with `exact`, stop reading
+    /// from those no longer listed.
+    fn connect_publishers(&self, topic: &str, uris: &[String], exact: bool) {
+        let Some(me) = self.me() else { return };
+        let mut subs = self.subscriptions.lock().expect("subscriptions");
+        let Some(sub) = subs.get_mut(topic) else {
+            return;
+        };
+        if exact {
+            sub.readers.retain(|uri, r| {
+                let keep = uris.contains(uri);
+                if !keep {
+                    r.abort();
+                }
+                keep
+            });
+        }
+        for uri in uris {
+            if uri == &self.api_uri || sub.readers.contains_key(uri) {
+                continue;
+            }
+            let (me, topic, uri2) = (me.clone(), topic.to_string(), uri.clone());
+            let task = self.rt.spawn(async move {
+                if let Err(e) = me.read_publisher(&topic, &uri2).await {
+                    tracing::debug!("{topic} from {uri2}: {e}");
+                }
+            });
+            sub.readers.insert(uri.clone(), task);
+        }
+    }
+
+    /// Whether `ty` is tried for the first time (and now marked tried).
+    pub fn tried(&self, ty: &str) -> bool {
+        self.tried.lock().expect("tried").insert(ty.to_string())
+    }
+
+    fn me(&self) -> Option<Arc<Node>> {
+        self.this.upgrade()
+    }
+
+    /// Connect to the publisher of `topic` whose API is `uri`: the stream after the
+    /// headers, and the type it sends (its definition learnt).
+    async fn open_publisher(&self, topic: &str, uri: &str) -> Result<(TcpStream, String), String> {
+        let protocols = XValue::Array(vec![XValue::Array(vec![XValue::str("TCPROS")])]);
+        let params = [
+            XValue::str(&self.master.caller_id),
+            XValue::str(topic),
+            protocols,
+        ];
+        let answer = xmlrpc::call(uri, "requestTopic", &params, PEER_LIMIT).await?;
+        let endpoint = match answer.as_array() {
+            [code, _, endpoint] if code.as_int() == Some(1) => endpoint.clone(),
+            _ => return Err(format!("requestTopic answered {answer:?}")),
+        };
+        let (host, port) = match endpoint.as_array() {
+            [_, host, port] => (
+                host.as_str().unwrap_or_default().to_string(),
+                port.as_int().unwrap_or_default(),
+            ),
+            _ => return Err(format!("requestTopic offered {endpoint:?}")),
+        };
+        let port = u16::try_from(port).map_err(|_| format!("a port {port}"))?;
+        let mut stream =
+            tokio::time::timeout(PEER_LIMIT, TcpStream::connect((host.as_str(), port)))
+                .await
+                .map_err(|_| "connecting timed out".to_string())?
+                .map_err(|e| e.to_string())?;
+        stream.set_nodelay(true).map_err(|e| e.to_string())?;
+        let caller = self.master.caller_id.clone();
+        let hello = wire::encode_header(&[
+            ("callerid", &caller),
+            ("topic", topic),
+            ("md5sum", "*"),
+            ("type", "*"),
+            ("tcp_nodelay", "1"),
+        ]);
+        stream.write_all(&hello).await.map_err(|e| e.to_string())?;
+        let header = tokio::time::timeout(PEER_LIMIT, wire::read_header(&mut stream))
+            .await
+            .map_err(|_| "no connection header".to_string())??;
+        if let Some(e) = header.get("error") {
+            return Err(e.clone());
+        }
+        let ty = normalize_type(header.get("type").map(String::as_str).unwrap_or_default());
+        let md5 = header.get("md5sum").cloned().unwrap_or_default();
+        if wire::md5sum(&self.wire, &ty).ok().as_deref() != Some(md5.as_str()) {
+            let text = header
+                .get("message_definition")
+                .cloned()
+                .unwrap_or_default();
+            wire::learn(&self.wire, &ty, &text, &md5)?;
+        }
+        Ok((stream, ty))
+    }
+
+    async fn read_publisher(self: Arc<Self>, topic: &str, uri: &str) -> Result<(), String> {
+        let (mut stream, ty) = self.open_publisher(topic, uri).await?;
+        loop {
+            let frame = wire::read_frame(&mut stream)
+                .await
+                .map_err(|e| e.to_string())?;
+            let message = cdr::decode_ros1(&self.wire, &ty, &frame).map_err(|e| e.to_string())?;
+            let mut subs = self.subscriptions.lock().expect("subscriptions");
+            let Some(sub) = subs.get_mut(topic) else {
+                return Ok(());
+            };
+            sub.listeners
+                .retain(|(_, tx)| tx.send(message.clone()).is_ok());
+        }
+    }
+
+    /// Make `type_name` (used on `topic`) known: from the bundle, else from a
+    /// publisher's connection header (`publishers`: their node names), else from the
+    /// first subscriber to connect to a publication of it.
+    pub async fn learn(
+        self: &Arc<Self>,
+        topic: &str,
+        type_name: &str,
+        publishers: &[String],
+    ) -> Result<(), RosError> {
+        let ty = normalize_type(type_name);
+        if ty.split('/').nth(1) == Some("srv") {
+            // ROS 1 servers send no definitions: the bundle's, checked by md5sum at the call.
+            return self.ensure_definition(&ty);
+        }
+        if self.wire.has(&ty) || self.ensure_definition(&ty).is_ok() {
+            return Ok(());
+        }
+        let mut why = format!("no peer on {topic} sent a definition of {ty}");
+        for node in publishers {
+            let uri = match self.master.call("lookupNode", &[XValue::str(node)]).await {
+                Ok(XValue::Str(uri)) => uri,
+                _ => continue,
+            };
+            match self.open_publisher(topic, &uri).await {
+                Ok(_) if self.wire.has(&ty) => return Ok(()),
+                Ok((_, other)) => why = format!("{topic} carries {other}, not {ty}"),
+                Err(e) => why = e,
+            }
+        }
+        if publishers.is_empty() {
+            let publication = self.publication(topic, &ty).await?;
+            let until = tokio::time::Instant::now() + PEER_LIMIT;
+            while !self.wire.has(&ty) && tokio::time::Instant::now() < until {
+                tokio::time::sleep(Duration::from_millis(20)).await;
+            }
+            if self.wire.has(&ty) {
+                return Ok(());
+            }
+            if publication.connected().await == 0 {
+                why = format!("no subscriber of {topic} connected to say what {ty} is");
+            }
+        }
+        Err(RosError::Encode {
+            type_name: ty,
+            reason: why,
+        })
+    }
+
+    /// Unregister every publication and subscription (the node is going away).
+    pub async fn shutdown(&self) {
+        let pubs: Vec<String> = self
+            .publications
+            .lock()
+            .expect("publications")
+            .keys()
+            .cloned()
+            .collect();
+        let subs: Vec<String> = self
+            .subscriptions
+            .lock()
+            .expect("subscriptions")
+            .keys()
+            .cloned()
+            .collect();
+        for t in pubs {
+            let _ = self
+                .master
+                .call(
+                    "unregisterPublisher",
+                    &[XValue::str(&t), XValue::str(&self.api_uri)],
+                )
+                .await;
+        }
+        for t in subs {
+            let _ = self
+                .master
+                .call(
+                    "unregisterSubscriber",
+                    &[XValue::str(&t), XValue::str(&self.api_uri)],
+                )
+                .await;
+        }
+    }
+}
+
+impl Publication {
+    /// Send `message` to every connected subscriber; how many it reached.
+    pub async fn send(&self, wire_table: &Interfaces, message: &Value) -> Result<usize, RosError> {
+        let bytes = cdr::encode_ros1(wire_table, &self.type_name, message).map_err(|e| {
+            RosError::Encode {
+                type_name: self.type_name.clone(),
+                reason: e.to_string(),
+            }
+        })?;
+        let mut conns = self.connections.lock().await;
+        let mut kept = Vec::new();
+        for mut c in conns.drain(..) {
+            if wire::write_frame(&mut c, &bytes).await.is_ok() {
+                kept.push(c);
+            }
+        }
+        let n = kept.len();
+        *conns = kept;
+        Ok(n)
+    }
+
+    pub async fn connected(&self) -> usize {
+        self.connections.lock().await.len()
+    }
+}
+
+/// `pkg/msg/Name` with ROS names' letters only.
+fn valid_type(ty: &str) -> bool {
+    let parts: Vec<&str> = ty.split('/').collect();
+    parts.len() == 3
+        && parts.iter().all(|p| {
+            p.chars().next().is_some_and(|c| c.is_ascii_alphabetic())
+                && p.chars().all(|c| c.is_ascii_alphanumeric() || c == '_')
+        })
+}
+
+fn reply(code: i64, status: &str, value: XValue) -> XValue {
+    XValue::Array(vec![XValue::Int(code), XValue::str(status), value])
+}
