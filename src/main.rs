@@ -284,6 +284,10 @@ enum EvalCommand {
         backend: BackendArg,
         #[arg(short, long)]
         threads: Option<usize>,
+        /// The sim over ROS 2 (`sim`), or served on ROS 1 (`sim-ros1`, needs a roscore at
+        /// ROS_MASTER_URI): the agent reaches it over that ROS.
+        #[arg(long, value_enum, default_value_t = ui::agent::Robot::Sim)]
+        robot: ui::agent::Robot,
     },
     /// Score one assistant turn per BFCL question, as BFCL's AST checker does.
     Bfcl {
@@ -446,6 +450,7 @@ fn main() -> ExitCode {
                     lang,
                     backend,
                     threads,
+                    robot,
                 },
         } => ui::eval::ros(&ui::eval::RosArgs {
             retrieval,
@@ -467,7 +472,7 @@ fn main() -> ExitCode {
                 max_steps,
                 decoding: Decoding::Constrained,
                 answer_mode: AnswerMode::Tool,
-                robot: ui::agent::Robot::Sim,
+                robot,
                 copy_bias,
                 pick: pick.into(),
                 language: lang,

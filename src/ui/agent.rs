@@ -92,7 +92,7 @@ pub fn tools_and_policy(
     }
     let prompt = match &args.prompt {
         Some(p) => RobotPrompt::load(p)?,
-        None if args.robot == Robot::Sim => {
+        None if args.robot.is_sim() => {
             RobotPrompt::parse(TURTLESIM_PROMPT, "prompts/turtlesim.toml")?
         }
         None => RobotPrompt::default_robot(),

@@ -145,7 +145,14 @@ pub fn ros(args: &RosArgs) -> anyhow::Result<()> {
     let cases = eval::ros::load(&args.suite, args.skip, args.limit)?;
     let approve = Arc::new(AtomicBool::new(false));
     let operator: Arc<dyn Confirm> = Arc::new(CaseOperator(approve.clone()));
-    let mut link = connect(Robot::Sim, false)?;
+    let robot = match args.agent.robot {
+        Robot::SimRos1 => Robot::SimRos1,
+        Robot::Sim => Robot::Sim,
+        other => anyhow::bail!(
+            "the ROS suite runs on the built-in sim: --robot sim or sim-ros1, not {other:?}"
+        ),
+    };
+    let mut link = connect(robot, false)?;
     let first: Arc<dyn RosGraph> = link.graph.clone().expect("the sim has a graph");
     let switch = Arc::new(SwitchGraph::new(first));
     // The robot just started serves the first case; every later case gets a new one.
@@ -183,7 +190,15 @@ pub fn ros(args: &RosArgs) -> anyhow::Result<()> {
         for case in &cases {
             // A fresh robot: a new sim and a new participant to see it; the old pair goes.
             if used {
-                let fresh = connect(Robot::Sim, false)?;
+                if robot == Robot::SimRos1 {
+                    // On ROS 1 the new robot takes the old one's node name: the old
+                    // one leaves the master first.
+                    drop(std::mem::replace(
+                        &mut link,
+                        super::robot::RobotLink::none(),
+                    ));
+                }
+                let fresh = connect(robot, false)?;
                 switch.replace(fresh.graph.clone().expect("the sim has a graph"));
                 link = fresh;
             }

@@ -25,6 +25,16 @@ pub enum Robot {
     Sim,
     Ros2,
     Ros1,
+    /// The built-in sim served on ROS 1 (a roscore at `ROS_MASTER_URI`), reached over
+    /// ROS 1.
+    SimRos1,
+}
+
+impl Robot {
+    /// The built-in sim, over either ROS.
+    pub fn is_sim(self) -> bool {
+        matches!(self, Robot::Sim | Robot::SimRos1)
+    }
 }
 
 /// What keeps the robot connection alive for the agent's lifetime.
@@ -33,20 +43,33 @@ pub struct RobotLink {
     pub sim: Option<Sim>,
     /// ROS 1: unregisters from the master when the link goes.
     pub ros1: Option<crate::ros::ros1::Leave>,
+    /// `sim-ros1`: the sim's node served on ROS 1.
+    pub bridge: Option<crate::ros::ros1::bridge::Bridge>,
+}
+
+impl RobotLink {
+    /// No robot.
+    pub fn none() -> RobotLink {
+        RobotLink {
+            graph: None,
+            sim: None,
+            ros1: None,
+            bridge: None,
+        }
+    }
 }
 
 /// Join ROS 2 (and start the sim first when asked), then wait until the graph shows it;
 /// `verbose` reports the discovery on stderr.
 pub fn connect(robot: Robot, verbose: bool) -> anyhow::Result<RobotLink> {
     if robot == Robot::None {
-        return Ok(RobotLink {
-            graph: None,
-            sim: None,
-            ros1: None,
-        });
+        return Ok(RobotLink::none());
     }
     if robot == Robot::Ros1 {
         return connect_ros1(verbose);
+    }
+    if robot == Robot::SimRos1 {
+        return connect_sim_ros1(verbose);
     }
     let opts = Ros2Options::from_env()?;
     let start = Instant::now();
@@ -87,6 +110,7 @@ pub fn connect(robot: Robot, verbose: bool) -> anyhow::Result<RobotLink> {
         graph: Some(graph as Arc<dyn RosGraph>),
         sim,
         ros1: None,
+        bridge: None,
     })
 }
 
@@ -107,6 +131,49 @@ fn connect_ros1(verbose: bool) -> anyhow::Result<RobotLink> {
         ros1: Some(graph.leave_on_drop()),
         graph: Some(Arc::new(graph)),
         sim: None,
+        bridge: None,
+    })
+}
+
+/// Start the sim (ROS 2, in this process), serve its node on ROS 1, and join ROS 1 to
+/// reach it; ready when ROS 1's graph shows the sim's pose topic and `/spawn`.
+fn connect_sim_ros1(verbose: bool) -> anyhow::Result<RobotLink> {
+    let start = Instant::now();
+    let source = connect(Robot::Sim, false)?;
+    let ros2 = source.graph.clone().expect("the sim has a graph");
+    let opts = Ros1Options::from_env();
+    let bridge = crate::ros::ros1::bridge::Bridge::start(ros2, "/turtlesim", &opts)?;
+    let graph = Ros1Graph::start(&opts, "ferrosa")?;
+    let ready = |g: &crate::ros::Graph| {
+        let by_sim = |n: &Option<String>| n.as_deref() == Some("/turtlesim");
+        g.publishers
+            .iter()
+            .any(|p| p.topic == "/turtle1/pose" && by_sim(&p.node))
+            && g.servers
+                .iter()
+                .any(|s| s.service == "/spawn" && by_sim(&s.node))
+    };
+    while !crate::ros::graph_now(&graph).is_some_and(|g| ready(&g)) {
+        if start.elapsed() > Duration::from_secs(20) {
+            anyhow::bail!(
+                "the sim did not appear on ROS 1 at {} within 20 s",
+                opts.master_uri
+            );
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    if verbose {
+        eprintln!(
+            "robot: the sim on ROS 1 at {} in {} ms",
+            opts.master_uri,
+            start.elapsed().as_millis()
+        );
+    }
+    Ok(RobotLink {
+        ros1: Some(graph.leave_on_drop()),
+        graph: Some(Arc::new(graph)),
+        sim: source.sim,
+        bridge: Some(bridge),
     })
 }
 
@@ -135,7 +202,7 @@ pub fn sim_motion(mut m: Motion) -> Motion {
 /// `raw` from here on.
 pub fn guard(raw: Arc<dyn RosGraph>, policy: &Policy, robot: Robot) -> Arc<dyn RosGraph> {
     let motion = match robot {
-        Robot::Sim => sim_motion(policy.motion.clone()),
+        r if r.is_sim() => sim_motion(policy.motion.clone()),
         _ => policy.motion.clone(),
     };
     follow_estop_topic(raw.clone(), policy.estop().clone());
@@ -163,7 +230,7 @@ fn follow_estop_topic(raw: Arc<dyn RosGraph>, estop: Arc<EStop>) {
 /// The ROS tools over `graph` (already guarded), and the turtle's own for the sim.
 pub fn add_ros_tools(registry: &mut Registry, graph: Arc<dyn RosGraph>, robot: Robot) {
     registry.add(crate::tools::ros::package(graph.clone()));
-    if robot == Robot::Sim {
+    if robot.is_sim() {
         registry.add(crate::tools::turtle::package(graph, "turtle1"));
     }
 }

@@ -18,6 +18,7 @@
 //! - `wire`: TCPROS headers and frames, md5sums, definitions
 //! - `node`: our node's API server, publications and subscriptions
 
+pub mod bridge;
 mod master;
 mod node;
 pub mod wire;
@@ -569,17 +570,23 @@ impl RosGraph for Ros1Graph {
         type_name: &'a str,
         message: Value,
     ) -> BoxFuture<'a, Result<super::Delivery, RosError>> {
+        // The subscribers the master lists now: a message sent before they connected
+        // is lost, so it waits for them (one at least, three seconds at most).
+        let us = &self.node.master.caller_id;
+        let expected = self
+            .snapshot()
+            .unwrap_or_default()
+            .subscribers
+            .iter()
+            .filter(|e| e.topic == topic && e.node.as_deref() != Some(us))
+            .count()
+            .max(1);
         let (node, topic, ty) = (self.node.clone(), topic.to_string(), type_name.to_string());
         Box::pin(self.on_rt(async move {
             let publication = node.publication(&topic, &ty).await?;
-            // A message sent before a subscriber connected is lost: wait for those the
-            // master listed (one at least).
             let timeout = Duration::from_secs(3);
             let until = Instant::now() + timeout;
-            while publication.connected().await < publication.expected.max(1) {
-                if Instant::now() >= until {
-                    break;
-                }
+            while publication.connected().await < expected && Instant::now() < until {
                 tokio::time::sleep(Duration::from_millis(20)).await;
             }
             match publication.send(&node.wire, &message).await? {

@@ -40,6 +40,9 @@ pub struct Node {
     /// ROS 1 definitions: learnt from peers, or translated from the bundle.
     pub wire: Interfaces,
     publications: Mutex<BTreeMap<String, Arc<Publication>>>,
+    services: Mutex<BTreeMap<String, Arc<Served>>>,
+    /// Parameters this node set, deleted when it leaves.
+    params: Mutex<Vec<String>>,
     subscriptions: Mutex<BTreeMap<String, Subscription>>,
     next_listener: AtomicU64,
     /// Types the graph's refresh has tried to learn (once each).
@@ -49,9 +52,17 @@ pub struct Node {
 /// One topic this node publishes, and the subscribers connected to it.
 pub struct Publication {
     pub type_name: String,
-    connections: tokio::sync::Mutex<Vec<tokio::net::tcp::OwnedWriteHalf>>,
-    /// Subscribers the master listed when the topic was registered.
-    pub expected: usize,
+    connections: tokio::sync::Mutex<Vec<(u64, tokio::net::tcp::OwnedWriteHalf)>>,
+}
+
+/// What serves one service: the request in, the response or the failure's text out.
+pub type Handler =
+    Arc<dyn Fn(Value) -> crate::ros::BoxFuture<'static, Result<Value, String>> + Send + Sync>;
+
+struct Served {
+    type_name: String,
+    md5: String,
+    handler: Handler,
 }
 
 struct Subscription {
@@ -103,6 +114,8 @@ impl Node {
             tcpros_port,
             wire: wire::table(),
             publications: Mutex::new(BTreeMap::new()),
+            services: Mutex::new(BTreeMap::new()),
+            params: Mutex::new(Vec::new()),
             subscriptions: Mutex::new(BTreeMap::new()),
             next_listener: AtomicU64::new(0),
             tried: Mutex::new(Default::default()),
@@ -119,7 +132,7 @@ impl Node {
             while let Ok((stream, _)) = tcpros.accept().await {
                 let Some(node) = weak.upgrade() else { return };
                 tokio::spawn(async move {
-                    if let Err(e) = node.accept_subscriber(stream).await {
+                    if let Err(e) = node.accept(stream).await {
                         tracing::debug!("TCPROS connection: {e}");
                     }
                 });
@@ -242,7 +255,20 @@ impl Node {
             // Not bundled: the subscribers' connection headers will carry it.
             tracing::debug!("{topic}: {e}");
         }
-        let subscribers = self
+        // Known before the master is told: a subscriber may ask for it at once.
+        let publication = self
+            .publications
+            .lock()
+            .expect("publications")
+            .entry(topic.to_string())
+            .or_insert_with(|| {
+                Arc::new(Publication {
+                    type_name: ty.clone(),
+                    connections: tokio::sync::Mutex::new(Vec::new()),
+                })
+            })
+            .clone();
+        let registered = self
             .master
             .call(
                 "registerPublisher",
@@ -252,21 +278,35 @@ impl Node {
                     XValue::str(&self.api_uri),
                 ],
             )
-            .await?;
-        let publication = Arc::new(Publication {
-            type_name: ty,
-            connections: tokio::sync::Mutex::new(Vec::new()),
-            expected: subscribers.as_array().len(),
-        });
-        let mut pubs = self.publications.lock().expect("publications");
-        Ok(pubs.entry(topic.to_string()).or_insert(publication).clone())
+            .await;
+        if let Err(e) = registered {
+            self.publications
+                .lock()
+                .expect("publications")
+                .remove(topic);
+            return Err(e);
+        }
+        Ok(publication)
     }
 
-    async fn accept_subscriber(&self, mut stream: TcpStream) -> Result<(), String> {
+    /// A TCPROS connection: a subscriber of a topic or a client of a service.
+    async fn accept(&self, mut stream: TcpStream) -> Result<(), String> {
         stream.set_nodelay(true).map_err(|e| e.to_string())?;
         let header = tokio::time::timeout(PEER_LIMIT, wire::read_header(&mut stream))
             .await
             .map_err(|_| "no connection header")??;
+        if header.contains_key("service") {
+            self.serve_client(stream, &header).await
+        } else {
+            self.accept_subscriber(stream, &header).await
+        }
+    }
+
+    async fn accept_subscriber(
+        &self,
+        mut stream: TcpStream,
+        header: &BTreeMap<String, String>,
+    ) -> Result<(), String> {
         let topic = header.get("topic").cloned().unwrap_or_default();
         let publication = self
             .publications
@@ -325,10 +365,17 @@ impl Node {
         ]);
         stream.write_all(&answer).await.map_err(|e| e.to_string())?;
         let (mut read, write) = stream.into_split();
-        publication.connections.lock().await.push(write);
-        // Subscribers send nothing more; reading finds the connection's end.
-        let mut sink = Vec::new();
-        let _ = read.read_to_end(&mut sink).await;
+        let id = self.next_listener.fetch_add(1, Ordering::Relaxed);
+        publication.connections.lock().await.push((id, write));
+        // Subscribers send nothing more; reading finds the connection's end, and a
+        // subscriber gone is no longer counted as connected.
+        let mut sink = [0u8; 256];
+        while matches!(read.read(&mut sink).await, Ok(n) if n > 0) {}
+        publication
+            .connections
+            .lock()
+            .await
+            .retain(|(i, _)| *i != id);
         Ok(())
     }
 
@@ -390,6 +437,116 @@ impl Node {
             text.push_str(&format!("{token}{shape} {}\n", f.name));
         }
         Ok(text)
+    }
+
+    // ------------------------------------------------------------ serving
+
+    /// Serve `service` (of `type_name`, a bundled definition) with `handler`.
+    pub async fn serve(
+        &self,
+        service: &str,
+        type_name: &str,
+        handler: Handler,
+    ) -> Result<(), RosError> {
+        let ty = normalize_type(type_name);
+        self.ensure_definition(&ty)?;
+        let md5 = wire::service_md5sum(&self.wire, &ty).map_err(RosError::Other)?;
+        self.services.lock().expect("services").insert(
+            service.to_string(),
+            Arc::new(Served {
+                type_name: ty,
+                md5,
+                handler,
+            }),
+        );
+        self.master
+            .call(
+                "registerService",
+                &[
+                    XValue::str(service),
+                    XValue::str(&self.service_uri()),
+                    XValue::str(&self.api_uri),
+                ],
+            )
+            .await
+            .map(|_| ())
+    }
+
+    fn service_uri(&self) -> String {
+        format!("rosrpc://{}:{}", self.host, self.tcpros_port)
+    }
+
+    /// Set a parameter, deleted again when the node leaves.
+    pub async fn set_param(&self, key: &str, value: XValue) -> Result<(), RosError> {
+        self.master
+            .call("setParam", &[XValue::str(key), value])
+            .await?;
+        self.params.lock().expect("params").push(key.to_string());
+        Ok(())
+    }
+
+    async fn serve_client(
+        &self,
+        mut stream: TcpStream,
+        header: &BTreeMap<String, String>,
+    ) -> Result<(), String> {
+        let service = header.get("service").cloned().unwrap_or_default();
+        let served = self
+            .services
+            .lock()
+            .expect("services")
+            .get(&service)
+            .cloned();
+        let theirs = header.get("md5sum").map(String::as_str).unwrap_or("*");
+        let refusal = match &served {
+            None => Some(format!("{service} is not served here")),
+            Some(s) if theirs != "*" && theirs != s.md5 => Some(format!(
+                "request from {:?}: md5sums do not match: [{theirs}] vs. [{}]",
+                header.get("callerid"),
+                s.md5
+            )),
+            Some(_) => None,
+        };
+        if let Some(why) = refusal {
+            let _ = stream
+                .write_all(&wire::encode_header(&[("error", &why)]))
+                .await;
+            return Err(why);
+        }
+        let served = served.expect("checked above");
+        let ros1 = ros1_type(&served.type_name);
+        let caller = self.master.caller_id.clone();
+        let answer = wire::encode_header(&[
+            ("callerid", &caller),
+            ("md5sum", &served.md5),
+            ("type", &ros1),
+            ("request_type", &format!("{ros1}Request")),
+            ("response_type", &format!("{ros1}Response")),
+        ]);
+        stream.write_all(&answer).await.map_err(|e| e.to_string())?;
+        if header.get("probe").is_some_and(|p| p == "1") {
+            return Ok(());
+        }
+        let ty = &served.type_name;
+        // One request per connection unless the client keeps it (`persistent`).
+        while let Ok(frame) = wire::read_frame(&mut stream).await {
+            let outcome = match cdr::decode_ros1(&self.wire, &format!("{ty}_Request"), &frame) {
+                Ok(request) => (served.handler)(request).await.and_then(|response| {
+                    cdr::encode_ros1(&self.wire, &format!("{ty}_Response"), &response)
+                        .map_err(|e| e.to_string())
+                }),
+                Err(e) => Err(e.to_string()),
+            };
+            let (ok, body) = match outcome {
+                Ok(bytes) => (1u8, bytes),
+                Err(e) => (0u8, e.into_bytes()),
+            };
+            stream.write_all(&[ok]).await.map_err(|e| e.to_string())?;
+            wire::write_frame(&mut stream, &body)
+                .await
+                .map_err(|e| e.to_string())?;
+        }
+        Ok(())
     }
 
     // ------------------------------------------------------------ subscribing
@@ -630,8 +787,27 @@ impl Node {
         })
     }
 
-    /// Unregister every publication and subscription (the node is going away).
+    /// Unregister every service, publication and subscription, and delete the
+    /// parameters set (the node is going away).
     pub async fn shutdown(&self) {
+        let services: Vec<String> = self
+            .services
+            .lock()
+            .expect("services")
+            .keys()
+            .cloned()
+            .collect();
+        for s in services {
+            let uri = self.service_uri();
+            let _ = self
+                .master
+                .call("unregisterService", &[XValue::str(&s), XValue::str(&uri)])
+                .await;
+        }
+        let params = std::mem::take(&mut *self.params.lock().expect("params"));
+        for p in params {
+            let _ = self.master.call("deleteParam", &[XValue::str(&p)]).await;
+        }
         let pubs: Vec<String> = self
             .publications
             .lock()
@@ -678,9 +854,9 @@ impl Publication {
         })?;
         let mut conns = self.connections.lock().await;
         let mut kept = Vec::new();
-        for mut c in conns.drain(..) {
+        for (id, mut c) in conns.drain(..) {
             if wire::write_frame(&mut c, &bytes).await.is_ok() {
-                kept.push(c);
+                kept.push((id, c));
             }
         }
         let n = kept.len();
