@@ -141,8 +141,7 @@ fn an_mcp_client_lists_and_calls_the_tools_under_the_policy() {
     };
     std::thread::spawn(move || lines.for_each(drop));
     let seen = client(&["http", &url]);
-    let _ = server.kill();
-    let _ = server.wait();
+    crate::util::stop(&mut server);
     judge("http", &seen);
 
     // Anything but loopback is refused at start.

@@ -19,11 +19,16 @@ const MASTER: &str = "http://127.0.0.1:11311/";
 /// The children of one test, killed when it ends (passing or not).
 struct Peers(Vec<Child>);
 
+impl Peers {
+    fn stop(&mut self, i: usize) {
+        crate::util::stop(&mut self.0[i]);
+    }
+}
+
 impl Drop for Peers {
     fn drop(&mut self) {
-        for c in &mut self.0 {
-            let _ = c.kill();
-            let _ = c.wait();
+        for i in (0..self.0.len()).rev() {
+            self.stop(i);
         }
     }
 }
@@ -87,8 +92,9 @@ impl ferrosa::tool::Confirm for Approver {
 /// Everything the issue asks of ROS 1, against one roscore: Debian's tools read what
 /// ferrosa publishes and sets, then the agent (one load of the default model) lists
 /// nodes, topics and services, echoes and publishes a type nobody bundled, calls a
-/// service, reads and sets a parameter, and reads `/rosout`; and `rostopic pub /ferrosa/estop`
-/// engages the e-stop.
+/// service, reads and sets a parameter, and reads `/rosout`; `rostopic pub /ferrosa/estop`
+/// engages the e-stop; and the built-in sim served on ROS 1 moves on `rostopic pub` and
+/// resets on `rosservice call`.
 #[test]
 #[ignore = "needs Debian's ROS 1, the model weights and a loopback-only network namespace: cargo test --release -- --include-ignored"]
 fn ros1_peers_and_the_agent_with_the_real_model() {
@@ -96,7 +102,7 @@ fn ros1_peers_and_the_agent_with_the_real_model() {
         return;
     }
     let home = std::env::temp_dir().join(format!("ferrosa-ros1-{}", std::process::id()));
-    let _peers = start_peers(&home);
+    let mut peers = start_peers(&home);
     // Only this process's threads read these, before the graph starts.
     std::env::set_var("ROS_MASTER_URI", MASTER);
     std::env::set_var("ROS_HOSTNAME", "127.0.0.1");
@@ -221,5 +227,37 @@ fn ros1_peers_and_the_agent_with_the_real_model() {
         .engaged_by()
         .expect("rostopic pub /ferrosa/estop engages the e-stop");
     eprintln!("e-stop engaged by {}", engaged.source);
+
+    // The built-in sim served on ROS 1 in place of the rospy robot: Debian's tools
+    // drive it through the bridge (a Twist passed on to the sim, a service served).
+    peers.stop(1);
+    let sim = connect(Robot::SimRos1, false).unwrap();
+    let sim_graph = sim.graph.clone().unwrap();
+    let x = |g: &std::sync::Arc<dyn ferrosa::ros::RosGraph>| {
+        let pose = rt
+            .block_on(g.subscribe("/turtle1/pose", None, 1, Duration::from_secs(3)))
+            .unwrap();
+        pose[0].message["x"].as_f64().unwrap()
+    };
+    let centre = ferrosa::ros::sim::CENTER;
+    assert!((x(&sim_graph) - centre).abs() < 1e-3);
+    ros_tool(
+        &home,
+        &[
+            "rostopic",
+            "pub",
+            "-1",
+            "/turtle1/cmd_vel",
+            "geometry_msgs/Twist",
+            "{linear: {x: 2.0}}",
+        ],
+    );
+    assert!(x(&sim_graph) > 5.6, "the sim did not move on rostopic pub");
+    ros_tool(&home, &["rosservice", "call", "/reset"]);
+    assert!(
+        (x(&sim_graph) - centre).abs() < 1e-3,
+        "rosservice call /reset did not reach the sim"
+    );
+    drop(sim);
     let _ = std::fs::remove_dir_all(&home);
 }

@@ -140,3 +140,20 @@ pub fn ask_shown(
     let why = format!("{q}: {shown:#?} → {:?}", r.answer);
     (r, why)
 }
+
+/// Stop a child started under `timeout` as a terminal would: TERM, which `timeout`
+/// passes on (a KILL would end `timeout` alone and leave its child running), then KILL
+/// if it has not ended after 5 s.
+pub fn stop(child: &mut std::process::Child) {
+    let _ = std::process::Command::new("kill")
+        .args(["-TERM", &child.id().to_string()])
+        .status();
+    let start = std::time::Instant::now();
+    while matches!(child.try_wait(), Ok(None))
+        && start.elapsed() < std::time::Duration::from_secs(5)
+    {
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
+    let _ = child.kill();
+    let _ = child.wait();
+}

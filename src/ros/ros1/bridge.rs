@@ -30,12 +30,18 @@ const CALL_LIMIT: Duration = Duration::from_secs(5);
 pub struct Bridge {
     node: Arc<Node>,
     rt: tokio::runtime::Handle,
-    task: tokio::task::JoinHandle<()>,
+    /// The refresh and every message-passing task: each holds the source graph and
+    /// the node, so all end with the bridge.
+    tasks: Tasks,
 }
+
+type Tasks = Arc<std::sync::Mutex<Vec<tokio::task::JoinHandle<()>>>>;
 
 impl Drop for Bridge {
     fn drop(&mut self) {
-        self.task.abort();
+        for t in self.tasks.lock().expect("bridge tasks").drain(..) {
+            t.abort();
+        }
         let node = self.node.clone();
         let done = self.rt.spawn(async move {
             tokio::time::timeout(Duration::from_secs(2), node.shutdown()).await
@@ -128,24 +134,34 @@ impl Bridge {
         }
         let (n, s, who) = (node.clone(), source.clone(), name.to_string());
         // The node's parameters and what it has now, before anyone is told it is ready.
+        let tasks: Tasks = Arc::default();
+        let t = tasks.clone();
         let done = super::block(&rt, async move {
             copy_parameters(&n, s.as_ref(), &who).await?;
             let mut done = BTreeSet::new();
             let g = s.graph().await?;
-            serve_new(&n, &s, &who, &g, &mut done).await;
+            serve_new(&n, &s, &who, &g, &mut done, &t).await;
             Ok(done)
-        })?;
-        let (n, s, who) = (node.clone(), source, name.to_string());
-        let task = rt.spawn(async move {
+        });
+        let bridge = Bridge {
+            node: node.clone(),
+            rt: rt.clone(),
+            tasks: tasks.clone(),
+        };
+        // On an error the bridge is dropped: what started ends, what registered leaves.
+        let done = done?;
+        let (n, s, who, t) = (node, source, name.to_string(), tasks.clone());
+        let refresh = rt.spawn(async move {
             let mut done = done;
             loop {
                 tokio::time::sleep(Duration::from_millis(500)).await;
                 if let Ok(g) = s.graph().await {
-                    serve_new(&n, &s, &who, &g, &mut done).await;
+                    serve_new(&n, &s, &who, &g, &mut done, &t).await;
                 }
             }
         });
-        Ok(Bridge { node, rt, task })
+        tasks.lock().expect("bridge tasks").push(refresh);
+        Ok(bridge)
     }
 }
 
@@ -190,6 +206,7 @@ async fn serve_new(
     name: &str,
     g: &Graph,
     done: &mut BTreeSet<String>,
+    tasks: &Tasks,
 ) {
     let mine = |e: &Option<String>| e.as_deref() == Some(name);
     for e in g
@@ -198,8 +215,9 @@ async fn serve_new(
         .filter(|e| mine(&e.node) && !plumbing(&e.topic))
     {
         if done.insert(format!("pub {}", e.topic)) {
-            if let Err(err) = publish_from(node, source, name, &e.topic, &e.type_name).await {
-                tracing::warn!("bridge {}: {err}", e.topic);
+            match publish_from(node, source, name, &e.topic, &e.type_name).await {
+                Ok(t) => tasks.lock().expect("bridge tasks").push(t),
+                Err(err) => tracing::warn!("bridge {}: {err}", e.topic),
             }
         }
     }
@@ -209,8 +227,9 @@ async fn serve_new(
         .filter(|e| mine(&e.node) && !plumbing(&e.topic))
     {
         if done.insert(format!("sub {}", e.topic)) {
-            if let Err(err) = subscribe_for(node, source, &e.topic, &e.type_name).await {
-                tracing::warn!("bridge {}: {err}", e.topic);
+            match subscribe_for(node, source, &e.topic, &e.type_name).await {
+                Ok(t) => tasks.lock().expect("bridge tasks").push(t),
+                Err(err) => tracing::warn!("bridge {}: {err}", e.topic),
             }
         }
     }
@@ -246,13 +265,13 @@ async fn publish_from(
     name: &str,
     topic: &str,
     ty: &str,
-) -> Result<(), RosError> {
+) -> Result<tokio::task::JoinHandle<()>, RosError> {
     let log = topic == "/rosout";
     let ros1_ty = if log { "rosgraph_msgs/msg/Log" } else { ty };
     let publication = node.publication(topic, ros1_ty).await?;
     let mut rx = source.watch(topic, ty).await?;
     let (node, name) = (node.clone(), name.to_string());
-    tokio::spawn(async move {
+    Ok(tokio::spawn(async move {
         while let Some(v) = rx.recv().await {
             let v = if log {
                 log_as_ros1(&v, &name)
@@ -263,8 +282,7 @@ async fn publish_from(
                 tracing::debug!("bridge: {e}");
             }
         }
-    });
-    Ok(())
+    }))
 }
 
 /// Subscribe on ROS 1 to what the node subscribes to, and pass each message on.
@@ -273,19 +291,18 @@ async fn subscribe_for(
     source: &Arc<dyn RosGraph>,
     topic: &str,
     ty: &str,
-) -> Result<(), RosError> {
+) -> Result<tokio::task::JoinHandle<()>, RosError> {
     node.ensure_definition(ty)?;
     source.advertise(topic, ty).await?;
     let mut listener = node.listen(topic, Some(ty)).await?;
     let (source, topic, ty) = (source.clone(), topic.to_string(), ty.to_string());
-    tokio::spawn(async move {
+    Ok(tokio::spawn(async move {
         while let Some(v) = listener.rx.recv().await {
             if let Err(e) = source.publish_now(&topic, &ty, times(v, false)).await {
                 tracing::debug!("bridge {topic}: {e}");
             }
         }
-    });
-    Ok(())
+    }))
 }
 
 #[cfg(test)]

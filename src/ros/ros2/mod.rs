@@ -73,6 +73,8 @@ pub struct Ros2Graph {
     clients: EndpointCache<ros2_client::Client<Raw, Raw>>,
     actions: action::Actions,
     fence: std::sync::OnceLock<Arc<crate::fence::Fence>>,
+    /// The graph's runtime (its spinner's): watches run on it, not on one each.
+    rt: tokio::runtime::Handle,
 }
 
 impl Ros2Graph {
@@ -139,6 +141,7 @@ impl Ros2Graph {
             clients: EndpointCache::default(),
             actions: action::Actions::default(),
             fence: std::sync::OnceLock::new(),
+            rt,
         })
     }
 
@@ -440,7 +443,7 @@ impl Ros2Graph {
         };
         let (tx, rx) = tokio::sync::mpsc::unbounded_channel();
         let interfaces = self.interfaces.clone();
-        background().spawn(async move {
+        self.rt.spawn(async move {
             loop {
                 match sub.async_take().await {
                     Ok((raw, _)) => match cdr::decode(&interfaces, &ty, &raw.0, 0) {
