@@ -21,7 +21,6 @@ use crate::ros::{RosError, RosGraph};
 /// ROS 1's log message, which the bundle (ROS 2's `rosgraph_msgs`) lacks.
 const LOG: &str = "byte DEBUG=1\nbyte INFO=2\nbyte WARN=4\nbyte ERROR=8\nbyte FATAL=16\n\
 Header header\nbyte level\nstring name\nstring msg\nstring file\nstring function\nuint32 line\nstring[] topics\n";
-const HEADER: &str = "uint32 seq\ntime stamp\nstring frame_id\n";
 
 /// How long a passed-on service call may take.
 const CALL_LIMIT: Duration = Duration::from_secs(5);
@@ -125,7 +124,7 @@ impl Bridge {
         let (host, bind) = (opts.host.clone(), opts.bind.clone());
         let node = super::block(&rt, async move { Node::start(master, &host, &bind).await })?;
         for (ty, text) in [
-            ("std_msgs/msg/Header", HEADER),
+            ("std_msgs/msg/Header", super::wire::HEADER),
             ("rosgraph_msgs/msg/Log", LOG),
         ] {
             node.wire

@@ -357,35 +357,40 @@ fn join(
 
 /// A service's type (`pkg/srv/Name`), asked of its server as `rosservice type` does.
 async fn probe(uri: &str, service: &str, caller: &str) -> Result<String, String> {
-    let mut stream = connect_rosrpc(uri).await?;
-    let hello = wire::encode_header(&[
+    let fields = [
         ("probe", "1"),
         ("md5sum", "*"),
         ("service", service),
         ("callerid", caller),
-    ]);
-    tokio::io::AsyncWriteExt::write_all(&mut stream, &hello)
-        .await
-        .map_err(|e| e.to_string())?;
-    let header = tokio::time::timeout(PEER_LIMIT, wire::read_header(&mut stream))
-        .await
-        .map_err(|_| "no answer to the probe".to_string())??;
+    ];
+    let (_, header) = open_rosrpc(uri, &fields).await?;
     let ty = header.get("type").ok_or("the probe's answer has no type")?;
     let (pkg, name) = ty.split_once('/').ok_or_else(|| format!("a type {ty}"))?;
     Ok(format!("{pkg}/srv/{name}"))
 }
 
-async fn connect_rosrpc(uri: &str) -> Result<TcpStream, String> {
+/// Connect to the service server at `uri` (`rosrpc://host:port`) and exchange
+/// connection headers: the stream, and the server's header.
+async fn open_rosrpc(
+    uri: &str,
+    fields: &[(&str, &str)],
+) -> Result<(TcpStream, BTreeMap<String, String>), String> {
     let addr = uri
         .strip_prefix("rosrpc://")
         .ok_or_else(|| format!("{uri}: not a rosrpc:// URI"))?
         .trim_end_matches('/');
-    let stream = tokio::time::timeout(PEER_LIMIT, TcpStream::connect(addr))
+    let mut stream = tokio::time::timeout(PEER_LIMIT, TcpStream::connect(addr))
         .await
         .map_err(|_| format!("{uri} did not accept a connection"))?
         .map_err(|e| format!("{uri}: {e}"))?;
     stream.set_nodelay(true).map_err(|e| e.to_string())?;
-    Ok(stream)
+    tokio::io::AsyncWriteExt::write_all(&mut stream, &wire::encode_header(fields))
+        .await
+        .map_err(|e| e.to_string())?;
+    let header = tokio::time::timeout(PEER_LIMIT, wire::read_header(&mut stream))
+        .await
+        .map_err(|_| format!("{uri} sent no connection header"))??;
+    Ok((stream, header))
 }
 
 /// Call a ROS 1 service: the request checked against the server's type by md5sum.
@@ -405,18 +410,14 @@ async fn call(
             reason: e.to_string(),
         }
     })?;
-    let mut stream = connect_rosrpc(&uri).await.map_err(failed)?;
     let caller = node.master.caller_id.clone();
-    let hello = wire::encode_header(&[
-        ("callerid", &caller),
-        ("service", &service),
-        ("md5sum", &md5),
+    let fields = [
+        ("callerid", caller.as_str()),
+        ("service", service.as_str()),
+        ("md5sum", md5.as_str()),
         ("persistent", "0"),
-    ]);
-    tokio::io::AsyncWriteExt::write_all(&mut stream, &hello)
-        .await
-        .map_err(|e| failed(e.to_string()))?;
-    let header = wire::read_header(&mut stream).await.map_err(failed)?;
+    ];
+    let (mut stream, header) = open_rosrpc(&uri, &fields).await.map_err(failed)?;
     if let Some(e) = header.get("error") {
         return Err(failed(format!(
             "the server refused the call ({e}); ferrosa's {ty} (its md5sum {md5}) is not the server's"

@@ -26,9 +26,6 @@ use crate::ros::{cdr, RosError};
 /// How long a peer has to answer a connection or a call.
 pub const PEER_LIMIT: Duration = Duration::from_secs(3);
 
-/// ROS 1's `std_msgs/Header`, used where a ROS 2 definition names ROS 2's.
-const HEADER: &str = "uint32 seq\ntime stamp\nstring frame_id\n";
-
 pub struct Node {
     this: Weak<Node>,
     /// The ROS 1 runtime (with I/O): every task of the node runs on it.
@@ -420,7 +417,7 @@ impl Node {
                 BaseType::Message(m) if m == "builtin_interfaces/msg/Duration" => "duration".into(),
                 BaseType::Message(m) if m == "std_msgs/msg/Header" => {
                     if !self.wire.has(m) {
-                        self.wire.add(m, HEADER).map_err(|e| other(m, e))?;
+                        self.wire.add(m, wire::HEADER).map_err(|e| other(m, e))?;
                     }
                     "std_msgs/Header".into()
                 }

@@ -20,6 +20,9 @@ pub const TIME_TYPES: [(&str, &str); 2] = [
     ("rostime/msg/Duration", "int32 secs\nint32 nsecs\n"),
 ];
 
+/// ROS 1's `std_msgs/Header` (ROS 2's has no `seq`, and ROS 2's time).
+pub const HEADER: &str = "uint32 seq\ntime stamp\nstring frame_id\n";
+
 /// A table holding only ROS 1's time types, for definitions learnt from peers.
 pub fn table() -> Interfaces {
     Interfaces::of(&TIME_TYPES).expect("the time types parse")
@@ -95,36 +98,31 @@ pub async fn read_header<R: AsyncRead + Unpin>(
     decode_header(&body)
 }
 
-fn field_type(
-    def_pkg: &str,
-    base: &BaseType,
-    shape: Shape,
-    ifaces: &Interfaces,
-) -> Result<(String, bool), String> {
-    let _ = def_pkg;
+/// A field's type as genmsg hashes it: built-in types as written, nested messages by
+/// their md5sum (without array brackets).
+fn hashed_type(base: &BaseType, shape: Shape, ifaces: &Interfaces) -> Result<String, String> {
     let suffix = match shape {
         Shape::Single => String::new(),
         Shape::Array(n) => format!("[{n}]"),
         Shape::Sequence { .. } => "[]".to_string(),
     };
     Ok(match base {
-        BaseType::Primitive(p) => (format!("{}{suffix}", p.name()), true),
-        BaseType::Message(m) if m == "rostime/msg/Time" => (format!("time{suffix}"), true),
-        BaseType::Message(m) if m == "rostime/msg/Duration" => (format!("duration{suffix}"), true),
-        BaseType::Message(m) => (md5sum(ifaces, m)?, false),
+        BaseType::Primitive(p) => format!("{}{suffix}", p.name()),
+        BaseType::Message(m) if m == "rostime/msg/Time" => format!("time{suffix}"),
+        BaseType::Message(m) if m == "rostime/msg/Duration" => format!("duration{suffix}"),
+        BaseType::Message(m) => md5sum(ifaces, m)?,
     })
 }
 
 /// The text genmsg hashes for one message: constants, then fields, nested types by
 /// their own md5sum.
 fn md5_text(ifaces: &Interfaces, def: &MessageDef) -> Result<String, String> {
-    let pkg = def.name.split('/').next().unwrap_or_default();
     let mut lines = Vec::new();
     for c in &def.constants {
         lines.push(format!("{} {}={}", c.type_name, c.name, c.value.trim()));
     }
     for f in &def.fields {
-        let (ty, _) = field_type(pkg, &f.base, f.shape, ifaces)?;
+        let ty = hashed_type(&f.base, f.shape, ifaces)?;
         lines.push(format!("{ty} {}", f.name));
     }
     Ok(lines.join("\n"))
@@ -155,7 +153,8 @@ pub fn full_text(ifaces: &Interfaces, type_name: &str) -> Result<String, String>
     let def = message(ifaces, type_name)?;
     let mut out = def.text.clone();
     let mut seen = Vec::new();
-    let mut queue: Vec<String> = nested(&def);
+    // Depth first, in field order (a stack: pushed reversed).
+    let mut queue: Vec<String> = nested(&def).rev().collect();
     while let Some(name) = queue.pop() {
         if seen.contains(&name) || name.starts_with("rostime/") {
             continue;
@@ -167,25 +166,17 @@ pub fn full_text(ifaces: &Interfaces, type_name: &str) -> Result<String, String>
             ros1_type(&name),
             d.text
         ));
-        let mut more = nested(&d);
-        more.reverse();
-        queue.extend(more);
+        queue.extend(nested(&d).rev());
         seen.push(name);
     }
     Ok(out)
 }
 
-fn nested(def: &MessageDef) -> Vec<String> {
-    let mut out: Vec<String> = def
-        .fields
-        .iter()
-        .filter_map(|f| match &f.base {
-            BaseType::Message(m) => Some(m.clone()),
-            BaseType::Primitive(_) => None,
-        })
-        .collect();
-    out.reverse();
-    out
+fn nested(def: &MessageDef) -> impl DoubleEndedIterator<Item = String> + '_ {
+    def.fields.iter().filter_map(|f| match &f.base {
+        BaseType::Message(m) => Some(m.clone()),
+        BaseType::Primitive(_) => None,
+    })
 }
 
 /// Add the definitions in a connection's `message_definition` to `ifaces`, the first as
@@ -237,7 +228,7 @@ mod tests {
     fn ros1_table() -> Interfaces {
         let t = table();
         for (name, text) in [
-            ("std_msgs/msg/Header", "uint32 seq\ntime stamp\nstring frame_id\n"),
+            ("std_msgs/msg/Header", HEADER),
             ("geometry_msgs/msg/Vector3", "float64 x\nfloat64 y\nfloat64 z\n"),
             ("geometry_msgs/msg/Twist", "Vector3 linear\nVector3 angular\n"),
             ("turtlesim/msg/Pose", "float32 x\nfloat32 y\nfloat32 theta\n\nfloat32 linear_velocity\nfloat32 angular_velocity\n"),
