@@ -43,6 +43,8 @@ pub struct FakeGraph {
     graph: Graph,
     interfaces: Interfaces,
     watchers: Mutex<Vec<(String, tokio::sync::mpsc::UnboundedSender<Value>)>>,
+    /// How long a `publish` is held up before it goes out (`publish_now` never is).
+    publish_delay: Duration,
 }
 
 impl FakeGraph {
@@ -72,6 +74,25 @@ impl FakeGraph {
     pub fn with_messages(mut self, topic: &str, messages: Vec<Value>) -> FakeGraph {
         self.topics.insert(topic.to_string(), messages);
         self
+    }
+
+    /// Hold every `publish` up for `delay` before it goes out, as a busy node or a
+    /// wait for a subscriber does; `publish_now` (the brake's) goes out at once.
+    pub fn with_publish_delay(mut self, delay: Duration) -> FakeGraph {
+        self.publish_delay = delay;
+        self
+    }
+
+    fn record_publish(&self, topic: &str, type_name: &str, message: Value) -> super::Delivery {
+        self.sent
+            .lock()
+            .expect("fake graph lock")
+            .push(Sent::Publish {
+                topic: topic.to_string(),
+                type_name: type_name.to_string(),
+                message,
+            });
+        super::Delivery::to(topic)
     }
 
     /// Deliver `message` on `topic` to everyone watching it.
@@ -145,16 +166,20 @@ impl RosGraph for FakeGraph {
         message: Value,
     ) -> BoxFuture<'a, Result<super::Delivery, RosError>> {
         Box::pin(async move {
-            self.sent
-                .lock()
-                .expect("fake graph lock")
-                .push(Sent::Publish {
-                    topic: topic.to_string(),
-                    type_name: type_name.to_string(),
-                    message,
-                });
-            Ok(super::Delivery::to(topic))
+            if !self.publish_delay.is_zero() {
+                tokio::time::sleep(self.publish_delay).await;
+            }
+            Ok(self.record_publish(topic, type_name, message))
         })
+    }
+
+    fn publish_now<'a>(
+        &'a self,
+        topic: &'a str,
+        type_name: &'a str,
+        message: Value,
+    ) -> BoxFuture<'a, Result<super::Delivery, RosError>> {
+        Box::pin(async move { Ok(self.record_publish(topic, type_name, message)) })
     }
 
     fn call_service<'a>(

@@ -22,8 +22,10 @@
 //!   services and parameters);
 //! - remembers every velocity topic it sent motion on (with the last command) and every
 //!   goal that may still run, so the e-stop's brake can zero the one (the last command
-//!   with every Twist at zero, sent again after 100 and 300 ms, so a command already on
-//!   its way cannot win) and cancel the other (`brake`).
+//!   with every Twist at zero: at once, again once every publish that passed the e-stop
+//!   check before the trigger has gone out, and again after 100 and 300 ms, so a command
+//!   already on its way cannot win however long it was held up) and cancel the other
+//!   (`brake`).
 
 use std::collections::BTreeMap;
 use std::sync::{Arc, Mutex, Weak};
@@ -81,6 +83,9 @@ pub struct Guarded {
     sent: Mutex<Sent>,
     /// What the mux last said was active.
     mux_active: Arc<Mutex<Option<String>>>,
+    /// Held shared by a publish from its last e-stop check until its message is out;
+    /// the brake takes it exclusively, so its zero goes out after any such message.
+    in_flight: Arc<tokio::sync::RwLock<()>>,
     rt: tokio::runtime::Handle,
 }
 
@@ -100,6 +105,7 @@ impl Guarded {
             estop: estop.clone(),
             sent: Mutex::new(Sent::default()),
             mux_active: Arc::new(Mutex::new(None)),
+            in_flight: Arc::new(tokio::sync::RwLock::new(())),
             rt,
             motion,
         });
@@ -168,14 +174,25 @@ impl Guarded {
                 Some(m) => crate::limits::zeroed(m),
                 None => cdr::template(&ifaces, &ty).unwrap_or(Value::Null),
             };
+            let in_flight = self.in_flight.clone();
             self.rt.spawn(async move {
-                for wait in [0, 100, 200] {
-                    if wait > 0 {
-                        tokio::time::sleep(Duration::from_millis(wait)).await;
+                let zero = |why: &'static str| {
+                    let (inner, topic, ty, zero) = (&inner, &topic, &ty, zero.clone());
+                    async move {
+                        if let Err(e) = inner.publish_now(topic, ty, zero).await {
+                            tracing::warn!(%topic, "brake ({why}): {e}");
+                        }
                     }
-                    if let Err(e) = inner.publish_now(&topic, &ty, zero.clone()).await {
-                        tracing::warn!(%topic, "brake: {e}");
-                    }
+                };
+                zero("at once").await;
+                // A publish that passed its check before the trigger may still be on its
+                // way (held up on the node, or waiting for a subscriber): once it is out,
+                // this zero follows it on the same writer. Later publishes are refused.
+                drop(in_flight.write().await);
+                zero("after the commands in flight").await;
+                for wait in [100, 200] {
+                    tokio::time::sleep(Duration::from_millis(wait)).await;
+                    zero("again").await;
                 }
             });
         }
@@ -296,6 +313,8 @@ impl Guarded {
             overridden_by = active.filter(|a| !matches!(a.as_str(), "" | "none" | "agent"));
         }
         // Again, right before it goes: the checks above may have waited on the graph.
+        // Until the message is out, the brake's ordered zero waits for it.
+        let _in_flight = self.in_flight.read().await;
         self.stopped()?;
         let mut d = if now {
             self.inner.publish_now(&out, &ty, message.clone()).await?
@@ -514,5 +533,76 @@ impl RosGraph for Guarded {
             let topic = self.name(topic)?;
             self.inner.advertise(&topic, type_name).await
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::ros::fake::{FakeGraph, Sent as Published};
+    use serde_json::json;
+
+    /// A command that passed the e-stop check before the trigger but went out long after
+    /// (a busy node, a wait for a subscriber) must not be the last word: the brake's zero
+    /// follows it, whatever the delay.
+    #[test]
+    fn the_brake_follows_a_command_held_up_in_flight() {
+        let fake = Arc::new(FakeGraph::new().with_publish_delay(Duration::from_millis(600)));
+        let estop = EStop::new();
+        let guarded = Guarded::new(
+            fake.clone(),
+            Arc::new(Fence::default()),
+            estop.clone(),
+            Motion::default(),
+        );
+        let rt = tokio::runtime::Builder::new_current_thread()
+            .enable_time()
+            .build()
+            .unwrap();
+        rt.block_on(async {
+            let drive = {
+                let g = guarded.clone();
+                tokio::spawn(async move {
+                    let twist = json!({"linear": {"x": 0.5}, "angular": {"z": 0.0}});
+                    g.publish("/turtle1/cmd_vel", "geometry_msgs/msg/Twist", twist)
+                        .await
+                })
+            };
+            tokio::time::sleep(Duration::from_millis(100)).await;
+            estop.trigger("test");
+            drive
+                .await
+                .unwrap()
+                .expect("the command passed its check before the trigger");
+            // The brake's repeats end 300 ms after the trigger; wait past them.
+            tokio::time::sleep(Duration::from_millis(900)).await;
+        });
+        let on_topic: Vec<Value> = fake
+            .sent()
+            .into_iter()
+            .filter_map(|s| match s {
+                Published::Publish { topic, message, .. } if topic == "/turtle1/cmd_vel" => {
+                    Some(message)
+                }
+                _ => None,
+            })
+            .collect();
+        let moving = |m: &Value| m["linear"]["x"].as_f64() != Some(0.0);
+        let command = on_topic
+            .iter()
+            .position(moving)
+            .expect("the command went out");
+        assert!(
+            on_topic[command + 1..].iter().any(|m| !moving(m)),
+            "no zero after the held-up command: {on_topic:?}"
+        );
+        assert!(!moving(on_topic.last().unwrap()), "{on_topic:?}");
+        // And once engaged, a new command is refused before it is held up.
+        let again = rt.block_on(guarded.publish(
+            "/turtle1/cmd_vel",
+            "geometry_msgs/msg/Twist",
+            json!({"linear": {"x": 0.5}}),
+        ));
+        assert!(matches!(again, Err(RosError::Stopped(_))), "{again:?}");
     }
 }
