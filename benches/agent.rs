@@ -5,7 +5,11 @@
 //!    answer): the first request after start (nothing cached), then each request N times
 //!    after `/clear` (the system prompt stays cached), min / median / max, with the time to
 //!    the first token, the model's and the tools' share, and what was called.
-//! 2. Memory across a long chat: resident memory after 1 turn and after 200 (history kept
+//! 2. Cold start: the first request of a freshly built agent (model loaded, nothing in
+//!    memory), with the prompt cache off, on but empty (the request stores its prefix),
+//!    and on with the prefix kept by an earlier process; each N times, in a temporary
+//!    cache directory. Parts 1 and 3 run with the prompt cache off.
+//! 3. Memory across a long chat: resident memory after 1 turn and after 200 (history kept
 //!    and trimmed by the agent), against the KV cache the context can fill. The turns are
 //!    small talk the model answers without a tool (about 0.5 s each; a tool request costs
 //!    several seconds once history builds up, too long for 200 of them here): they grow
@@ -14,7 +18,7 @@
 //!
 //! The sim speaks DDS, so the bench re-runs itself in a network namespace with only
 //! loopback (`unshare -n`, as root), under a time limit. Settings: FERROSA_BENCH_RUNS (3),
-//! FERROSA_BENCH_TURNS (200), FERROSA_BENCH_THREADS (physical cores). Output: markdown on
+//! FERROSA_BENCH_TURNS (40), FERROSA_BENCH_THREADS (physical cores). Output: markdown on
 //! stdout, target/bench/agent.json, target/bench/agent.svg.
 
 #[path = "common/chart.rs"]
@@ -95,7 +99,7 @@ fn main() {
     }
     let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
     let runs = header::env_usize("FERROSA_BENCH_RUNS", 3).max(1);
-    let turns = header::env_usize("FERROSA_BENCH_TURNS", 200).max(2);
+    let turns = header::env_usize("FERROSA_BENCH_TURNS", 40).max(2);
     let threads = header::env_usize("FERROSA_BENCH_THREADS", ferrosa::backend::physical_cores());
     let args = AgentArgs {
         model: ModelArgs {
@@ -104,6 +108,7 @@ fn main() {
             backend: ferrosa::backend::BackendKind::Llama,
             threads: Some(threads),
             max_context: 8192,
+            prompt_cache: false,
         },
         yes: true,
         read_only: false,
@@ -134,8 +139,13 @@ fn main() {
         .clone()
         .map(|g| g as Arc<dyn ferrosa::ros::RosGraph>);
     let t = std::time::Instant::now();
-    let mut agent = build_with(&args, Arc::new(Yes), graph, ferrosa::estop::EStop::new())
-        .expect("build the agent");
+    let mut agent = build_with(
+        &args,
+        Arc::new(Yes),
+        graph.clone(),
+        ferrosa::estop::EStop::new(),
+    )
+    .expect("build the agent");
     let load_ms = t.elapsed().as_secs_f64() * 1e3;
     println!("sim discovered in {discovered_ms:.0} ms; agent (model, grammars, tools) built in {load_ms:.0} ms");
     println!();
@@ -196,7 +206,26 @@ fn main() {
     }
     println!();
 
-    // 2. Memory over a long chat: the history grows until the agent trims it.
+    // 2. Cold start, with and without the prompt cache.
+    let cold = cold_start(&args, graph.clone(), runs);
+    println!("## Cold start: the first request of a new agent (\"{}\"), ms, min / **median** / max over {runs}", REQUESTS[0]);
+    println!();
+    println!("| prompt cache | agent built | first token | total | prompt tokens restored | answer (last run) |");
+    println!("|---|---|---|---|---|---|");
+    for c in &cold {
+        println!(
+            "| {} | {} | {} | {} | {} | {} |",
+            c.cache,
+            f(&c.build_ms),
+            f(&c.first_token_ms),
+            f(&c.total_ms),
+            c.restored_tokens,
+            c.answer.replace('|', "\\|")
+        );
+    }
+    println!();
+
+    // 3. Memory over a long chat: the history grows until the agent trims it.
     agent.clear();
     let t = std::time::Instant::now();
     ask(&mut agent, SMALL_TALK);
@@ -253,7 +282,7 @@ fn main() {
     let out = root.join("target").join("bench");
     let _ = std::fs::create_dir_all(&out);
     let file = out.join("agent.json");
-    let json = serde_json::json!({"requests": rows, "memory": memory, "first": first.timings});
+    let json = serde_json::json!({"requests": rows, "memory": memory, "first": first.timings, "cold_start": cold});
     std::fs::write(&file, serde_json::to_string_pretty(&json).expect("json")).expect("write json");
     let mut latency = chart::Bars::new("ms (median)", &["total", "first token", "tools"]);
     for r in &rows {
@@ -288,6 +317,90 @@ fn main() {
         Err(e) => eprintln!("wrote {}; chart failed: {e}", file.display()),
     }
     drop(link);
+}
+
+#[derive(Debug, Serialize)]
+struct ColdRow {
+    cache: &'static str,
+    build_ms: Spread,
+    first_token_ms: Spread,
+    total_ms: Spread,
+    /// Prompt tokens restored from disk in the last run.
+    restored_tokens: usize,
+    answer: String,
+}
+
+/// The first request of `runs` new agents each: prompt cache off; on, empty (its own
+/// directory each run); on, holding what an earlier agent kept.
+fn cold_start(
+    args: &AgentArgs,
+    graph: Option<Arc<dyn ferrosa::ros::RosGraph>>,
+    runs: usize,
+) -> Vec<ColdRow> {
+    let sha = ferrosa::models::resolve(None, &args.model.models_dir)
+        .expect("the default model")
+        .sha256()
+        .expect("the default model's sha256");
+    let kept = tempfile::tempdir().expect("a cache directory");
+    let mut rows = Vec::new();
+    for cache in ["off", "on, empty", "on, kept"] {
+        let (mut build, mut first, mut total) = (Vec::new(), Vec::new(), Vec::new());
+        let (mut restored, mut answer) = (0, String::new());
+        // "kept" starts from what an agent kept before it.
+        let runs = if cache == "on, kept" { runs + 1 } else { runs };
+        for run in 0..runs {
+            let empty = tempfile::tempdir().expect("a cache directory");
+            let t = std::time::Instant::now();
+            let mut agent = build_with(
+                args,
+                Arc::new(Yes),
+                graph.clone(),
+                ferrosa::estop::EStop::new(),
+            )
+            .expect("build the agent");
+            let dir = match cache {
+                "off" => None,
+                "on, empty" => Some(empty.path()),
+                _ => Some(kept.path()),
+            };
+            let pc = dir.map(|d| {
+                Arc::new(
+                    ferrosa::backend::PromptCache::open(
+                        d,
+                        &sha,
+                        agent.backend(),
+                        ferrosa::backend::prompt_cache::DEFAULT_MAX_BYTES,
+                    )
+                    .expect("llama.cpp keeps a prompt cache"),
+                )
+            });
+            if let Some(pc) = &pc {
+                agent = agent.with_prompt_cache(pc.clone());
+            }
+            let built = t.elapsed().as_secs_f64() * 1e3;
+            let r = agent.ask(REQUESTS[0], &mut |_| {}).expect("the agent runs");
+            if let Some(pc) = &pc {
+                pc.flush();
+                restored = pc.counts().0;
+            }
+            if cache == "on, kept" && run == 0 {
+                continue;
+            }
+            build.push(built);
+            first.push(r.timings.first_token_ms.unwrap_or(0.0));
+            total.push(r.timings.total_ms);
+            answer = r.answer;
+        }
+        rows.push(ColdRow {
+            cache,
+            build_ms: Spread::of(build),
+            first_token_ms: Spread::of(first),
+            total_ms: Spread::of(total),
+            restored_tokens: restored,
+            answer,
+        });
+    }
+    rows
 }
 
 /// Run this bench again inside a network namespace with only loopback, under a limit.

@@ -9,6 +9,7 @@
 //! - `lexicon`: words and numbers, read one way everywhere
 //! - `json`: the one incremental reader of JSON text (where a turn stands)
 //! - `clock`: wall-clock time as calendar fields
+//! - `dirs`: the platform's directories ferrosa keeps files in (cache, data)
 //! - `estop`: the emergency stop, one latch every part shares
 //! - `fence`: names off limits (the deny-list), canonical ROS names, redaction
 //! - `limits`: motion limits (speeds, teleports, parameters) on encoded messages
@@ -34,6 +35,7 @@ pub mod backend;
 pub mod chat;
 pub mod clock;
 pub mod decode;
+pub mod dirs;
 pub mod estop;
 pub mod eval;
 pub mod fence;

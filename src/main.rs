@@ -20,16 +20,30 @@ use ferrosa::ui::choice::{
     about = "On-device agent for offline robots"
 )]
 struct Cli {
-    /// Directory holding model weights (and an optional catalog.toml override).
+    /// Directory holding model weights (and an optional catalog.toml override); default:
+    /// ./models in a checkout of ferrosa, else ~/.local/share/ferrosa/models
+    /// ($XDG_DATA_HOME/ferrosa/models).
+    #[arg(long, global = true, env = "FERROSA_MODELS_DIR")]
+    models_dir: Option<PathBuf>,
+    /// Keep the agent's stable prompt prefix (system prompt and tool specs) on disk and
+    /// start from it: a cold start skips evaluating it (off: neither read nor write).
     #[arg(
         long,
         global = true,
-        env = "FERROSA_MODELS_DIR",
-        default_value = "models"
+        env = "FERROSA_PROMPT_CACHE",
+        value_enum,
+        default_value_t = Switch::On
     )]
-    models_dir: PathBuf,
+    prompt_cache: Switch,
     #[command(subcommand)]
     command: Command,
+}
+
+/// On or off.
+#[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum Switch {
+    On,
+    Off,
 }
 
 #[derive(Subcommand)]
@@ -218,7 +232,7 @@ fn parse_language(text: &str) -> Result<LanguageArg, String> {
 }
 
 impl AgentOpts {
-    fn into_args(self, models_dir: PathBuf) -> ui::agent::AgentArgs {
+    fn into_args(self, models_dir: PathBuf, cli_prompt_cache: bool) -> ui::agent::AgentArgs {
         ui::agent::AgentArgs {
             model: ui::ModelArgs {
                 models_dir,
@@ -226,6 +240,7 @@ impl AgentOpts {
                 backend: self.backend.into(),
                 threads: self.threads,
                 max_context: self.max_context,
+                prompt_cache: cli_prompt_cache,
             },
             yes: self.yes,
             read_only: self.read_only,
@@ -357,6 +372,14 @@ enum ModelsCommand {
     },
     /// Check installed files against the catalog's sha256.
     Verify { names: Vec<String> },
+    /// Fill the prompt cache ahead of time (e.g. when building a robot's image): the
+    /// stable prompt prefix of each request, as `ask`/`chat`/`demo` with the same
+    /// options render it (default requests: the robot prompt file's `warm` list).
+    Warm {
+        requests: Vec<String>,
+        #[command(flatten)]
+        agent: AgentOpts,
+    },
 }
 
 fn main() -> ExitCode {
@@ -369,7 +392,11 @@ fn main() -> ExitCode {
         )
         .with_writer(std::io::stderr)
         .init();
-    let dir = cli.models_dir.clone();
+    let dir = cli
+        .models_dir
+        .clone()
+        .unwrap_or_else(ferrosa::models::models_dir);
+    let cli_prompt_cache = cli.prompt_cache == Switch::On;
     let result = match cli.command {
         Command::Generate {
             model,
@@ -397,6 +424,7 @@ fn main() -> ExitCode {
                 backend: backend.into(),
                 threads,
                 max_context,
+                prompt_cache: cli_prompt_cache,
             },
             prompt,
             system,
@@ -415,19 +443,21 @@ fn main() -> ExitCode {
             envelope: envelope.map(Into::into),
             parallel: !single_call,
         }),
-        Command::Ask { query, json, agent } => ui::agent::ask(&agent.into_args(dir), &query, json),
-        Command::Chat { agent } => ui::agent::chat(&agent.into_args(dir)),
+        Command::Ask { query, json, agent } => {
+            ui::agent::ask(&agent.into_args(dir, cli_prompt_cache), &query, json)
+        }
+        Command::Chat { agent } => ui::agent::chat(&agent.into_args(dir, cli_prompt_cache)),
         Command::Call {
             name,
             arguments,
             agent,
-        } => ui::call::run(&agent.into_args(dir), &name, &arguments),
+        } => ui::call::run(&agent.into_args(dir, cli_prompt_cache), &name, &arguments),
         Command::Mcp { http, agent } => ui::mcp::run(&ui::mcp::McpArgs {
-            agent: agent.into_args(dir),
+            agent: agent.into_args(dir, cli_prompt_cache),
             http,
         }),
         Command::Demo { agent } => {
-            let mut args = agent.into_args(dir);
+            let mut args = agent.into_args(dir, cli_prompt_cache);
             if args.robot == ui::agent::Robot::None {
                 args.robot = ui::agent::Robot::Sim;
             }
@@ -461,6 +491,7 @@ fn main() -> ExitCode {
                     backend: backend.into(),
                     threads,
                     max_context: 8192,
+                    prompt_cache: cli_prompt_cache,
                 },
                 yes: false,
                 read_only: false,
@@ -508,6 +539,7 @@ fn main() -> ExitCode {
                 backend: backend.into(),
                 threads,
                 max_context: 4096,
+                prompt_cache: cli_prompt_cache,
             },
             paths,
             decoding,
@@ -542,6 +574,9 @@ fn main() -> ExitCode {
                 },
             ),
             ModelsCommand::Verify { names } => ui::models::verify(&dir, &names),
+            ModelsCommand::Warm { requests, agent } => {
+                ui::agent::warm(&agent.into_args(dir, cli_prompt_cache), &requests)
+            }
         },
     };
     match result {

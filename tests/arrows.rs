@@ -21,9 +21,10 @@ const ALLOWED: &[(&str, &[&str])] = &[
     ("fence", &[]),
     ("limits", &[]),
     ("clock", &[]),
+    ("dirs", &[]),
     ("metrics", &[]),
     ("backend", &["chat", "clock", "metrics"]),
-    ("models", &["backend", "metrics"]),
+    ("models", &["backend", "metrics", "dirs"]),
     ("tool", &["chat", "lexicon", "estop", "fence", "limits"]),
     ("decode", &["backend", "tool", "chat", "lexicon", "json"]),
     (
@@ -54,7 +55,7 @@ const ALLOWED: &[(&str, &[&str])] = &[
         "ui",
         &[
             "agent", "strategy", "decode", "backend", "tool", "tools", "ros", "chat", "lexicon",
-            "models", "metrics", "clock", "eval", "json", "estop", "fence", "limits",
+            "models", "metrics", "clock", "eval", "json", "estop", "fence", "limits", "dirs",
         ],
     ),
 ];

@@ -25,6 +25,7 @@ mod decoding;
 mod estop;
 mod eval;
 mod mcp;
+mod prompt_cache;
 mod ros;
 mod ros1;
 mod runtime;

@@ -289,6 +289,7 @@ fn stack(setup: &Setup, script: &[String]) -> Stack {
             backend: ferrosa::backend::BackendKind::Llama,
             threads: None,
             max_context: 0,
+            prompt_cache: false,
         },
         yes: setup.yes,
         read_only: setup.read_only,

@@ -29,15 +29,25 @@ pub fn load(name: &str, kind: BackendKind, max_context: usize) -> Box<dyn Backen
 
 /// Greedy continuation of `prompt` (tokenized with special tokens), `n` tokens.
 pub fn greedy(model: &mut dyn Backend, prompt: &str, n: usize) -> Vec<u32> {
-    use ferrosa::decode::{generate, JsonScan, NoHook, Sampler, SamplerConfig, Session, Steering};
     let mut ids: Vec<u32> = model.vocab().bos().into_iter().collect();
     ids.extend(model.tokenize(prompt, true).unwrap());
+    greedy_after(model, &mut ferrosa::decode::Session::new(), &ids, n)
+}
+
+/// Greedy continuation of the prompt `ids` through `session`, `n` tokens.
+pub fn greedy_after(
+    model: &mut dyn Backend,
+    session: &mut ferrosa::decode::Session,
+    ids: &[u32],
+    n: usize,
+) -> Vec<u32> {
+    use ferrosa::decode::{generate, JsonScan, NoHook, Sampler, SamplerConfig, Steering};
     let mut sampler = Sampler::new(SamplerConfig::default(), model.vocab().len());
     let mut out = Vec::new();
     generate(
         model,
-        &mut Session::new(),
-        &ids,
+        session,
+        ids,
         n,
         Steering {
             sampler: &mut sampler,
@@ -105,6 +115,7 @@ pub fn agent_args(robot: ferrosa::ui::agent::Robot, yes: bool) -> ferrosa::ui::a
             backend: ferrosa::backend::BackendKind::Llama,
             threads: Some(2),
             max_context: 8192,
+            prompt_cache: true,
         },
         yes,
         read_only: false,

@@ -166,6 +166,11 @@ pub fn grounded(reply: &str, summary: Option<&str>, request: &str) -> String {
     let Some(summary) = summary else {
         return reply;
     };
+    // Digits and punctuation alone ("1.0.0.0:8080:1:1:1") say nothing the summary
+    // does not say better.
+    if !reply.chars().any(char::is_alphabetic) {
+        return summary.to_string();
+    }
     let all = facts(summary);
     let asked = request.to_lowercase();
     let asked_numbers: Vec<f64> = written_numbers(&asked).map(|(n, _)| n).collect();
@@ -434,6 +439,21 @@ mod tests {
             "The turtle moved. It is at 7."
         );
         assert_eq!(once("v1.5 is set."), "v1.5 is set.");
+    }
+
+    #[test]
+    fn an_answer_without_a_word_is_replaced_by_the_summary() {
+        let summary = "1 node: /turtlesim";
+        for reply in ["1.0.0.0:8080:8:1:1:1:1:1:1", "1", "42 %"] {
+            assert_eq!(
+                grounded(reply, Some(summary), "list the ROS nodes"),
+                summary
+            );
+        }
+        assert_eq!(
+            grounded("1 node: /turtlesim", Some(summary), "list the ROS nodes"),
+            "1 node: /turtlesim"
+        );
     }
 
     #[test]

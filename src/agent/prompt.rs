@@ -41,6 +41,10 @@ pub struct RobotPrompt {
     /// the prompt file's directory. Not part of the rendered prompt.
     #[serde(default)]
     pub tools: Vec<PathBuf>,
+    /// Requests `ferrosa models warm` prepares the prompt cache for (the operators'
+    /// usual first requests). Not part of the rendered prompt.
+    #[serde(default)]
+    pub warm: Vec<String>,
 }
 
 impl RobotPrompt {

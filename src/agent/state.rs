@@ -19,7 +19,7 @@ use super::trace::Trace;
 use crate::backend::Backend;
 use crate::chat::{ChatMessage, Role};
 use crate::decode::envelope::{Envelope, ToolChoice};
-use crate::decode::turn::{render_prompt, with_tools, TurnRequest};
+use crate::decode::turn::{render_prompt, render_prompt_split, with_tools, TurnRequest};
 use crate::decode::{DecodeError, Decoding, Grammars, Session};
 use crate::strategy::choice::{Calibrated, Weighed};
 use crate::strategy::copy::{defaults, CopyBias, CopyIndex, Scoped};
@@ -124,6 +124,13 @@ impl Agent {
         self
     }
 
+    /// Keep the prompts' stable prefixes in `cache`, and start from them (a cold start
+    /// evaluates only what no earlier process did).
+    pub fn with_prompt_cache(mut self, cache: Arc<crate::backend::PromptCache>) -> Agent {
+        self.session = Session::with_cache(cache);
+        self
+    }
+
     /// Use `cancel` as the run's cancel flag (one the front end also sets).
     pub fn with_cancel(mut self, cancel: Arc<AtomicBool>) -> Agent {
         self.cancel = cancel;
@@ -213,6 +220,36 @@ impl Agent {
         names: &[(String, String)],
     ) -> Vec<f64> {
         select::prior(part, &self.retrievable(), names, candidates, ANSWER_TOOL)
+    }
+
+    /// The prompt cache the agent keeps its stable prefixes in, if any.
+    pub fn prompt_cache(&self) -> Option<&Arc<crate::backend::PromptCache>> {
+        self.session.cache()
+    }
+
+    /// Make the prompt cache hold the stable prefix of `query`'s first step (the system
+    /// prompt and the tools `query` is offered), evaluating it if no entry holds it:
+    /// what `ferrosa models warm` does ahead of the first request. Returns how many
+    /// tokens the cache holds of it (whole batches), or None without a prompt cache.
+    pub fn warm(&mut self, query: &str) -> Result<Option<usize>, AgentError> {
+        if self.session.cache().is_none() {
+            return Ok(None);
+        }
+        let offered = self.offered_tools(query);
+        let messages = [
+            ChatMessage::new(Role::System, self.system.clone()),
+            ChatMessage::new(Role::User, query),
+        ];
+        let req = self.request(&messages, &offered, None);
+        let (tokens, stable) =
+            render_prompt_split(self.backend.as_ref(), &with_tools(&req), req.envelope)
+                .map_err(AgentError::Decode)?;
+        self.session.set_stable(&tokens[..stable]);
+        let (_, held) = self
+            .session
+            .prepare(self.backend.as_mut(), &tokens)
+            .map_err(|e| AgentError::Decode(e.into()))?;
+        Ok(Some(held))
     }
 
     /// Prompt tokens of the first step of `query` with these tools and no history.

@@ -10,6 +10,7 @@ use std::num::NonZeroU32;
 use std::sync::{Arc, OnceLock};
 
 use llama_cpp_2::context::params::LlamaContextParams;
+use llama_cpp_2::context::session::LlamaStateSeqFlags;
 use llama_cpp_2::context::LlamaContext;
 use llama_cpp_2::llama_backend::LlamaBackend;
 use llama_cpp_2::llama_batch::LlamaBatch;
@@ -50,6 +51,7 @@ pub struct LlamaCpp {
     batch: LlamaBatch<'static>,
     n_batch: usize,
     n_ctx: usize,
+    threads: usize,
     /// Tokens in the KV cache.
     n_past: usize,
     logits: Vec<f32>,
@@ -124,6 +126,7 @@ impl LlamaCpp {
             batch: LlamaBatch::new(n_batch, 1),
             n_batch,
             n_ctx,
+            threads: threads as usize,
             n_past: 0,
             logits: vec![0.0; vocab.len()],
             vocab,
@@ -248,4 +251,59 @@ impl Backend for LlamaCpp {
         self.logits.copy_from_slice(&out[..n_vocab]);
         Ok(&mut self.logits)
     }
+
+    fn batch_len(&self) -> usize {
+        self.n_batch
+    }
+
+    fn snapshot_key(&self) -> Option<String> {
+        Some(format!(
+            "{NAME} llama-cpp-2 {LLAMA_CPP_2} n_ctx {} n_batch {} threads {} kv f16",
+            self.n_ctx, self.n_batch, self.threads
+        ))
+    }
+
+    fn snapshot(&self) -> Result<Vec<u8>, BackendError> {
+        let flags = LlamaStateSeqFlags::empty();
+        let size = self.ctx.state_seq_get_size_ext(0, flags);
+        let mut out = vec![0u8; size];
+        // SAFETY: `out` holds the size llama.cpp just reported for this sequence.
+        let n = unsafe { self.ctx.state_seq_get_data_ext(out.as_mut_ptr(), 0, flags) };
+        if n != size {
+            return Err(BackendError::Eval {
+                backend: NAME,
+                reason: format!("the cache's snapshot took {n} bytes, not {size}"),
+            });
+        }
+        Ok(out)
+    }
+
+    fn restore(&mut self, snapshot: &[u8], tokens: usize) -> Result<(), BackendError> {
+        let fail = |reason: String| BackendError::Eval {
+            backend: NAME,
+            reason,
+        };
+        if tokens == 0 || tokens > self.n_ctx {
+            return Err(fail(format!("a snapshot of {tokens} tokens does not fit")));
+        }
+        let _ = self.ctx.kv_cache_seq_rm(0, None, None);
+        self.n_past = 0;
+        // SAFETY: llama.cpp reads at most `snapshot.len()` bytes and checks the layout
+        // it reads (layers, cells, types) against this context, failing rather than
+        // reading out of bounds. The caller hands over only bytes a `snapshot` of this
+        // runtime produced under the same key (checked by hash before they come here).
+        let ok = unsafe {
+            self.ctx
+                .state_seq_set_data_ext(snapshot, 0, LlamaStateSeqFlags::empty())
+        };
+        if !ok {
+            let _ = self.ctx.kv_cache_seq_rm(0, None, None);
+            return Err(fail("llama.cpp refused the snapshot".into()));
+        }
+        self.n_past = tokens;
+        Ok(())
+    }
 }
+
+/// The llama-cpp-2 version this binary links (a snapshot's layout is llama.cpp's).
+const LLAMA_CPP_2: &str = "0.1.160";

@@ -11,6 +11,8 @@
 //! - `llama`: llama.cpp through `llama-cpp-2` (feature `llama`, default)
 //! - `candle`: a pure-Rust runtime on candle (feature `candle`)
 //! - `bpe`: a byte-level BPE tokenizer built from GGUF metadata, for runtimes without one
+//! - `session`: what the KV cache holds (`Session`), reused across prompts
+//! - `prompt_cache`: stable prompt prefixes' KV state on disk, for a cold start
 
 pub mod gguf;
 pub mod template;
@@ -23,6 +25,8 @@ pub mod candle;
 pub mod llama;
 mod load;
 mod options;
+pub mod prompt_cache;
+mod session;
 
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -30,6 +34,8 @@ use std::sync::Arc;
 pub use gguf::{Gguf, GgufError};
 pub use load::load;
 pub use options::{physical_cores, BackendKind, LoadOptions};
+pub use prompt_cache::PromptCache;
+pub use session::Session;
 pub use template::{ChatTemplate, Part, Rendered, TemplateError};
 pub use vocab::{Detokenizer, TokenId, Vocab};
 
@@ -88,4 +94,32 @@ pub trait Backend: Send {
     /// Keep the first `keep` cached tokens, evaluate `tokens` after them in batches, and
     /// return the logits of the last one. `tokens` must not be empty.
     fn forward(&mut self, keep: usize, tokens: &[TokenId]) -> Result<&mut [f32], BackendError>;
+    /// Most tokens one evaluation step takes (`forward` cuts longer input into such
+    /// batches, from its first token): what keeps a restored prefix's state the one
+    /// evaluating it gives (`Session::prepare`).
+    fn batch_len(&self) -> usize {
+        usize::MAX
+    }
+    /// What, besides the weights and the tokens, decides the bytes of a `snapshot`
+    /// (runtime and its version, context and batch sizes, threads): part of a
+    /// persistent prompt cache's key. None when this runtime cannot snapshot its cache.
+    fn snapshot_key(&self) -> Option<String> {
+        None
+    }
+    /// The KV cache's contents (every cached token), as bytes `restore` takes back.
+    fn snapshot(&self) -> Result<Vec<u8>, BackendError> {
+        Err(BackendError::Eval {
+            backend: self.name(),
+            reason: "this runtime cannot snapshot its cache".into(),
+        })
+    }
+    /// Replace the KV cache with a `snapshot` of `tokens` cached tokens, made by this
+    /// runtime under the same `snapshot_key`. On error the cache is empty.
+    fn restore(&mut self, snapshot: &[u8], tokens: usize) -> Result<(), BackendError> {
+        let _ = (snapshot, tokens);
+        Err(BackendError::Eval {
+            backend: self.name(),
+            reason: "this runtime cannot restore a cache".into(),
+        })
+    }
 }

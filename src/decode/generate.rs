@@ -15,7 +15,7 @@ use std::time::{Duration, Instant};
 use super::close;
 use super::hook::{LogitsHook, TokenContext};
 use super::{Constraint, DecodeError, Finish, Sampler};
-use crate::backend::{Backend, BackendError, TokenId, Vocab};
+use crate::backend::{Backend, BackendError, Session, TokenId, Vocab};
 use crate::json::JsonScan;
 
 #[derive(Debug, Clone, Default)]
@@ -76,49 +76,6 @@ pub fn prompt_tokens(
     let skip = usize::from(!prompt.is_empty() && body.first() == prompt.first());
     prompt.extend_from_slice(&body[skip..]);
     Ok(prompt)
-}
-
-/// The token sequence the backend's KV cache holds.
-#[derive(Debug, Default, Clone)]
-pub struct Session {
-    tokens: Vec<TokenId>,
-}
-
-impl Session {
-    pub fn new() -> Session {
-        Session::default()
-    }
-
-    pub fn tokens(&self) -> &[TokenId] {
-        &self.tokens
-    }
-
-    /// The cache now holds only the first `n` tokens it held.
-    pub fn truncate(&mut self, n: usize) {
-        self.tokens.truncate(n);
-    }
-
-    /// The cache now also holds `tokens`, after what it held.
-    pub fn extend(&mut self, tokens: &[TokenId]) {
-        self.tokens.extend_from_slice(tokens);
-    }
-
-    /// Forget the cache contents (the next prompt is evaluated in full).
-    pub fn clear(&mut self) {
-        self.tokens.clear();
-    }
-
-    /// How many leading tokens of `prompt` are cached, leaving at least one to evaluate
-    /// (the backend returns logits only for tokens it evaluates).
-    pub fn reusable(&self, prompt: &[TokenId]) -> usize {
-        let common = self
-            .tokens
-            .iter()
-            .zip(prompt)
-            .take_while(|(a, b)| a == b)
-            .count();
-        common.min(prompt.len().saturating_sub(1))
-    }
 }
 
 /// What steers a generation besides the model: the sampler, the grammar (if any), the
@@ -265,7 +222,7 @@ pub fn generate(
         if stats.generated_tokens >= hard_limit || (stats.generated_tokens >= max_tokens && !open) {
             break Finish::Length;
         }
-        if session.tokens.len() + pending.len() > backend.context_len() {
+        if session.tokens().len() + pending.len() > backend.context_len() {
             break Finish::ContextFull;
         }
         logits = forward(backend, session, &pending)?;
@@ -323,17 +280,15 @@ fn prefill<'b>(
         }));
     }
     let start = Instant::now();
-    let keep = session.reusable(prompt);
+    let (reused, keep) = session.prepare(backend, prompt)?;
     let mut stats = GenerationStats {
         prompt_tokens: prompt.len(),
-        reused_tokens: keep,
+        reused_tokens: reused,
         ..Default::default()
     };
-    session.tokens.truncate(keep);
+    session.truncate(keep);
     // Room for every token this call can add, so the per-token loop never reallocates.
-    session
-        .tokens
-        .reserve((prompt.len() - keep + limit).min(backend.context_len()));
+    session.reserve((prompt.len() - keep + limit).min(backend.context_len()));
     let mut batch: Vec<TokenId> = prompt[keep..].to_vec();
     let mut forced = Vec::new();
     if let Some(c) = constraint {
@@ -348,7 +303,7 @@ fn prefill<'b>(
         stats.generated_tokens += forced.len();
         batch.extend_from_slice(&forced);
     }
-    session.tokens.truncate(keep);
+    session.truncate(keep);
     let logits = forward(backend, session, &batch)?;
     stats.prompt_time = start.elapsed();
     Ok((logits, forced, stats))
@@ -361,9 +316,9 @@ fn forward<'b>(
     session: &mut Session,
     tokens: &[TokenId],
 ) -> Result<&'b mut [f32], DecodeError> {
-    match backend.forward(session.tokens.len(), tokens) {
+    match backend.forward(session.tokens().len(), tokens) {
         Ok(l) => {
-            session.tokens.extend_from_slice(tokens);
+            session.extend(tokens);
             Ok(l)
         }
         Err(e) => {
@@ -377,21 +332,5 @@ fn forward<'b>(
 fn push_text(scan: &mut JsonScan, vocab: &Vocab, tok: TokenId) {
     if vocab.kind(tok) != crate::backend::vocab::TokenKind::Control {
         scan.push(vocab.piece(tok));
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn reusable_prefix_leaves_one_token_to_evaluate() {
-        let s = Session {
-            tokens: vec![1, 2, 3, 4],
-        };
-        assert_eq!(s.reusable(&[1, 2, 3, 4, 5]), 4);
-        assert_eq!(s.reusable(&[1, 2, 3, 4]), 3);
-        assert_eq!(s.reusable(&[1, 9]), 1);
-        assert_eq!(s.reusable(&[7]), 0);
     }
 }

@@ -5,7 +5,7 @@
 //! grammars) but nothing of tool execution, strategies or ROS.
 //!
 //! Layout:
-//! - `generate`: the loop (prefill, hook, grammar, sample, forced tokens) and `Session`
+//! - `generate`: the loop (prefill, hook, grammar, sample, forced tokens)
 //! - `hook`: the logits-hook seam
 //! - `close`: the steer to a complete call at the token limit
 //! - `sample`: greedy / temperature, top-k, top-p sampling with a seeded generator
@@ -23,10 +23,11 @@ pub mod sample;
 mod trie;
 pub mod turn;
 
+pub use crate::backend::{PromptCache, Session};
 pub use crate::json::JsonScan;
 pub use constraint::{Constraint, ConstraintError, Grammars};
 pub use envelope::{Envelope, ToolChoice, Turn};
-pub use generate::{generate, prompt_tokens, GenerationStats, Session, Steering};
+pub use generate::{generate, prompt_tokens, GenerationStats, Steering};
 pub use hook::{LogitsHook, NoHook, TokenContext};
 pub use sample::{Sampler, SamplerConfig};
 

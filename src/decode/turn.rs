@@ -92,10 +92,25 @@ pub fn render_prompt(
     messages: &[ChatMessage],
     envelope: Envelope,
 ) -> Result<Vec<TokenId>, DecodeError> {
+    Ok(render_prompt_split(backend, messages, envelope)?.0)
+}
+
+/// As `render_prompt`, with how many leading tokens come before any content but the
+/// system message's (the prefix a prompt cache may keep: it does not depend on the
+/// conversation).
+pub fn render_prompt_split(
+    backend: &dyn Backend,
+    messages: &[ChatMessage],
+    envelope: Envelope,
+) -> Result<(Vec<TokenId>, usize), DecodeError> {
     let rendered = backend.chat_template().render_parts(messages, true)?;
     let mut tokens: Vec<TokenId> = backend.vocab().bos().into_iter().collect();
     let bos_len = tokens.len();
+    let mut stable = None;
     for part in &rendered.parts {
+        if matches!(part, Part::Content { role, .. } if *role != Role::System) {
+            stable.get_or_insert(tokens.len());
+        }
         match part {
             Part::Markup(text) => tokens.extend(backend.tokenize(text, true)?),
             Part::Content { role, text } => match role {
@@ -114,11 +129,15 @@ pub fn render_prompt(
         }
     }
     // A template that writes BOS itself: keep one.
+    let mut stable = stable.unwrap_or(0);
     if bos_len == 1 && tokens.get(1) == tokens.first() {
         tokens.remove(1);
+        if stable > 1 {
+            stable -= 1;
+        }
     }
     tracing::debug!(target: "ferrosa::prompt", "{}", rendered.text());
-    Ok(tokens)
+    Ok((tokens, stable))
 }
 
 /// Where to stop decoding.
@@ -147,6 +166,8 @@ impl Mark {
 /// A turn in progress (see the module header).
 pub struct TurnDecoder {
     prompt: Vec<TokenId>,
+    /// Leading tokens of the prompt that do not depend on the conversation.
+    stable: usize,
     constraint: Option<Constraint>,
     written: Vec<TokenId>,
     scan: JsonScan,
@@ -165,7 +186,7 @@ impl TurnDecoder {
         grammars: &Grammars,
         req: &TurnRequest,
     ) -> Result<TurnDecoder, DecodeError> {
-        let prompt = render_prompt(backend, &with_tools(req), req.envelope)?;
+        let (prompt, stable) = render_prompt_split(backend, &with_tools(req), req.envelope)?;
         let mut constraint = match req.grammar() {
             Some(lark) => Some(grammars.compile(&lark)?),
             None => None,
@@ -176,6 +197,7 @@ impl TurnDecoder {
                 ..GenerationStats::default()
             },
             prompt,
+            stable,
             constraint: None,
             written: Vec::new(),
             scan: JsonScan::new(),
@@ -194,6 +216,11 @@ impl TurnDecoder {
 
     pub fn prompt(&self) -> &[TokenId] {
         &self.prompt
+    }
+
+    /// The prompt's leading tokens that do not depend on the conversation.
+    pub fn stable_prefix(&self) -> &[TokenId] {
+        &self.prompt[..self.stable]
     }
 
     /// The turn's tokens so far.
@@ -326,6 +353,7 @@ impl TurnDecoder {
         let budget = self.max_tokens.saturating_sub(self.written.len());
         let mut full = self.prompt.clone();
         full.extend_from_slice(&self.written);
+        session.set_stable(self.stable_prefix());
         let start_len = self.scan.text().len();
         let calls_before = self.scan.closed_call_spans().len();
         let mut new_tokens = Vec::new();

@@ -34,11 +34,18 @@ pub enum ModelError {
     Fetch(#[from] fetch::FetchError),
 }
 
-/// Where weights live: `$FERROSA_MODELS_DIR`, else `models/` in the working directory.
+/// Where weights live: `$FERROSA_MODELS_DIR`; else `models/` in the working directory
+/// when it holds a catalog (a checkout of ferrosa); else the platform's data directory
+/// (`~/.local/share/ferrosa/models`, see `dirs`); else `models/`.
 pub fn models_dir() -> PathBuf {
-    std::env::var_os(MODELS_DIR_ENV)
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from("models"))
+    if let Some(dir) = std::env::var_os(MODELS_DIR_ENV).filter(|d| !d.is_empty()) {
+        return PathBuf::from(dir);
+    }
+    let here = PathBuf::from("models");
+    if here.join("catalog.toml").is_file() {
+        return here;
+    }
+    crate::dirs::data_dir().map_or(here, |d| d.join("models"))
 }
 
 /// A model ready to load: its file, and its catalog entry when it came from the catalog.
@@ -52,6 +59,15 @@ impl ResolvedModel {
     /// The family from the catalog, else guessed from the GGUF architecture by the caller.
     pub fn family(&self) -> Option<&str> {
         self.entry.as_ref().map(|e| e.family.as_str())
+    }
+
+    /// The file's sha256: the catalog's (checked by `resolve`), else computed once and
+    /// remembered beside the file by its size and modification time.
+    pub fn sha256(&self) -> std::io::Result<String> {
+        match &self.entry {
+            Some(e) => Ok(e.sha256.to_ascii_lowercase()),
+            None => verify::sha256_remembered(&self.path),
+        }
     }
 }
 

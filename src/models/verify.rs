@@ -77,6 +77,21 @@ pub fn remember(path: &Path, sha: &str) {
 }
 
 /// Check `path` against the catalog entry, hashing only if it changed since the last check.
+/// The sha256 of `path`, read from its stamp when the file's size and modification
+/// time still match it, else computed (and the stamp written, where it can be).
+pub fn sha256_remembered(path: &Path) -> std::io::Result<String> {
+    if let Ok(stamp) = std::fs::read_to_string(stamp_path(path)) {
+        if let Some(sha) = stamp.split(' ').next() {
+            if fingerprint(path, sha)? == stamp {
+                return Ok(sha.to_string());
+            }
+        }
+    }
+    let sha = sha256_file(path, |_| {})?;
+    remember(path, &sha);
+    Ok(sha)
+}
+
 pub fn check(entry: &Entry, path: &Path) -> Result<(), VerifyError> {
     let io = |source| VerifyError::Io {
         path: path.to_path_buf(),

@@ -16,7 +16,7 @@ pub fn continuation_logprobs(
     context: &[TokenId],
     continuations: &[Vec<TokenId>],
 ) -> Result<Vec<f64>, BackendError> {
-    let keep = session.reusable(context);
+    let (_, keep) = session.prepare(backend, context)?;
     session.truncate(keep);
     let root = log_softmax(backend.forward(keep, &context[keep..])?);
     session.extend(&context[keep..]);

@@ -39,6 +39,7 @@ pub fn run(
     on_text: &mut dyn FnMut(&str) -> ControlFlow<()>,
 ) -> Result<TurnResult, DecodeError> {
     let mut turn = TurnDecoder::new(engine.backend, engine.grammars, req)?;
+    engine.session.set_stable(turn.stable_prefix());
     let gate = if pipeline.decides() {
         Gate::prepare(engine.backend, &mut turn, req, fallback)?
     } else {

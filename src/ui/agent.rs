@@ -90,13 +90,7 @@ pub fn tools_and_policy(
     if !args.log_dirs.is_empty() {
         registry.add(crate::tools::logs(args.log_dirs.clone()));
     }
-    let prompt = match &args.prompt {
-        Some(p) => RobotPrompt::load(p)?,
-        None if args.robot.is_sim() => {
-            RobotPrompt::parse(TURTLESIM_PROMPT, "prompts/turtlesim.toml")?
-        }
-        None => RobotPrompt::default_robot(),
-    };
+    let prompt = robot_prompt(args)?;
     let files: Vec<PathBuf> = prompt.tools.iter().chain(&args.tools).cloned().collect();
     match graph {
         Some(raw) => {
@@ -120,6 +114,70 @@ pub fn tools_and_policy(
         None => {}
     }
     Ok((registry, policy, prompt))
+}
+
+/// The robot's prompt file: `--prompt`, else the sim's or the default robot's.
+fn robot_prompt(args: &AgentArgs) -> anyhow::Result<RobotPrompt> {
+    Ok(match &args.prompt {
+        Some(p) => RobotPrompt::load(p)?,
+        None if args.robot.is_sim() => {
+            RobotPrompt::parse(TURTLESIM_PROMPT, "prompts/turtlesim.toml")?
+        }
+        None => RobotPrompt::default_robot(),
+    })
+}
+
+/// `ferrosa models warm`: fill the prompt cache with the stable prefix of each of
+/// `requests` (default: the robot prompt's `warm` list), exactly as `ask` and `chat`
+/// with the same options will render it, so their first request starts warm.
+pub fn warm(args: &AgentArgs, requests: &[String]) -> anyhow::Result<()> {
+    let listed = robot_prompt(args)?.warm;
+    let requests = if requests.is_empty() {
+        &listed
+    } else {
+        requests
+    };
+    anyhow::ensure!(
+        !requests.is_empty(),
+        "nothing to warm: name the requests (ferrosa models warm --robot sim \"list the ROS nodes\"), or list them under `warm` in the robot prompt file"
+    );
+    anyhow::ensure!(
+        args.model.prompt_cache,
+        "the prompt cache is off (--prompt-cache off or FERROSA_PROMPT_CACHE=off): nothing to warm"
+    );
+    let robot = connect(args.robot, false)?;
+    let mut agent = build_with(
+        args,
+        Arc::new(NoOperator),
+        robot.graph.clone(),
+        EStop::new(),
+    )?;
+    for q in requests {
+        let t = std::time::Instant::now();
+        match agent.warm(q)? {
+            Some(n) => println!("{n:>6} tokens  {:>6.0} ms  {q}", t.elapsed().as_secs_f64() * 1e3),
+            None => anyhow::bail!(
+                "no prompt cache: the {} runtime cannot keep one, or this machine has no cache directory (set FERROSA_CACHE_DIR)",
+                agent.backend().name()
+            ),
+        }
+    }
+    if let Some(cache) = agent.prompt_cache() {
+        cache.flush();
+        let entries = cache.entries();
+        let bytes: u64 = entries
+            .iter()
+            .filter_map(|(p, _)| std::fs::metadata(p).ok())
+            .map(|m| m.len())
+            .sum();
+        println!(
+            "prompt cache: {} ({} entries of this model and these settings, {:.0} MiB)",
+            cache.dir().display(),
+            entries.len(),
+            bytes as f64 / f64::from(1 << 20)
+        );
+    }
+    Ok(())
 }
 
 /// The robot joined, and its tools and policy over it, the fence set on the graph: what
@@ -197,7 +255,11 @@ pub fn build_with(
     config.copy_bias = args.copy_bias;
     config.pick = args.pick;
     config.language = args.language;
+    let cache = args.model.prompt_cache(&resolved, model.as_ref());
     let mut agent = Agent::new(model, registry, policy, prompt.render(), config)?;
+    if let Some(cache) = cache {
+        agent = agent.with_prompt_cache(cache);
+    }
     if let Some(g) = graph {
         let fence = agent.fence().clone();
         agent = agent.with_names(robot_names(g, fence));

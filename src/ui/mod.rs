@@ -23,6 +23,7 @@ pub mod term;
 
 use std::future::Future;
 use std::path::PathBuf;
+use std::sync::Arc;
 
 use crate::backend::{self, Backend, BackendKind, LoadOptions};
 use crate::models::ResolvedModel;
@@ -35,6 +36,8 @@ pub struct ModelArgs {
     pub backend: BackendKind,
     pub threads: Option<usize>,
     pub max_context: usize,
+    /// Keep and reuse stable prompt prefixes on disk (`backend::prompt_cache`).
+    pub prompt_cache: bool,
 }
 
 impl ModelArgs {
@@ -49,6 +52,33 @@ impl ModelArgs {
         }
         let model = backend::load(self.backend, &opts)?;
         Ok((resolved, opts, model))
+    }
+
+    /// The prompt cache of `model` (loaded from `resolved`), unless it is off, the
+    /// runtime cannot snapshot its cache or this machine has no cache directory.
+    pub fn prompt_cache(
+        &self,
+        resolved: &ResolvedModel,
+        model: &dyn Backend,
+    ) -> Option<Arc<crate::backend::PromptCache>> {
+        if !self.prompt_cache {
+            return None;
+        }
+        let dir = crate::dirs::prompt_cache_dir()?;
+        let sha = match resolved.sha256() {
+            Ok(sha) => sha,
+            Err(e) => {
+                tracing::warn!(path = %resolved.path.display(), "no prompt cache: cannot hash the model: {e}");
+                return None;
+            }
+        };
+        let max = std::env::var("FERROSA_PROMPT_CACHE_MB")
+            .ok()
+            .and_then(|v| v.parse::<u64>().ok())
+            .map_or(crate::backend::prompt_cache::DEFAULT_MAX_BYTES, |mb| {
+                mb << 20
+            });
+        crate::backend::PromptCache::open(&dir, &sha, model, max).map(Arc::new)
     }
 }
 
