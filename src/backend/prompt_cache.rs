@@ -126,11 +126,6 @@ impl PromptCache {
         &self.shared.dir
     }
 
-    /// The key every entry of this cache carries.
-    pub fn key(&self) -> &str {
-        &self.shared.key
-    }
-
     /// The entries of this key, as the token counts they hold.
     pub fn entries(&self) -> Vec<(PathBuf, usize)> {
         self.shared
