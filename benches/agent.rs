@@ -16,6 +16,12 @@
 //!    the history, the trace of prompts and the KV cache use as any turn does, while the
 //!    tool paths are exercised by part 1.
 //!
+//! 4. The remote engine (when llama-server is built: `scripts/build-llama-cpp.sh
+//!    llama-server`, or `LLAMA_SERVER`): the same requests with the same model on a
+//!    llama-server on loopback with as many threads, against part 1's in-process figures,
+//!    per turn; and what the remote path adds to each completion: its wall time here less
+//!    the server's own prompt and generation time.
+//!
 //! The sim speaks DDS, so the bench re-runs itself in a network namespace with only
 //! loopback (`unshare -n`, as root), under a time limit. Settings: FERROSA_BENCH_RUNS (3),
 //! FERROSA_BENCH_TURNS (40), FERROSA_BENCH_THREADS (physical cores). Output: markdown on
@@ -29,6 +35,8 @@ mod header;
 use std::path::PathBuf;
 use std::sync::Arc;
 
+#[path = "../tests/support/llama_server.rs"]
+mod llama_server;
 #[path = "../tests/support/netns.rs"]
 mod netns;
 
@@ -41,7 +49,7 @@ use header::Spread;
 use serde::Serialize;
 
 /// The whole bench, inside the namespace, must end within this.
-const LIMIT_S: u32 = 900;
+const LIMIT_S: u32 = 1500;
 
 /// What an operator asks a turtle robot: listing, pose, topics, status, motion.
 const REQUESTS: [&str; 5] = [
@@ -70,10 +78,37 @@ struct RequestRow {
     total_ms: Spread,
     first_token_ms: Spread,
     model_ms: Spread,
+    /// The model's time per turn (a turn: the model writing one step's calls or answer).
+    turn_ms: Spread,
+    turns: Spread,
     tools_ms: Spread,
     steps: Spread,
     tools: Vec<String>,
     answer: String,
+}
+
+/// One request `runs` times after `/clear`, as a row.
+fn request_row(agent: &mut ferrosa::agent::Agent, q: &str, runs: usize) -> RequestRow {
+    let mut results = Vec::new();
+    for _ in 0..runs {
+        agent.clear();
+        results.push(agent.ask(q, &mut |_| {}).expect("the agent runs"));
+    }
+    let spread = |f: &dyn Fn(&RunResult) -> f64| Spread::of(results.iter().map(f).collect());
+    let turns = |r: &RunResult| r.timings.prompt_tokens.len().max(1) as f64;
+    let last = results.last().expect("runs ≥ 1");
+    RequestRow {
+        request: q.to_string(),
+        total_ms: spread(&|r| r.timings.total_ms),
+        first_token_ms: spread(&|r| r.timings.first_token_ms.unwrap_or(0.0)),
+        model_ms: spread(&|r| r.timings.model_ms),
+        turn_ms: spread(&|r| r.timings.model_ms / turns(r)),
+        turns: spread(&turns),
+        tools_ms: spread(&|r| r.timings.tools_ms),
+        steps: spread(&|r| r.steps.len() as f64),
+        tools: last.steps.iter().map(|s| s.name.clone()).collect(),
+        answer: last.answer.clone(),
+    }
 }
 
 #[derive(Debug, Serialize)]
@@ -109,6 +144,7 @@ fn main() {
             threads: Some(threads),
             max_context: 8192,
             prompt_cache: false,
+            remote: None,
         },
         yes: true,
         read_only: false,
@@ -156,26 +192,10 @@ fn main() {
 
     // 1. Latency.
     let first = ask(&mut agent, REQUESTS[0]);
-    let mut rows = Vec::new();
-    for q in REQUESTS {
-        let mut results = Vec::new();
-        for _ in 0..runs {
-            agent.clear();
-            results.push(ask(&mut agent, q));
-        }
-        let spread = |f: &dyn Fn(&RunResult) -> f64| Spread::of(results.iter().map(f).collect());
-        let last = results.last().expect("runs ≥ 1");
-        rows.push(RequestRow {
-            request: q.to_string(),
-            total_ms: spread(&|r| r.timings.total_ms),
-            first_token_ms: spread(&|r| r.timings.first_token_ms.unwrap_or(0.0)),
-            model_ms: spread(&|r| r.timings.model_ms),
-            tools_ms: spread(&|r| r.timings.tools_ms),
-            steps: spread(&|r| r.steps.len() as f64),
-            tools: last.steps.iter().map(|s| s.name.clone()).collect(),
-            answer: last.answer.clone(),
-        });
-    }
+    let rows: Vec<RequestRow> = REQUESTS
+        .iter()
+        .map(|q| request_row(&mut agent, q, runs))
+        .collect();
     let f = |s: &Spread| format!("{:.0} / **{:.0}** / {:.0}", s.min, s.median, s.max);
     println!("## Requests against the sim (ms, min / **median** / max over {runs}, after /clear)");
     println!();
@@ -279,10 +299,28 @@ fn main() {
     );
     println!();
 
+    // 4. The remote engine, on a llama-server with the same model.
+    drop(agent);
+    let remote = match llama_server::binary() {
+        Some(bin) => Some(remote_engine(
+            &args,
+            graph.clone(),
+            &bin,
+            threads,
+            runs,
+            &rows,
+        )),
+        None => {
+            println!("## Remote engine: skipped (no llama-server: scripts/build-llama-cpp.sh llama-server, or LLAMA_SERVER)");
+            println!();
+            None
+        }
+    };
+
     let out = root.join("target").join("bench");
     let _ = std::fs::create_dir_all(&out);
     let file = out.join("agent.json");
-    let json = serde_json::json!({"requests": rows, "memory": memory, "first": first.timings, "cold_start": cold});
+    let json = serde_json::json!({"requests": rows, "memory": memory, "first": first.timings, "cold_start": cold, "remote": remote});
     std::fs::write(&file, serde_json::to_string_pretty(&json).expect("json")).expect("write json");
     let mut latency = chart::Bars::new("ms (median)", &["total", "first token", "tools"]);
     for r in &rows {
@@ -401,6 +439,95 @@ fn cold_start(
         });
     }
     rows
+}
+
+#[derive(Debug, Serialize)]
+struct RemoteReport {
+    engine: String,
+    requests: Vec<RequestRow>,
+    /// Per completion: wall time here less the server's own time (ms).
+    overhead_ms: Spread,
+    completions: usize,
+}
+
+/// Part 4: the requests through a llama-server running the same model with `threads`
+/// threads, printed beside `local` (part 1).
+fn remote_engine(
+    args: &AgentArgs,
+    graph: Option<Arc<dyn ferrosa::ros::RosGraph>>,
+    bin: &std::path::Path,
+    threads: usize,
+    runs: usize,
+    local: &[RequestRow],
+) -> RemoteReport {
+    let model = ferrosa::models::resolve(None, &args.model.models_dir)
+        .expect("default model")
+        .path;
+    let server = llama_server::Server::start(bin, &model, threads, 8192);
+    let mut a = args.clone();
+    a.model.remote = Some(ferrosa::remote::RemoteOptions {
+        url: server.url.clone(),
+        api_key_env: None,
+        model: None,
+        grammar: ferrosa::remote::GrammarMode::Auto,
+        timeout: std::time::Duration::from_secs(120),
+    });
+    let mut agent = build_with(&a, Arc::new(Yes), graph, ferrosa::estop::EStop::new())
+        .expect("build the agent on the server");
+    let engine = agent.engine();
+    // As part 1: the first request fills the server's cache with the system prompt.
+    agent.ask(REQUESTS[0], &mut |_| {}).expect("the agent runs");
+    let skip = agent.remote().map_or(0, |r| r.times().len());
+    let rows: Vec<RequestRow> = REQUESTS
+        .iter()
+        .map(|q| request_row(&mut agent, q, runs))
+        .collect();
+    let times = agent
+        .remote()
+        .map(|r| r.times()[skip..].to_vec())
+        .unwrap_or_default();
+    let overhead: Vec<f64> = times
+        .iter()
+        .filter_map(|t| Some((t.wall.saturating_sub(t.server?)).as_secs_f64() * 1e3))
+        .collect();
+    let f = |s: &Spread| format!("{:.0} / **{:.0}** / {:.0}", s.min, s.median, s.max);
+    println!("## Remote engine: the same requests, the model on llama-server ({engine}), {threads} threads, loopback");
+    println!();
+    println!("Model time per turn, ms, min / **median** / max over {runs} (a turn: the model writing one step's calls or answer; the remote engine has no weighed pick or copy bias, so its turns and calls can differ):");
+    println!();
+    println!("| request | in-process per turn | turns | remote per turn | turns | remote first token | remote calls (last run) | remote answer (last run) |");
+    println!("|---|---|---|---|---|---|---|---|");
+    for (l, r) in local.iter().zip(&rows) {
+        println!(
+            "| {} | {} | {:.0}–{:.0} | {} | {:.0}–{:.0} | {} | {} | {} |",
+            r.request,
+            f(&l.turn_ms),
+            l.turns.min,
+            l.turns.max,
+            f(&r.turn_ms),
+            r.turns.min,
+            r.turns.max,
+            f(&r.first_token_ms),
+            r.tools.join(" → "),
+            r.answer.replace('|', "\\|"),
+        );
+    }
+    let overhead_ms = Spread::of(overhead.clone());
+    println!();
+    println!(
+        "What the remote path adds per completion (wall time here less the server's own prompt and generation time), ms over {} completions: {}",
+        overhead.len(),
+        f(&overhead_ms)
+    );
+    println!();
+    drop(agent);
+    drop(server);
+    RemoteReport {
+        engine,
+        requests: rows,
+        overhead_ms,
+        completions: overhead.len(),
+    }
 }
 
 /// Run this bench again inside a network namespace with only loopback, under a limit.

@@ -22,6 +22,8 @@
 //!   constraints, tool-call envelopes, the turn, and the logits-hook seam
 //! - `strategy`: tool-calling strategies behind one trait (calibrated choice, copy bias,
 //!   guards, call verification, grounding, declared defaults) and the turn driver
+//! - `remote`: the remote engine (a model served over OpenAI's completions API writes
+//!   the turns, under the envelope's grammar)
 //! - `ros`: ROS access behind the `RosGraph` trait (ROS 2, the sim robot, a fake)
 //! - `tools`: the concrete tools (ROS, the sim turtle, calculation, system, logs,
 //!   declared TOML tools)
@@ -44,6 +46,7 @@ pub mod lexicon;
 pub mod limits;
 pub mod metrics;
 pub mod models;
+pub mod remote;
 pub mod ros;
 pub mod strategy;
 pub mod tool;

@@ -35,8 +35,68 @@ struct Cli {
         default_value_t = Switch::On
     )]
     prompt_cache: Switch,
+    /// Where the model runs: local (in this process) or openai (a server with OpenAI's
+    /// completions API, e.g. llama-server or vLLM, at --url; the model file given with
+    /// --model is read here for its vocabulary and chat template only).
+    #[arg(long, global = true, env = "FERROSA_ENGINE", value_enum, default_value_t = EngineArg::Local)]
+    engine: EngineArg,
+    /// The model server's address for --engine openai: http://HOST:PORT.
+    #[arg(long, global = true, env = "FERROSA_ENGINE_URL")]
+    url: Option<String>,
+    /// The environment variable holding the server's API key (sent as a bearer token).
+    #[arg(long, global = true)]
+    api_key_env: Option<String>,
+    /// The model name sent to the server (default: the first it lists).
+    #[arg(long, global = true)]
+    remote_model: Option<String>,
+    /// The grammar form sent to the server: auto (Lark if it takes it, else JSON
+    /// schema), lark (servers built with llguidance) or json-schema.
+    #[arg(long, global = true, value_enum, default_value_t = GrammarArg::Auto)]
+    grammar: GrammarArg,
+    /// Seconds to wait for the server: to connect, to start answering, between pieces.
+    #[arg(long, global = true, default_value_t = 120)]
+    remote_timeout: u64,
     #[command(subcommand)]
     command: Command,
+}
+
+#[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum EngineArg {
+    Local,
+    Openai,
+}
+
+#[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum GrammarArg {
+    Auto,
+    Lark,
+    JsonSchema,
+}
+
+impl Cli {
+    /// The remote engine's options, or why the flags do not make one.
+    fn remote(&self) -> anyhow::Result<Option<ferrosa::remote::RemoteOptions>> {
+        match (self.engine, &self.url) {
+            (EngineArg::Local, None) => Ok(None),
+            (EngineArg::Local, Some(_)) => {
+                anyhow::bail!("--url is the model server's address: add --engine openai to use it")
+            }
+            (EngineArg::Openai, None) => anyhow::bail!(
+                "--engine openai needs the server's address: --url http://HOST:PORT (e.g. a llama-server started with --host 127.0.0.1 --port 8080)"
+            ),
+            (EngineArg::Openai, Some(url)) => Ok(Some(ferrosa::remote::RemoteOptions {
+                url: url.clone(),
+                api_key_env: self.api_key_env.clone(),
+                model: self.remote_model.clone(),
+                grammar: match self.grammar {
+                    GrammarArg::Auto => ferrosa::remote::GrammarMode::Auto,
+                    GrammarArg::Lark => ferrosa::remote::GrammarMode::Lark,
+                    GrammarArg::JsonSchema => ferrosa::remote::GrammarMode::JsonSchema,
+                },
+                timeout: std::time::Duration::from_secs(self.remote_timeout.max(1)),
+            })),
+        }
+    }
 }
 
 /// On or off.
@@ -232,7 +292,12 @@ fn parse_language(text: &str) -> Result<LanguageArg, String> {
 }
 
 impl AgentOpts {
-    fn into_args(self, models_dir: PathBuf, cli_prompt_cache: bool) -> ui::agent::AgentArgs {
+    fn into_args(
+        self,
+        models_dir: PathBuf,
+        cli_prompt_cache: bool,
+        remote: Option<ferrosa::remote::RemoteOptions>,
+    ) -> ui::agent::AgentArgs {
         ui::agent::AgentArgs {
             model: ui::ModelArgs {
                 models_dir,
@@ -241,6 +306,7 @@ impl AgentOpts {
                 threads: self.threads,
                 max_context: self.max_context,
                 prompt_cache: cli_prompt_cache,
+                remote,
             },
             yes: self.yes,
             read_only: self.read_only,
@@ -397,6 +463,13 @@ fn main() -> ExitCode {
         .clone()
         .unwrap_or_else(ferrosa::models::models_dir);
     let cli_prompt_cache = cli.prompt_cache == Switch::On;
+    let remote = match cli.remote() {
+        Ok(r) => r,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            return ExitCode::FAILURE;
+        }
+    };
     let result = match cli.command {
         Command::Generate {
             model,
@@ -425,6 +498,7 @@ fn main() -> ExitCode {
                 threads,
                 max_context,
                 prompt_cache: cli_prompt_cache,
+                remote: remote.clone(),
             },
             prompt,
             system,
@@ -443,21 +517,29 @@ fn main() -> ExitCode {
             envelope: envelope.map(Into::into),
             parallel: !single_call,
         }),
-        Command::Ask { query, json, agent } => {
-            ui::agent::ask(&agent.into_args(dir, cli_prompt_cache), &query, json)
+        Command::Ask { query, json, agent } => ui::agent::ask(
+            &agent.into_args(dir, cli_prompt_cache, remote.clone()),
+            &query,
+            json,
+        ),
+        Command::Chat { agent } => {
+            ui::agent::chat(&agent.into_args(dir, cli_prompt_cache, remote.clone()))
         }
-        Command::Chat { agent } => ui::agent::chat(&agent.into_args(dir, cli_prompt_cache)),
         Command::Call {
             name,
             arguments,
             agent,
-        } => ui::call::run(&agent.into_args(dir, cli_prompt_cache), &name, &arguments),
+        } => ui::call::run(
+            &agent.into_args(dir, cli_prompt_cache, remote.clone()),
+            &name,
+            &arguments,
+        ),
         Command::Mcp { http, agent } => ui::mcp::run(&ui::mcp::McpArgs {
-            agent: agent.into_args(dir, cli_prompt_cache),
+            agent: agent.into_args(dir, cli_prompt_cache, remote.clone()),
             http,
         }),
         Command::Demo { agent } => {
-            let mut args = agent.into_args(dir, cli_prompt_cache);
+            let mut args = agent.into_args(dir, cli_prompt_cache, remote.clone());
             if args.robot == ui::agent::Robot::None {
                 args.robot = ui::agent::Robot::Sim;
             }
@@ -492,6 +574,7 @@ fn main() -> ExitCode {
                     threads,
                     max_context: 8192,
                     prompt_cache: cli_prompt_cache,
+                    remote: remote.clone(),
                 },
                 yes: false,
                 read_only: false,
@@ -540,6 +623,7 @@ fn main() -> ExitCode {
                 threads,
                 max_context: 4096,
                 prompt_cache: cli_prompt_cache,
+                remote: remote.clone(),
             },
             paths,
             decoding,
@@ -574,9 +658,10 @@ fn main() -> ExitCode {
                 },
             ),
             ModelsCommand::Verify { names } => ui::models::verify(&dir, &names),
-            ModelsCommand::Warm { requests, agent } => {
-                ui::agent::warm(&agent.into_args(dir, cli_prompt_cache), &requests)
-            }
+            ModelsCommand::Warm { requests, agent } => ui::agent::warm(
+                &agent.into_args(dir, cli_prompt_cache, remote.clone()),
+                &requests,
+            ),
         },
     };
     match result {

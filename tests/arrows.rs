@@ -27,9 +27,12 @@ const ALLOWED: &[(&str, &[&str])] = &[
     ("models", &["backend", "metrics", "dirs"]),
     ("tool", &["chat", "lexicon", "estop", "fence", "limits"]),
     ("decode", &["backend", "tool", "chat", "lexicon", "json"]),
+    ("remote", &["decode", "backend", "tool", "chat", "json"]),
     (
         "strategy",
-        &["decode", "backend", "tool", "chat", "lexicon", "json"],
+        &[
+            "decode", "backend", "tool", "chat", "lexicon", "json", "remote",
+        ],
     ),
     ("ros", &["lexicon", "clock", "estop", "fence", "limits"]),
     (
@@ -42,13 +45,14 @@ const ALLOWED: &[(&str, &[&str])] = &[
         "agent",
         &[
             "decode", "strategy", "backend", "tool", "chat", "lexicon", "clock", "estop", "fence",
+            "remote",
         ],
     ),
     (
         "eval",
         &[
             "agent", "strategy", "decode", "backend", "tool", "tools", "ros", "chat", "lexicon",
-            "models", "metrics", "clock", "json", "estop", "fence", "limits",
+            "models", "metrics", "clock", "json", "estop", "fence", "limits", "remote",
         ],
     ),
     (
@@ -56,6 +60,7 @@ const ALLOWED: &[(&str, &[&str])] = &[
         &[
             "agent", "strategy", "decode", "backend", "tool", "tools", "ros", "chat", "lexicon",
             "models", "metrics", "clock", "eval", "json", "estop", "fence", "limits", "dirs",
+            "remote",
         ],
     ),
 ];

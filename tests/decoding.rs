@@ -640,6 +640,7 @@ fn driven(
         session: &mut session,
         grammars: &grammars,
         sampler: &mut sampler,
+        remote: None,
     };
     let r = run(&mut engine, &req, &mut pipeline, Some("reply"), &mut |_| {
         ControlFlow::Continue(())

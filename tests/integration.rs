@@ -26,6 +26,7 @@ mod estop;
 mod eval;
 mod mcp;
 mod prompt_cache;
+mod remote;
 mod ros;
 mod ros1;
 mod runtime;

@@ -290,6 +290,7 @@ fn stack(setup: &Setup, script: &[String]) -> Stack {
             threads: None,
             max_context: 0,
             prompt_cache: false,
+            remote: None,
         },
         yes: setup.yes,
         read_only: setup.read_only,

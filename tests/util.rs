@@ -116,6 +116,7 @@ pub fn agent_args(robot: ferrosa::ui::agent::Robot, yes: bool) -> ferrosa::ui::a
             threads: Some(2),
             max_context: 8192,
             prompt_cache: true,
+            remote: None,
         },
         yes,
         read_only: false,

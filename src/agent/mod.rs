@@ -81,11 +81,13 @@ impl Agent {
         let asked = self.config.asked_actuation_only.then(|| self.asked.clone());
         let guards = guard::Guards::standard(query, &said, asked);
         let parts = plan::parts(query, &intent::vocabulary(&offered));
+        let engine = self.engine();
         if let Some(t) = &mut self.trace {
             t.record(
                 "query",
                 json!({"query": query, "tools_offered": offered.iter().map(|s| &s.name).collect::<Vec<_>>(),
-                       "tools_total": self.exec.registry().len(), "guards": guards.names()}),
+                       "tools_total": self.exec.registry().len(), "guards": guards.names(),
+                       "engine": engine}),
             );
         }
         let language = language::Language::for_request(self.config.language, query);

@@ -626,6 +626,7 @@ impl Run<'_> {
             session: &mut agent.session,
             grammars: &agent.grammars,
             sampler: &mut sampler,
+            remote: agent.remote.as_mut(),
         };
         let result = crate::strategy::turn::run(
             &mut engine,

@@ -45,6 +45,9 @@ pub struct Agent {
     pub(super) cancel: Arc<AtomicBool>,
     /// The names the robot holds now, by the argument that takes them (`with_names`).
     pub(super) names: Option<NameSource>,
+    /// The server that writes the turns, when the model runs there (`backend` is then
+    /// its vocabulary only).
+    pub(super) remote: Option<crate::remote::Remote>,
 }
 
 /// The names a robot holds, each with the argument key that takes it (`"topic"`,
@@ -104,6 +107,7 @@ impl Agent {
             trace: None,
             cancel: Arc::new(AtomicBool::new(false)),
             names: None,
+            remote: None,
         })
     }
 
@@ -129,6 +133,27 @@ impl Agent {
     pub fn with_prompt_cache(mut self, cache: Arc<crate::backend::PromptCache>) -> Agent {
         self.session = Session::with_cache(cache);
         self
+    }
+
+    /// Have `remote`'s server write every turn (the agent loaded only the model's
+    /// vocabulary). Where the model runs is said in each trace's header.
+    pub fn with_remote(mut self, remote: crate::remote::Remote) -> Agent {
+        self.remote = Some(remote);
+        self
+    }
+
+    /// The remote engine, if the model runs on a server.
+    pub fn remote(&self) -> Option<&crate::remote::Remote> {
+        self.remote.as_ref()
+    }
+
+    /// Where the model runs, for traces and reports: the server and its grammar form,
+    /// or the local runtime.
+    pub fn engine(&self) -> String {
+        match &self.remote {
+            Some(r) => r.describe(),
+            None => format!("in-process {}", self.backend.name()),
+        }
     }
 
     /// Use `cancel` as the run's cancel flag (one the front end also sets).

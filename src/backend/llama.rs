@@ -307,3 +307,70 @@ impl Backend for LlamaCpp {
 
 /// The llama-cpp-2 version this binary links (a snapshot's layout is llama.cpp's).
 const LLAMA_CPP_2: &str = "0.1.160";
+
+/// A model's vocabulary and chat template without its weights (llama.cpp's vocab-only
+/// load: the tensors are not read): what the remote engine renders and tokenizes prompts
+/// with while a server runs the model. It cannot evaluate anything.
+pub struct LlamaVocab {
+    model: Arc<LlamaModel>,
+    vocab: Vocab,
+    template: ChatTemplate,
+    n_ctx: usize,
+}
+
+impl LlamaVocab {
+    pub fn load(gguf: &Gguf, opts: &LoadOptions) -> Result<LlamaVocab, BackendError> {
+        let rt = runtime()?;
+        let template = ChatTemplate::for_model(gguf, opts.family.as_deref())?;
+        let params = LlamaModelParams::default().with_vocab_only(true);
+        let model = LlamaModel::load_from_file(rt, &opts.path, &params).map_err(|e| {
+            BackendError::Load {
+                backend: NAME,
+                path: opts.path.clone(),
+                reason: format!("cannot read its vocabulary: {e}"),
+            }
+        })?;
+        let vocab = read_vocab(&model);
+        Ok(LlamaVocab {
+            model: Arc::new(model),
+            vocab,
+            template,
+            n_ctx: opts.max_context.max(16),
+        })
+    }
+}
+
+impl Backend for LlamaVocab {
+    fn name(&self) -> &'static str {
+        "llama.cpp (vocabulary only)"
+    }
+
+    fn vocab(&self) -> &Vocab {
+        &self.vocab
+    }
+
+    fn chat_template(&self) -> &ChatTemplate {
+        &self.template
+    }
+
+    fn context_len(&self) -> usize {
+        self.n_ctx
+    }
+
+    fn tokenize(&self, text: &str, special: bool) -> Result<Vec<TokenId>, BackendError> {
+        Ok(LlamaTokenizer(self.model.clone()).tokenize(text, special))
+    }
+
+    fn tokenizer(&self) -> Arc<dyn Tokenize> {
+        Arc::new(LlamaTokenizer(self.model.clone()))
+    }
+
+    fn forward(&mut self, _keep: usize, _tokens: &[TokenId]) -> Result<&mut [f32], BackendError> {
+        Err(BackendError::Eval {
+            backend: self.name(),
+            reason:
+                "only this model's vocabulary is loaded here: a server runs it (--engine openai)"
+                    .into(),
+        })
+    }
+}

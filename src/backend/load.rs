@@ -18,3 +18,18 @@ pub fn load(kind: BackendKind, opts: &LoadOptions) -> Result<Box<dyn Backend>, B
         BackendKind::Candle => Err(BackendError::NotCompiled("candle")),
     }
 }
+
+/// Load only `opts.path`'s vocabulary and chat template (no weights): for rendering and
+/// tokenizing prompts that a server evaluates.
+pub fn load_vocabulary(opts: &LoadOptions) -> Result<Box<dyn Backend>, BackendError> {
+    let gguf = Gguf::open(&opts.path)?;
+    #[cfg(feature = "llama")]
+    {
+        Ok(Box::new(super::llama::LlamaVocab::load(&gguf, opts)?))
+    }
+    #[cfg(not(feature = "llama"))]
+    {
+        let _ = gguf;
+        Err(BackendError::NotCompiled("llama"))
+    }
+}

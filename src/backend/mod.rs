@@ -32,7 +32,7 @@ use std::path::PathBuf;
 use std::sync::Arc;
 
 pub use gguf::{Gguf, GgufError};
-pub use load::load;
+pub use load::{load, load_vocabulary};
 pub use options::{physical_cores, BackendKind, LoadOptions};
 pub use prompt_cache::PromptCache;
 pub use session::Session;

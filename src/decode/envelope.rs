@@ -123,13 +123,52 @@ impl Envelope {
         }
     }
 
-    fn call_any_of(specs: &[&ToolSpec]) -> Value {
+    pub fn call_any_of(specs: &[&ToolSpec]) -> Value {
         let branches: Vec<Value> = specs.iter().map(|s| s.call_schema()).collect();
         json!({ "anyOf": branches })
     }
 
     fn separators() -> Value {
         json!({"whitespace_flexible": false, "item_separator": ", ", "key_separator": ": "})
+    }
+
+    /// The tools called alone and the others, and whether the others may be a list:
+    /// when every tool is called alone, the list is simply one call long.
+    pub fn split_alone(
+        specs: &[ToolSpec],
+        parallel: bool,
+    ) -> (Vec<&ToolSpec>, Vec<&ToolSpec>, bool) {
+        let (alone, others): (Vec<&ToolSpec>, Vec<&ToolSpec>) = specs.iter().partition(|s| s.alone);
+        if others.is_empty() {
+            (Vec::new(), alone, false)
+        } else {
+            (alone, others, parallel)
+        }
+    }
+
+    /// The JSON schema of a turn's list of calls: one to `MAX_PARALLEL` (`parallel`) of
+    /// `specs`, none allowed when declining, or one tool of `alone` by itself.
+    pub fn list_schema(
+        alone: &[&ToolSpec],
+        specs: &[&ToolSpec],
+        choice: ToolChoice,
+        parallel: bool,
+    ) -> Value {
+        let list = |specs: &[&ToolSpec], min: usize, max: usize| {
+            json!({
+                "type": "array",
+                "items": Envelope::call_any_of(specs),
+                "minItems": min,
+                "maxItems": max,
+            })
+        };
+        let min = usize::from(choice != ToolChoice::Decline);
+        let array = list(specs, min, if parallel { MAX_PARALLEL } else { 1 });
+        if alone.is_empty() {
+            array
+        } else {
+            json!({"anyOf": [list(alone, 1, 1), array]})
+        }
     }
 
     /// The Lark grammar of one assistant turn over `specs`. With no tools, the only choice
@@ -148,12 +187,7 @@ impl Envelope {
         };
         // Tools called alone are a list of one call of their own; when every tool is one,
         // the list is simply one call long.
-        let (alone, others): (Vec<&ToolSpec>, Vec<&ToolSpec>) = specs.iter().partition(|s| s.alone);
-        let (alone, specs, parallel) = if others.is_empty() {
-            (Vec::new(), alone, false)
-        } else {
-            (alone, others, parallel)
-        };
+        let (alone, specs, parallel) = Envelope::split_alone(specs, parallel);
         let one_of = |specs: &[&ToolSpec]| {
             let mut v = Envelope::call_any_of(specs);
             v["x-guidance"] = Envelope::separators();
@@ -163,26 +197,13 @@ impl Envelope {
             Envelope::Smollm2 => (SMOLLM2, one_of(&specs)),
             Envelope::Qwen => (QWEN, one_of(&specs)),
             Envelope::Json => {
-                let list = |specs: &[&ToolSpec], min: usize, max: usize| {
-                    json!({
-                        "type": "array",
-                        "items": Envelope::call_any_of(specs),
-                        "minItems": min,
-                        "maxItems": max,
-                    })
-                };
-                let min = usize::from(choice != ToolChoice::Decline);
-                let mut array = list(&specs, min, if parallel { MAX_PARALLEL } else { 1 });
-                if !alone.is_empty() {
-                    array = json!({"anyOf": [list(&alone, 1, 1), array]});
-                }
-                let wrapper = json!({
+                let mut wrapper = json!({
                     "type": "object",
-                    "properties": {"tool_calls": array},
+                    "properties": {"tool_calls": Envelope::list_schema(&alone, &specs, choice, parallel)},
                     "required": ["tool_calls"],
                     "additionalProperties": false,
-                    "x-guidance": Envelope::separators(),
                 });
+                wrapper["x-guidance"] = Envelope::separators();
                 (JSON, wrapper.to_string())
             }
         };

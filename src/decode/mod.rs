@@ -51,6 +51,9 @@ pub enum DecodeError {
     Template(#[from] crate::backend::TemplateError),
     #[error(transparent)]
     Constraint(#[from] ConstraintError),
+    /// An engine that runs the model elsewhere failed (`remote`).
+    #[error(transparent)]
+    Engine(Box<dyn std::error::Error + Send + Sync>),
 }
 
 /// Why a generation stopped.

@@ -107,10 +107,12 @@ impl TurnRules {
 /// or answer (unless `rules.force_call`). With `AnswerMode::Tool` (the agent's default)
 /// answering is the `answer` pseudo-function, so the turn is always structured; its call
 /// is not counted as a call.
+#[allow(clippy::too_many_arguments)]
 pub fn run_case(
     backend: &mut dyn Backend,
     session: &mut Session,
     grammars: &Grammars,
+    remote: Option<&mut crate::remote::Remote>,
     envelope: Envelope,
     decoding: Decoding,
     rules: TurnRules,
@@ -167,6 +169,7 @@ pub fn run_case(
         session,
         grammars,
         sampler: &mut sampler,
+        remote,
     };
     let r = match run(&mut engine, &req, &mut pipeline, fallback, &mut |_| {
         ControlFlow::Continue(())

@@ -19,14 +19,19 @@ use crate::decode::turn::{
     render_prompt, with_tools, Mark, TurnDecoder, TurnRequest, TurnResult, Until,
 };
 use crate::decode::{DecodeError, Envelope, Finish, Grammars, Sampler, Session, ToolChoice};
+use crate::remote::Remote;
 use crate::tool::ToolCall;
 
 /// The model and what decoding it needs.
 pub struct Engine<'a> {
+    /// The model, or with `remote` its vocabulary and template only.
     pub backend: &'a mut dyn Backend,
     pub session: &'a mut Session,
     pub grammars: &'a Grammars,
     pub sampler: &'a mut Sampler,
+    /// A server that writes the turns instead (`remote`): the pipeline, which reads the
+    /// model's log-probabilities, is not applied.
+    pub remote: Option<&'a mut Remote>,
 }
 
 /// Run `req` through `pipeline`; `fallback` names the tool that answers in words (if it
@@ -38,6 +43,9 @@ pub fn run(
     fallback: Option<&str>,
     on_text: &mut dyn FnMut(&str) -> ControlFlow<()>,
 ) -> Result<TurnResult, DecodeError> {
+    if let Some(remote) = engine.remote.as_deref_mut() {
+        return remote.turn(engine.backend, req, on_text);
+    }
     let mut turn = TurnDecoder::new(engine.backend, engine.grammars, req)?;
     engine.session.set_stable(turn.stable_prefix());
     let gate = if pipeline.decides() {

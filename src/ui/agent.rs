@@ -256,9 +256,14 @@ pub fn build_with(
     config.pick = args.pick;
     config.language = args.language;
     let cache = args.model.prompt_cache(&resolved, model.as_ref());
+    let remote = args.model.connect(&resolved, model.as_ref())?;
+    let sampler = config.sampler;
     let mut agent = Agent::new(model, registry, policy, prompt.render(), config)?;
     if let Some(cache) = cache {
         agent = agent.with_prompt_cache(cache);
+    }
+    if let Some(remote) = remote {
+        agent = agent.with_remote(remote.with_sampler(sampler));
     }
     if let Some(g) = graph {
         let fence = agent.fence().clone();

@@ -63,6 +63,7 @@ pub fn bfcl(args: &BfclArgs) -> anyhow::Result<()> {
         cases.extend(bfcl::load(p, args.skip, args.limit)?);
     }
     let (resolved, _, mut model) = args.model.load()?;
+    let mut remote = args.model.connect(&resolved, model.as_ref())?;
     let envelope = args
         .envelope
         .unwrap_or_else(|| Envelope::for_family(resolved.family().unwrap_or("chatml")));
@@ -78,6 +79,7 @@ pub fn bfcl(args: &BfclArgs) -> anyhow::Result<()> {
                 model.as_mut(),
                 &mut session,
                 &grammars,
+                remote.as_mut(),
                 envelope,
                 mode,
                 args.rules,
@@ -105,8 +107,11 @@ pub fn bfcl(args: &BfclArgs) -> anyhow::Result<()> {
     if rules.ground {
         setting.push_str(" | optional values grounded");
     }
+    let engine = remote
+        .as_ref()
+        .map_or_else(|| format!("in-process {}", model.name()), |r| r.describe());
     println!(
-        "model {} | envelope {envelope:?} | {setting} | {} cases per mode\n",
+        "model {} | {engine} | envelope {envelope:?} | {setting} | {} cases per mode\n",
         resolved.path.display(),
         cases.len()
     );

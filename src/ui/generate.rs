@@ -41,6 +41,11 @@ pub struct GenerateArgs {
 
 pub fn run(args: &GenerateArgs) -> anyhow::Result<()> {
     let t_load = Instant::now();
+    if args.model.remote.is_some() {
+        anyhow::bail!(
+            "`ferrosa generate` runs the model in this process; --engine openai serves ask, chat, demo and eval"
+        );
+    }
     let (resolved, opts, mut model) = args.model.load()?;
     let load_time = t_load.elapsed();
 

@@ -38,6 +38,8 @@ pub struct ModelArgs {
     pub max_context: usize,
     /// Keep and reuse stable prompt prefixes on disk (`backend::prompt_cache`).
     pub prompt_cache: bool,
+    /// Run the model on a server (`--engine openai`): only its vocabulary is loaded here.
+    pub remote: Option<crate::remote::RemoteOptions>,
 }
 
 impl ModelArgs {
@@ -50,8 +52,28 @@ impl ModelArgs {
         if let Some(t) = self.threads {
             opts.threads = t;
         }
-        let model = backend::load(self.backend, &opts)?;
+        let model = match &self.remote {
+            Some(_) => backend::load_vocabulary(&opts)?,
+            None => backend::load(self.backend, &opts)?,
+        };
         Ok((resolved, opts, model))
+    }
+
+    /// With `--engine openai`, the server reached and checked against `model` (the
+    /// vocabulary `load` read from `resolved`).
+    pub fn connect(
+        &self,
+        resolved: &ResolvedModel,
+        model: &dyn Backend,
+    ) -> anyhow::Result<Option<crate::remote::Remote>> {
+        let Some(opts) = &self.remote else {
+            return Ok(None);
+        };
+        let name = resolved.path.file_name().map_or_else(
+            || resolved.path.display().to_string(),
+            |n| n.to_string_lossy().into_owned(),
+        );
+        Ok(Some(crate::remote::Remote::connect(opts, model, &name)?))
     }
 
     /// The prompt cache of `model` (loaded from `resolved`), unless it is off, the
@@ -61,7 +83,7 @@ impl ModelArgs {
         resolved: &ResolvedModel,
         model: &dyn Backend,
     ) -> Option<Arc<crate::backend::PromptCache>> {
-        if !self.prompt_cache {
+        if !self.prompt_cache || self.remote.is_some() {
             return None;
         }
         let dir = crate::dirs::prompt_cache_dir()?;
