@@ -325,6 +325,39 @@ fn a_server_that_ignores_the_grammar_or_breaks_the_api_is_reported() {
     let e = remote_error(one_turn(&url).unwrap_err());
     assert!(matches!(e, RemoteError::IgnoredGrammar { .. }), "{e}");
 
+    // However the server says the completion ended ("length" here), and a list longer
+    // than allowed (4 calls at most).
+    let url = scripted(|path| {
+        match path {
+        "/v1/completions" => Some(http(
+            "200 OK",
+            "text/event-stream",
+            "data: {\"choices\": [{\"text\": \"[{\\\"name\\\": \\\"turtle_teleport\\\", \\\"arguments\\\": {}}]\", \"finish_reason\": \"length\"}]}\n\ndata: [DONE]\n\n",
+        )),
+        p => models(p),
+    }
+    });
+    let e = remote_error(one_turn(&url).unwrap_err());
+    assert!(matches!(e, RemoteError::IgnoredGrammar { .. }), "{e}");
+    let url = scripted(|path| match path {
+        "/v1/completions" => {
+            let list: Vec<String> = (1..=5)
+                .map(|v| {
+                    format!(r#"{{\"name\": \"calc_convert\", \"arguments\": {{\"value\": {v}}}}}"#)
+                })
+                .collect();
+            let list = list.join(", ");
+            Some(http(
+                "200 OK",
+                "text/event-stream",
+                &format!("data: {{\"choices\": [{{\"text\": \"[{list}]\", \"finish_reason\": \"stop\"}}]}}\n\ndata: [DONE]\n\n"),
+            ))
+        }
+        p => models(p),
+    });
+    let e = remote_error(one_turn(&url).unwrap_err());
+    assert!(e.to_string().contains("at most 4"), "{e}");
+
     // What is not the API's JSON.
     let url = scripted(|path| match path {
         "/v1/completions" => Some(http(

@@ -68,8 +68,19 @@ impl Marker {
 pub fn portable(schema: &Value) -> Value {
     match schema {
         Value::Object(map) => {
-            let mut out: serde_json::Map<String, Value> =
-                map.iter().map(|(k, v)| (k.clone(), portable(v))).collect();
+            // Values that are data, not schemas, stay as they are.
+            const DATA: [&str; 4] = ["const", "enum", "default", "examples"];
+            let mut out: serde_json::Map<String, Value> = map
+                .iter()
+                .map(|(k, v)| {
+                    let v = if DATA.contains(&k.as_str()) {
+                        v.clone()
+                    } else {
+                        portable(v)
+                    };
+                    (k.clone(), v)
+                })
+                .collect();
             if let Some(p) = map.get("pattern").and_then(Value::as_str) {
                 let p = spell_out_classes(p);
                 let min = map.get("minLength").and_then(Value::as_u64).unwrap_or(0) as usize;
@@ -176,7 +187,7 @@ fn bound_star(pattern: &str, min: usize, max: usize) -> Option<String> {
         atoms.push((atom, starred));
     }
     let (starred, fixed): (Vec<_>, Vec<_>) = atoms.iter().partition(|(_, s)| *s);
-    if starred.len() != 1 || max < fixed.len() {
+    if starred.len() != 1 || max < fixed.len() || min > max {
         return None;
     }
     let lo = min.saturating_sub(fixed.len());
@@ -334,6 +345,10 @@ mod tests {
         // Shapes it cannot bound stay as they were; a pattern alone is only spelled out.
         let other = json!({"type": "string", "maxLength": 5, "pattern": "^(a|b)*$"});
         assert_eq!(portable(&other), other);
+        let data = json!({"const": {"pattern": "^[\\d]*$"}, "default": {"pattern": "."}});
+        assert_eq!(portable(&data), data);
+        let never = json!({"pattern": "^[a]*$", "minLength": 5, "maxLength": 2});
+        assert_eq!(portable(&never), never);
         assert_eq!(portable(&json!({"pattern": "^\\d+$"}))["pattern"], "^\\d+$");
         assert_eq!(
             portable(&json!({"pattern": "^[\\d.]*$", "minLength": 1}))["pattern"],

@@ -27,11 +27,19 @@ pub struct Client {
     rt: tokio::runtime::Runtime,
 }
 
+/// Longest line of a streamed answer taken.
+pub const MAX_LINE: usize = 1 << 20;
+
+/// Largest whole answer read (`read_all`).
+const MAX_BODY: usize = 16 << 20;
+
 /// A request's answer once its status is known.
 pub struct Response {
     pub status: u16,
     body: Incoming,
     timeout: Duration,
+    /// The connection's task: aborted when the answer is dropped (`Client::close`).
+    conn: tokio::task::JoinHandle<()>,
 }
 
 impl Client {
@@ -60,13 +68,22 @@ impl Client {
             None => (rest, ""),
         };
         let base = base.strip_suffix("/v1").unwrap_or(base).to_string();
-        let (host, port) = match authority.rsplit_once(':') {
-            Some((h, p)) if !h.ends_with(']') || h.starts_with('[') => (
-                h,
-                p.parse::<u16>()
-                    .map_err(|_| bad(&format!("bad port '{p}'")))?,
-            ),
-            _ => (authority, 80),
+        // `host`, `host:port`, `[v6]`, `[v6]:port`.
+        let (host, port) = match authority.strip_prefix('[') {
+            Some(v6) => {
+                let (h, rest) = v6.split_once(']').ok_or_else(|| bad("unclosed '['"))?;
+                (h, rest.strip_prefix(':'))
+            }
+            None => match authority.split_once(':') {
+                Some((h, p)) => (h, Some(p)),
+                None => (authority, None),
+            },
+        };
+        let port = match port {
+            Some(p) => p
+                .parse::<u16>()
+                .map_err(|_| bad(&format!("bad port '{p}'")))?,
+            None => 80,
         };
         if host.is_empty() {
             return Err(bad("no host"));
@@ -94,7 +111,16 @@ impl Client {
 
     /// The server's address as given (for messages and traces).
     pub fn url(&self) -> String {
-        format!("http://{}:{}{}", self.host, self.port, self.base)
+        format!("http://{}{}", self.authority(), self.base)
+    }
+
+    /// `host:port`, an IPv6 address in brackets.
+    fn authority(&self) -> String {
+        if self.host.contains(':') {
+            format!("[{}]:{}", self.host, self.port)
+        } else {
+            format!("{}:{}", self.host, self.port)
+        }
     }
 
     /// `GET path` (after the base).
@@ -121,7 +147,7 @@ impl Client {
         let mut req = hyper::Request::builder()
             .method(method)
             .uri(format!("{}{path}", self.base))
-            .header(hyper::header::HOST, format!("{}:{}", self.host, self.port))
+            .header(hyper::header::HOST, self.authority())
             .header(hyper::header::ACCEPT, "application/json, text/event-stream");
         if let Some(key) = &self.api_key {
             req = req.header(hyper::header::AUTHORIZATION, format!("Bearer {key}"));
@@ -151,7 +177,7 @@ impl Client {
             let (mut sender, conn) = hyper::client::conn::http1::handshake(io)
                 .await
                 .map_err(|e| connect_err(&url, e.to_string()))?;
-            tokio::spawn(async move {
+            let conn = tokio::spawn(async move {
                 let _ = conn.await;
             });
             let resp = tokio::time::timeout(timeout, sender.send_request(req))
@@ -166,18 +192,38 @@ impl Client {
                 status: resp.status().as_u16(),
                 body: resp.into_body(),
                 timeout,
+                conn,
             })
         })
     }
 
-    /// The whole body of `resp`.
+    /// The whole body of `resp` (at most 16 MiB).
     pub fn read_all(&self, resp: Response) -> Result<Vec<u8>, RemoteError> {
         let mut out = Vec::new();
         let mut r = resp;
         while let Some(chunk) = self.next_chunk(&mut r)? {
             out.extend_from_slice(&chunk);
+            if out.len() > MAX_BODY {
+                self.close(r);
+                return Err(RemoteError::BadAnswer {
+                    path: self.url(),
+                    reason: "the answer runs past 16 MiB".into(),
+                });
+            }
         }
         Ok(out)
+    }
+
+    /// Drop `resp` and close its connection now (its task runs only inside this
+    /// client's runtime, so it is aborted and the runtime given a turn to drop it).
+    pub fn close(&self, resp: Response) {
+        let Response { body, conn, .. } = resp;
+        drop(body);
+        conn.abort();
+        self.rt.block_on(async {
+            tokio::task::yield_now().await;
+            tokio::task::yield_now().await;
+        });
     }
 
     /// The next piece of `resp`'s body, `None` at its end.
@@ -296,6 +342,11 @@ impl Events {
         out
     }
 
+    /// Bytes of a line not yet ended.
+    pub fn pending_len(&self) -> usize {
+        self.pending.len()
+    }
+
     /// What is left when the body ends (an event with no blank line after it).
     pub fn finish(&mut self) -> Option<String> {
         let tail = String::from_utf8_lossy(&self.pending).trim().to_string();
@@ -324,6 +375,12 @@ mod tests {
             .to_string();
         assert!(e.contains("TLS proxy"), "{e}");
         assert!(Client::new("127.0.0.1:8080", None, t).is_err());
+        let c = Client::new("http://[::1]:8080/v1", None, t).unwrap();
+        assert_eq!(c.url(), "http://[::1]:8080");
+        assert_eq!(
+            Client::new("http://[::1]", None, t).unwrap().url(),
+            "http://[::1]:80"
+        );
         assert!(Client::new("http://h:port", None, t).is_err());
     }
 

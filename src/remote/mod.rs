@@ -33,10 +33,13 @@ use std::time::{Duration, Instant};
 use serde_json::{json, Value};
 
 use crate::backend::{Backend, TokenId};
+use crate::decode::envelope::{EnvelopeError, MAX_PARALLEL};
 use crate::decode::turn::{render_prompt_split, with_tools, TurnRequest, TurnResult};
-use crate::decode::{DecodeError, Decoding, Finish, GenerationStats, SamplerConfig};
+use crate::decode::{
+    DecodeError, Decoding, Finish, GenerationStats, SamplerConfig, ToolChoice, Turn,
+};
 use frame::Frame;
-use http::{Client, Events, Response};
+use http::{Client, Events};
 
 /// Which grammar form to send (`--grammar`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -326,19 +329,29 @@ impl Remote {
             server: None,
         };
         let mut events = Events::default();
+        // Bounds on what a server may send: text for the token limit (at a generous 128
+        // bytes a token), a line of 1 MiB, and a time-out between pieces of new text
+        // (keep-alive comments and empty pieces do not count).
+        let max_bytes = max_tokens.saturating_mul(128).saturating_add(4096);
+        let mut progress = (Instant::now(), 0);
         'read: loop {
             let chunk = self.client.next_chunk(&mut resp)?;
             let batch = match &chunk {
                 Some(bytes) => events.push(bytes),
                 None => events.finish().into_iter().collect(),
             };
+            if events.pending_len() > http::MAX_LINE {
+                return Err(RemoteError::BadAnswer {
+                    path: PATH.into(),
+                    reason: "a line of the stream runs past 1 MiB".into(),
+                });
+            }
             for event in batch {
                 if event.trim() == "[DONE]" {
                     break 'read;
                 }
-                if let Some(piece) = read_event(&event, &mut c, start)? {
+                if let Some(piece) = read_event(&event, &mut c, start, max_bytes)? {
                     if on_text(&piece).is_break() {
-                        // Dropping the answer closes the connection: the server stops.
                         c.finish = Some(Finish::Stopped);
                         break 'read;
                     }
@@ -347,8 +360,18 @@ impl Remote {
             if chunk.is_none() {
                 break;
             }
+            if c.text.len() > progress.1 {
+                progress = (Instant::now(), c.text.len());
+            } else if progress.0.elapsed() > self.client.timeout {
+                return Err(RemoteError::Timeout {
+                    url: self.client.url(),
+                    after: self.client.timeout,
+                    waiting: "new text (the stream goes on without any)",
+                });
+            }
         }
-        drop::<Response>(resp);
+        // Closing the connection at once: a server stops a completion its client left.
+        self.client.close(resp);
         c.wall = start.elapsed();
         if c.finish.is_none() {
             return Err(RemoteError::BadAnswer {
@@ -398,17 +421,31 @@ impl Remote {
                 &mut parts,
             )?,
         };
-        let turn = req.envelope.parse(&text, req.specs);
-        if req.decoding == Decoding::Constrained && finish == Finish::EndOfGeneration {
-            // What the grammar allowed: the allowed tools, with their arguments as narrowed.
-            if let Err(e) = req.envelope.parse(&text, req.allowed_specs()) {
-                return Err(RemoteError::IgnoredGrammar {
-                    reason: e.to_string(),
-                    text: http::preview(text.as_bytes()),
+        let turn = match req.decoding {
+            Decoding::Free => req.envelope.parse(&text, req.specs),
+            // What the grammar allowed: the allowed tools with their arguments as narrowed,
+            // in a list of the allowed shape, whatever the server says of how it ended.
+            Decoding::Constrained => {
+                let cut = finish != Finish::EndOfGeneration;
+                let turn = req
+                    .envelope
+                    .parse(&text, req.allowed_specs())
+                    .and_then(|t| check_shape(req, t, cut));
+                match turn {
+                    // A call cut off at the token limit or by a stop is not a breach: the
+                    // agent hears that it was cut off, and nothing runs.
+                    Err(EnvelopeError::Json(_)) if cut => turn,
+                    Err(e) => {
+                        return Err(RemoteError::IgnoredGrammar {
+                            reason: e.to_string(),
+                            text: http::preview(text.as_bytes()),
+                        }
+                        .into())
+                    }
+                    Ok(t) => Ok(t),
                 }
-                .into());
             }
-        }
+        };
         let mut stats = GenerationStats {
             prompt_tokens: prompt.len(),
             ..GenerationStats::default()
@@ -421,8 +458,8 @@ impl Remote {
             let n = c
                 .generated
                 .unwrap_or_else(|| backend.tokenize(&c.text, false).map_or(0, |t| t.len()));
-            stats.generated_tokens += n;
-            stats.gen_forwards += n;
+            stats.generated_tokens = stats.generated_tokens.saturating_add(n);
+            stats.gen_forwards = stats.gen_forwards.saturating_add(n);
         }
         stats.reused_tokens = parts
             .first()
@@ -525,6 +562,31 @@ impl Remote {
     }
 }
 
+/// A parsed turn held to the list's shape the grammar allows (`parse` checks each call's
+/// tool and arguments, not the list): a turn that must call does, no more calls than
+/// allowed, and a tool called alone comes alone. A turn `cut` short may have no call yet.
+fn check_shape(req: &TurnRequest, turn: Turn, cut: bool) -> Result<Turn, EnvelopeError> {
+    let allowed = req.allowed_specs();
+    let n = turn.calls.len();
+    let max = if req.parallel { MAX_PARALLEL } else { 1 };
+    let alone = turn
+        .calls
+        .iter()
+        .any(|c| allowed.iter().any(|s| s.name == c.name && s.alone));
+    let breach = match req.choice {
+        ToolChoice::Required if n == 0 && !cut => {
+            Some("no call, where one was required".to_string())
+        }
+        _ if n > max => Some(format!("{n} calls, where at most {max} were allowed")),
+        _ if alone && n > 1 => Some("a tool called alone came with other calls".to_string()),
+        _ => None,
+    };
+    match breach {
+        Some(why) => Err(EnvelopeError::Shape(why)),
+        None => Ok(turn),
+    }
+}
+
 /// A Lark grammar as llama-server hands it to llguidance: only a grammar whose text
 /// starts with `%llguidance` is (anything else is read as GBNF), so the leading comment
 /// lines go.
@@ -550,6 +612,7 @@ fn read_event(
     event: &str,
     c: &mut Completion,
     start: Instant,
+    max_bytes: usize,
 ) -> Result<Option<String>, RemoteError> {
     const PATH: &str = "/v1/completions";
     let v: Value = serde_json::from_str(event).map_err(|e| RemoteError::BadAnswer {
@@ -569,7 +632,7 @@ fn read_event(
         });
     }
     if let Some(n) = v["usage"]["completion_tokens"].as_u64() {
-        c.generated = Some(n as usize);
+        c.generated = Some(usize::try_from(n).unwrap_or(usize::MAX));
     }
     if let Some(n) = v["timings"]["cache_n"]
         .as_u64()
@@ -579,7 +642,7 @@ fn read_event(
     }
     let t = &v["timings"];
     if let (Some(p), Some(g)) = (t["prompt_ms"].as_f64(), t["predicted_ms"].as_f64()) {
-        c.server = Some(Duration::from_secs_f64((p + g).max(0.0) / 1e3));
+        c.server = Duration::try_from_secs_f64((p + g) / 1e3).ok();
     }
     let Some(choice) = v["choices"].get(0) else {
         if v.get("usage").is_some() {
@@ -604,6 +667,15 @@ fn read_event(
     }
     c.first_piece.get_or_insert_with(|| start.elapsed());
     c.text.push_str(piece);
+    if c.text.len() > max_bytes {
+        return Err(RemoteError::BadAnswer {
+            path: PATH.into(),
+            reason: format!(
+                "the completion ran past its token limit ({} bytes and going)",
+                c.text.len()
+            ),
+        });
+    }
     Ok(Some(piece.to_string()))
 }
 
