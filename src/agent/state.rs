@@ -150,10 +150,7 @@ impl Agent {
     /// Where the model runs, for traces and reports: the server and its grammar form,
     /// or the local runtime.
     pub fn engine(&self) -> String {
-        match &self.remote {
-            Some(r) => r.describe(),
-            None => format!("in-process {}", self.backend.name()),
-        }
+        crate::remote::Remote::describe_engine(self.remote.as_ref(), self.backend.as_ref())
     }
 
     /// Use `cancel` as the run's cancel flag (one the front end also sets).

@@ -200,6 +200,14 @@ impl Remote {
         )
     }
 
+    /// Where a model runs, in a line: `remote`'s server, or in this process on `backend`.
+    pub fn describe_engine(remote: Option<&Remote>, backend: &dyn Backend) -> String {
+        remote.map_or_else(
+            || format!("in-process {}", backend.name()),
+            Remote::describe,
+        )
+    }
+
     /// A server that tokenizes on request (llama-server's `/tokenize`) must agree with
     /// the local vocabulary, or the ids ferrosa sends would mean other text.
     fn check_vocabulary(&self, backend: &dyn Backend, local: &str) -> Result<(), RemoteError> {
@@ -406,12 +414,13 @@ impl Remote {
             .map(|g| lark_for_server(&g));
         let mut parts = Vec::new();
         let (text, finish) = match (&lark, frame) {
-            (Some(g), _) => {
-                let c = self.complete(&prompt, &Constraint::Lark(g), req.max_tokens, on_text)?;
-                let (text, finish) = (c.text.clone(), c.finish());
-                parts.push(c);
-                (text, finish)
-            }
+            (Some(g), _) => self.one(
+                &prompt,
+                &Constraint::Lark(g),
+                req.max_tokens,
+                on_text,
+                &mut parts,
+            )?,
             (None, frame) => self.framed(
                 backend,
                 &prompt,
@@ -481,6 +490,22 @@ impl Remote {
         })
     }
 
+    /// One completion as the whole turn: its text and how it ended; its figures go to
+    /// `parts`.
+    fn one(
+        &self,
+        prompt: &[TokenId],
+        constraint: &Constraint,
+        max_tokens: usize,
+        on_text: &mut dyn FnMut(&str) -> ControlFlow<()>,
+        parts: &mut Vec<Completion>,
+    ) -> Result<(String, Finish), RemoteError> {
+        let c = self.complete(prompt, constraint, max_tokens, on_text)?;
+        let out = (c.text.clone(), c.finish());
+        parts.push(c);
+        Ok(out)
+    }
+
     /// A turn as JSON-schema frames: the text and how it ended; each completion's figures
     /// go to `parts`.
     fn framed(
@@ -493,17 +518,10 @@ impl Remote {
         parts: &mut Vec<Completion>,
     ) -> Result<(String, Finish), DecodeError> {
         match frame {
-            Frame::Free => {
-                let c = self.complete(prompt, &Constraint::None, max_tokens, on_text)?;
-                let out = (c.text.clone(), c.finish());
-                parts.push(c);
-                Ok(out)
-            }
+            Frame::Free => Ok(self.one(prompt, &Constraint::None, max_tokens, on_text, parts)?),
             Frame::Whole { schema } => {
-                let c = self.complete(prompt, &Constraint::Schema(schema), max_tokens, on_text)?;
-                let out = (c.text.clone(), c.finish());
-                parts.push(c);
-                Ok(out)
+                let schema = Constraint::Schema(schema);
+                Ok(self.one(prompt, &schema, max_tokens, on_text, parts)?)
             }
             Frame::Marked {
                 opening,

@@ -107,9 +107,7 @@ pub fn bfcl(args: &BfclArgs) -> anyhow::Result<()> {
     if rules.ground {
         setting.push_str(" | optional values grounded");
     }
-    let engine = remote
-        .as_ref()
-        .map_or_else(|| format!("in-process {}", model.name()), |r| r.describe());
+    let engine = crate::remote::Remote::describe_engine(remote.as_ref(), model.as_ref());
     println!(
         "model {} | {engine} | envelope {envelope:?} | {setting} | {} cases per mode\n",
         resolved.path.display(),
