@@ -6,7 +6,7 @@
 //!   never an error;
 //! - the data directory (`$XDG_DATA_HOME/ferrosa`, else `~/.local/share/ferrosa`): the
 //!   weights, unless `$FERROSA_MODELS_DIR` or a checkout's `models/` says otherwise
-//!   (`models::models_dir`).
+//!   (`models::models_dir`), and the console's session traces.
 
 use std::path::PathBuf;
 
@@ -44,4 +44,9 @@ pub fn data_dir() -> Option<PathBuf> {
 /// Where prompt cache entries go (`backend::prompt_cache`).
 pub fn prompt_cache_dir() -> Option<PathBuf> {
     cache_dir().map(|d| d.join("prompts"))
+}
+
+/// Where `ferrosa serve` keeps session traces unless `--trace-dir` says otherwise.
+pub fn traces_dir() -> Option<PathBuf> {
+    data_dir().map(|d| d.join("traces"))
 }

@@ -100,6 +100,11 @@ impl EStop {
         self.state.borrow().clone()
     }
 
+    /// Every change of state from now on (engaged by whom, or released).
+    pub fn subscribe(&self) -> tokio::sync::watch::Receiver<Option<Engaged>> {
+        self.state.subscribe()
+    }
+
     /// Resolves at the next press from now on (what aborts running calls: a call
     /// started while the e-stop was already engaged only reads, and may finish).
     pub async fn pressed(&self) {

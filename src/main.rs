@@ -200,6 +200,20 @@ enum Command {
         #[command(flatten)]
         agent: AgentOpts,
     },
+    /// The operator console in a web page: chat with the answer as it is written, the
+    /// trace, approvals, the e-stop, the robot's pose. Loopback by default; any other
+    /// address requires the token printed at start.
+    Serve {
+        /// The address to serve on (port 0 picks one and prints it).
+        #[arg(long, default_value = "127.0.0.1:8080")]
+        bind: std::net::SocketAddr,
+        /// The topic the robot view reads the pose from (default: the sim's
+        /// /turtle1/pose); turtlesim Pose, Pose2D, PoseStamped, Odometry and the like.
+        #[arg(long)]
+        pose_topic: Option<String>,
+        #[command(flatten)]
+        agent: AgentOpts,
+    },
     /// The built-in robot and the default model: `chat --robot sim`.
     Demo {
         #[command(flatten)]
@@ -537,6 +551,15 @@ fn main() -> ExitCode {
         Command::Mcp { http, agent } => ui::mcp::run(&ui::mcp::McpArgs {
             agent: agent.into_args(dir, cli_prompt_cache, remote.clone()),
             http,
+        }),
+        Command::Serve {
+            bind,
+            pose_topic,
+            agent,
+        } => ui::console::run(&ui::console::ServeArgs {
+            agent: agent.into_args(dir, cli_prompt_cache, remote.clone()),
+            bind,
+            pose_topic,
         }),
         Command::Demo { agent } => {
             let mut args = agent.into_args(dir, cli_prompt_cache, remote.clone());

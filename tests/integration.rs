@@ -20,6 +20,7 @@ static COUNTING: alloc::Counting = alloc::Counting;
 #[cfg(feature = "candle")]
 mod candle_parity;
 mod cli;
+mod console;
 mod declared;
 mod decoding;
 mod estop;

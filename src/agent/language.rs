@@ -30,7 +30,7 @@ pub enum Language {
 }
 
 /// Every language, in the order of `NAMES` and `WORDS`.
-const ALL: [Language; 6] = [
+pub const ALL: [Language; 6] = [
     Language::English,
     Language::Spanish,
     Language::French,

@@ -7,6 +7,7 @@
 //! - `robot`: joining ROS 2, the sim, the guarded graph, the e-stop's ROS trigger
 //! - `term`: cleaning what is printed, the input thread, terminal confirmation
 //! - `choice`: the command line's names for the library's choices
+//! - `console`: `ferrosa serve`, the operator console in a web page
 //! - `eval`: `ferrosa eval bfcl`
 //! - `generate`: `ferrosa generate`, streaming text from a model, with `--stats`
 //! - `models`: `ferrosa models list|fetch|verify`
@@ -14,6 +15,7 @@
 pub mod agent;
 pub mod call;
 pub mod choice;
+pub mod console;
 pub mod eval;
 pub mod generate;
 pub mod mcp;

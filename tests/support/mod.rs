@@ -8,3 +8,4 @@ pub mod netns;
 pub mod scripted;
 pub mod synthetic;
 pub mod uniform;
+pub mod webdriver;

@@ -1,0 +1,449 @@
+//! The console's HTTP side: the page, its JSON API and the event stream (SSE), and the
+//! checks every request passes first.
+//!
+//! - On loopback, the `Host` must be a loopback name: a page elsewhere cannot reach the
+//!   console through a name it rebinds to 127.0.0.1.
+//! - With a token (any other address), a request carries it as `Authorization: Bearer`
+//!   or in the cookie the browser got by opening the printed address once.
+//! - A POST must send JSON and, when the browser names its origin, come from the
+//!   console's own page: another site's form cannot approve a call or ask for a move.
+//!
+//! Routes: `GET /` (the page), `/console.js`, `/console.css`; `GET /api/state`,
+//! `GET /api/events` (SSE, replayed from `Last-Event-ID`), `GET /api/trace.jsonl`;
+//! `POST /api/ask {text, language?}`, `/api/approval {id, approve}`, `/api/estop`,
+//! `/api/reset`, `/api/clear`.
+
+use std::convert::Infallible;
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::mpsc::Sender;
+use std::sync::Arc;
+
+use axum::body::Bytes;
+use axum::extract::{Request, State};
+use axum::http::{header, HeaderMap, HeaderValue, Method, StatusCode};
+use axum::middleware::{self, Next};
+use axum::response::sse::{Event as SseEvent, KeepAlive, Sse};
+use axum::response::{IntoResponse, Response};
+use axum::routing::{get, post};
+use axum::{Json, Router};
+use futures::{Stream, StreamExt};
+use serde::Deserialize;
+use serde_json::{json, Value};
+use tokio::sync::broadcast::error::RecvError;
+
+use super::hub::{Hub, Logged};
+use super::worker::Job;
+use crate::agent::language::Language;
+
+/// The longest request the console takes, in characters.
+pub const MAX_REQUEST_CHARS: usize = 2000;
+
+const PAGE: &str = include_str!("../../../web/console.html");
+const SCRIPT: &str = include_str!("../../../web/console.js");
+const STYLE: &str = include_str!("../../../web/console.css");
+const COOKIE: &str = "ferrosa_token";
+
+/// What the handlers share.
+#[derive(Clone)]
+pub struct App {
+    hub: Arc<Hub>,
+    jobs: Sender<Job>,
+    info: Arc<Value>,
+    token: Option<Arc<str>>,
+    loopback: bool,
+    trace: Option<Arc<PathBuf>>,
+    next_run: Arc<AtomicU64>,
+}
+
+type Failure = (StatusCode, Json<Value>);
+
+fn fail(status: StatusCode, message: impl Into<String>) -> Failure {
+    (status, Json(json!({"error": message.into()})))
+}
+
+impl App {
+    pub fn new(
+        hub: Arc<Hub>,
+        jobs: Sender<Job>,
+        info: Value,
+        token: Option<String>,
+        bind: SocketAddr,
+        trace: Option<PathBuf>,
+    ) -> App {
+        App {
+            hub,
+            jobs,
+            info: Arc::new(info),
+            token: token.map(Into::into),
+            loopback: bind.ip().is_loopback(),
+            trace: trace.map(Arc::new),
+            next_run: Arc::new(AtomicU64::new(1)),
+        }
+    }
+
+    pub fn router(self) -> Router {
+        Router::new()
+            .route(
+                "/",
+                get(|| async { page(PAGE, "text/html; charset=utf-8") }),
+            )
+            .route(
+                "/console.js",
+                get(|| async { page(SCRIPT, "text/javascript; charset=utf-8") }),
+            )
+            .route(
+                "/console.css",
+                get(|| async { page(STYLE, "text/css; charset=utf-8") }),
+            )
+            .route("/api/state", get(state))
+            .route("/api/events", get(events))
+            .route("/api/trace.jsonl", get(trace))
+            .route("/api/ask", post(ask))
+            .route("/api/approval", post(approval))
+            .route("/api/estop", post(estop))
+            .route("/api/reset", post(reset))
+            .route("/api/clear", post(clear))
+            .layer(middleware::from_fn_with_state(self.clone(), check))
+            .with_state(self)
+    }
+}
+
+/// A built-in file, never framed by another page (an approve button must not be
+/// clickjacked) and allowed to load nothing from elsewhere.
+fn page(body: &'static str, kind: &'static str) -> Response {
+    (
+        [
+            (header::CONTENT_TYPE, kind),
+            (
+                header::CONTENT_SECURITY_POLICY,
+                "default-src 'self'; img-src 'self' data:; frame-ancestors 'none'",
+            ),
+            (header::X_FRAME_OPTIONS, "DENY"),
+            (header::CACHE_CONTROL, "no-cache"),
+        ],
+        body,
+    )
+        .into_response()
+}
+
+/// The checks of the module header, before any route.
+async fn check(State(app): State<App>, req: Request, next: Next) -> Response {
+    let headers = req.headers();
+    let host = headers
+        .get(header::HOST)
+        .and_then(|h| h.to_str().ok())
+        .unwrap_or_default()
+        .to_string();
+    if app.loopback && !loopback_host(&host) {
+        return fail(
+            StatusCode::FORBIDDEN,
+            format!("this console answers to loopback names only (127.0.0.1, localhost, [::1]), not {host:?}"),
+        )
+        .into_response();
+    }
+    if let Some(token) = &app.token {
+        let bearer = headers
+            .get(header::AUTHORIZATION)
+            .and_then(|h| h.to_str().ok())
+            .and_then(|h| h.strip_prefix("Bearer "));
+        let cookie = headers
+            .get_all(header::COOKIE)
+            .iter()
+            .filter_map(|h| h.to_str().ok())
+            .flat_map(|h| h.split(';'))
+            .filter_map(|c| c.trim().strip_prefix(COOKIE)?.strip_prefix('='));
+        let held = bearer.into_iter().chain(cookie).any(|t| same(t, token));
+        if !held {
+            let query = req.uri().query().unwrap_or_default();
+            let given = query.split('&').find_map(|kv| kv.strip_prefix("token="));
+            if req.method() == Method::GET && given.is_some_and(|t| same(t, token)) {
+                // Kept as a cookie, and taken off the address bar.
+                let cookie = format!("{COOKIE}={token}; Path=/; HttpOnly; SameSite=Strict");
+                return (
+                    StatusCode::SEE_OTHER,
+                    [
+                        (header::SET_COOKIE, cookie),
+                        (header::LOCATION, req.uri().path().to_string()),
+                    ],
+                )
+                    .into_response();
+            }
+            return fail(
+                StatusCode::UNAUTHORIZED,
+                "this console needs its token: open the address `ferrosa serve` printed (…/?token=…), or send Authorization: Bearer TOKEN",
+            )
+            .into_response();
+        }
+    }
+    if req.method() == Method::POST {
+        let json = headers
+            .get(header::CONTENT_TYPE)
+            .and_then(|h| h.to_str().ok())
+            .is_some_and(|t| t.starts_with("application/json"));
+        if !json {
+            return fail(
+                StatusCode::UNSUPPORTED_MEDIA_TYPE,
+                "send the request as JSON (Content-Type: application/json)",
+            )
+            .into_response();
+        }
+        if let Some(origin) = headers.get(header::ORIGIN) {
+            if origin.as_bytes() != format!("http://{host}").as_bytes() {
+                return fail(
+                    StatusCode::FORBIDDEN,
+                    "requests to the console come from its own page only",
+                )
+                .into_response();
+            }
+        }
+    }
+    next.run(req).await
+}
+
+/// `Host` names a loopback address (with or without a port).
+fn loopback_host(host: &str) -> bool {
+    let name = match host.strip_prefix('[') {
+        Some(v6) => v6.split(']').next().unwrap_or_default(),
+        None => host.rsplit_once(':').map_or(host, |(n, _)| n),
+    };
+    name.eq_ignore_ascii_case("localhost")
+        || name
+            .parse::<std::net::IpAddr>()
+            .is_ok_and(|ip| ip.is_loopback())
+}
+
+/// Equal, in time that does not depend on where they differ.
+fn same(a: &str, b: &str) -> bool {
+    a.len() == b.len()
+        && a.bytes()
+            .zip(b.bytes())
+            .fold(0u8, |acc, (x, y)| acc | (x ^ y))
+            == 0
+}
+
+/// A JSON body as `T`, or a 400 saying what was wrong.
+fn body<T: for<'de> Deserialize<'de>>(bytes: &Bytes) -> Result<T, Failure> {
+    serde_json::from_slice(bytes)
+        .map_err(|e| fail(StatusCode::BAD_REQUEST, format!("the request body: {e}")))
+}
+
+async fn state(State(app): State<App>) -> Json<Value> {
+    let mut v = (*app.info).clone();
+    let engaged = app.hub.estop.engaged_by();
+    v["estop"] = super::hub::estop_json(engaged.as_ref());
+    v["busy"] = json!(app.hub.is_busy());
+    v["waiting"] = json!(app.hub.waiting());
+    v["trail"] = json!(app.hub.trail());
+    v["trace"] = json!(app.trace.is_some());
+    Json(v)
+}
+
+/// The session's events: those kept after `Last-Event-ID` (all at first), then live.
+async fn events(
+    State(app): State<App>,
+    headers: HeaderMap,
+) -> Sse<impl Stream<Item = Result<SseEvent, Infallible>>> {
+    let after = headers
+        .get("last-event-id")
+        .and_then(|h| h.to_str().ok()?.parse().ok())
+        .unwrap_or(0u64);
+    let (past, rx) = app.hub.subscribe(after);
+    let last = past.last().map_or(after, |l| l.seq);
+    let live = futures::stream::unfold((rx, last), |(mut rx, last)| async move {
+        loop {
+            match rx.recv().await {
+                Ok(l) if l.seq > last => {
+                    let seq = l.seq;
+                    return Some((Ok(sse(&l)), (rx, seq)));
+                }
+                Ok(_) => {}
+                // Too slow a client misses streamed text; the kept events it can fetch again.
+                Err(RecvError::Lagged(n)) => {
+                    let e = SseEvent::default().event("lagged").data(n.to_string());
+                    return Some((Ok(e), (rx, last)));
+                }
+                Err(RecvError::Closed) => return None,
+            }
+        }
+    });
+    let past = futures::stream::iter(past.into_iter().map(|l| Ok(sse(&l))));
+    Sse::new(past.chain(live)).keep_alive(KeepAlive::default())
+}
+
+fn sse(l: &Logged) -> SseEvent {
+    SseEvent::default()
+        .id(l.seq.to_string())
+        .event(l.kind)
+        .data(&l.data)
+}
+
+async fn trace(State(app): State<App>) -> Result<Response, Failure> {
+    let Some(path) = &app.trace else {
+        return Err(fail(
+            StatusCode::NOT_FOUND,
+            "this console keeps no trace: this machine has no data directory; start it with --trace-dir DIR",
+        ));
+    };
+    let file = path.clone();
+    let text = tokio::task::spawn_blocking(move || std::fs::read(file.as_ref()))
+        .await
+        .unwrap_or_else(|e| Err(std::io::Error::other(e)))
+        .map_err(|e| {
+            fail(
+                StatusCode::INTERNAL_SERVER_ERROR,
+                format!("reading the trace {}: {e}", path.display()),
+            )
+        })?;
+    let name = path
+        .file_name()
+        .map_or("trace.jsonl".into(), |n| n.to_string_lossy().into_owned());
+    let disposition = HeaderValue::from_str(&format!("attachment; filename=\"{name}\""))
+        .unwrap_or(HeaderValue::from_static("attachment"));
+    Ok((
+        [
+            (
+                header::CONTENT_TYPE,
+                HeaderValue::from_static("application/jsonl"),
+            ),
+            (header::CONTENT_DISPOSITION, disposition),
+        ],
+        text,
+    )
+        .into_response())
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct Ask {
+    text: String,
+    /// A language code, or "auto" (absent: the console's own setting).
+    #[serde(default)]
+    language: Option<String>,
+}
+
+async fn ask(State(app): State<App>, bytes: Bytes) -> Result<Response, Failure> {
+    let a: Ask = body(&bytes)?;
+    let text = a.text.trim().to_string();
+    if text.is_empty() {
+        return Err(fail(StatusCode::BAD_REQUEST, "the request is empty"));
+    }
+    if text.chars().count() > MAX_REQUEST_CHARS {
+        return Err(fail(
+            StatusCode::PAYLOAD_TOO_LARGE,
+            format!("a request is at most {MAX_REQUEST_CHARS} characters"),
+        ));
+    }
+    let language = match a.language.as_deref().map(str::trim) {
+        None | Some("") | Some("auto") => None,
+        Some(code) => Some(Language::parse(code).map_err(|e| fail(StatusCode::BAD_REQUEST, e))?),
+    };
+    if !app.hub.claim() {
+        return Err(fail(
+            StatusCode::CONFLICT,
+            "the agent is still working on a request: wait for its answer, or press the e-stop",
+        ));
+    }
+    let run = app.next_run.fetch_add(1, Ordering::SeqCst);
+    app.hub.publish(
+        "request",
+        &json!({"run": run, "text": text, "language": language.map(Language::code)}),
+        true,
+    );
+    app.jobs
+        .send(Job::Ask {
+            run,
+            text,
+            language,
+        })
+        .map_err(|_| {
+            app.hub.release();
+            fail(
+                StatusCode::SERVICE_UNAVAILABLE,
+                "the agent has stopped; restart ferrosa serve",
+            )
+        })?;
+    Ok((StatusCode::ACCEPTED, Json(json!({"run": run}))).into_response())
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct Approval {
+    id: u64,
+    approve: bool,
+}
+
+async fn approval(State(app): State<App>, bytes: Bytes) -> Result<Json<Value>, Failure> {
+    let a: Approval = body(&bytes)?;
+    app.hub
+        .answer(a.id, a.approve)
+        .map_err(|e| fail(StatusCode::CONFLICT, e))?;
+    Ok(Json(json!({"id": a.id, "approve": a.approve})))
+}
+
+/// The e-stop: the run is cancelled, running calls aborted, the robot braked, motion
+/// refused until a reset.
+async fn estop(State(app): State<App>) -> Json<Value> {
+    app.hub.cancel.store(true, Ordering::SeqCst);
+    let estop = app.hub.estop.clone();
+    // The brake publishes on ROS: off the server's own threads.
+    let _ = tokio::task::spawn_blocking(move || estop.trigger("the web console")).await;
+    Json(json!({"engaged": true}))
+}
+
+async fn reset(State(app): State<App>) -> Json<Value> {
+    Json(json!({"released": app.hub.estop.reset()}))
+}
+
+async fn clear(State(app): State<App>) -> Result<Json<Value>, Failure> {
+    if !app.hub.claim() {
+        return Err(fail(
+            StatusCode::CONFLICT,
+            "the agent is working on a request: clear the conversation after its answer",
+        ));
+    }
+    app.jobs.send(Job::Clear).map_err(|_| {
+        app.hub.release();
+        fail(
+            StatusCode::SERVICE_UNAVAILABLE,
+            "the agent has stopped; restart ferrosa serve",
+        )
+    })?;
+    Ok(Json(json!({"cleared": true})))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn loopback_names_only() {
+        for h in [
+            "127.0.0.1:8080",
+            "localhost:1",
+            "LOCALHOST",
+            "[::1]:8080",
+            "127.1.2.3",
+        ] {
+            assert!(loopback_host(h), "{h}");
+        }
+        for h in [
+            "",
+            "evil.example:8080",
+            "10.0.0.1:8080",
+            "[fe80::1]:80",
+            "localhost.evil.com",
+        ] {
+            assert!(!loopback_host(h), "{h}");
+        }
+    }
+
+    #[test]
+    fn tokens_compare_whole() {
+        assert!(same("abc", "abc"));
+        assert!(!same("abc", "abd"));
+        assert!(!same("abc", "abcd"));
+        assert!(!same("", "a"));
+    }
+}

@@ -1,0 +1,210 @@
+//! `ferrosa serve`: the operator's console in a web page, served by this process (the
+//! page's files are built into the binary; nothing is fetched from elsewhere).
+//!
+//! The agent runs on a thread of its own, one request at a time; every client sees the
+//! same session: the requests, the answer as it is written, the trace (each call with
+//! its arguments, decision, result and time), the approvals the policy asks for, the
+//! e-stop's state and the robot's pose. The e-stop button reaches the same e-stop as the
+//! REPL, the ROS topic and the model's `robot_stop`.
+//!
+//! Served on loopback by default. Any other address needs a token: printed at start (or
+//! taken from `FERROSA_CONSOLE_TOKEN`), sent as a bearer token or kept by the browser as a
+//! cookie once the printed address was opened; requests without it are refused.
+//!
+//! Layout:
+//! - `hub`: the shared session (events, approvals, trail, busy)
+//! - `http`: the routes, the SSE stream, the request checks (host, origin, token)
+//! - `pose`: the robot view's pose, read from a topic
+//! - `worker`: the agent's thread and the jobs it takes
+
+mod http;
+pub mod hub;
+pub mod pose;
+mod worker;
+
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::Duration;
+
+use anyhow::Context;
+use serde_json::{json, Value};
+
+use super::agent::{build_with, connect, AgentArgs};
+use crate::agent::language::Language;
+use crate::agent::Agent;
+use crate::estop::EStop;
+use hub::Hub;
+use pose::View;
+
+/// The environment variable that sets the console's token (else one is drawn at start).
+pub const TOKEN_ENV: &str = "FERROSA_CONSOLE_TOKEN";
+
+#[derive(Debug, Clone)]
+pub struct ServeArgs {
+    pub agent: AgentArgs,
+    pub bind: SocketAddr,
+    /// The topic the robot view reads the pose from (the sim's by default).
+    pub pose_topic: Option<String>,
+}
+
+/// `ferrosa serve` (see the module header).
+pub fn run(args: &ServeArgs) -> anyhow::Result<()> {
+    let token = match args.bind.ip().is_loopback() {
+        true => None,
+        false => Some(token()?),
+    };
+    let mut agent_args = args.agent.clone();
+    if agent_args.trace_dir.is_none() {
+        agent_args.trace_dir = crate::dirs::traces_dir();
+    }
+    let estop = EStop::new();
+    let cancel = Arc::new(AtomicBool::new(false));
+    let hub = Hub::new(estop.clone(), cancel.clone());
+    let robot = connect(agent_args.robot, true)?;
+    let agent = build_with(&agent_args, hub.clone(), robot.graph.clone(), estop.clone())?
+        .with_cancel(cancel.clone());
+    if let Some(g) = &robot.graph {
+        g.set_fence(agent.fence().clone());
+    }
+    hub.set_fence(agent.fence().clone());
+    let view = view(args, &agent)?;
+    let info = info(&agent, &agent_args, view.as_ref());
+    let trace = agent.trace_path().map(PathBuf::from);
+    let (jobs, queue) = std::sync::mpsc::channel();
+    let worker = {
+        let hub = hub.clone();
+        std::thread::Builder::new()
+            .name("agent".into())
+            .spawn(move || worker::work(agent, &hub, &queue))?
+    };
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()?;
+    let app = http::App::new(hub.clone(), jobs, info, token.clone(), args.bind, trace);
+    let served = rt.block_on(async {
+        let listener = tokio::net::TcpListener::bind(args.bind)
+            .await
+            .with_context(|| format!("binding {}: is another console running there? choose another with --bind", args.bind))?;
+        let addr = listener.local_addr()?;
+        match &token {
+            None => eprintln!("ferrosa serve: console on http://{addr}/"),
+            Some(t) => eprintln!(
+                "ferrosa serve: console on http://{addr}/?token={t} (this address is reachable from other machines: the token is required)"
+            ),
+        }
+        if let (Some(g), Some(v)) = (robot.graph.clone(), view) {
+            tokio::spawn(pose::follow(g, hub.clone(), v));
+        }
+        tokio::spawn(follow_estop(hub.clone()));
+        // Not a graceful shutdown: the event streams of open pages never end by themselves.
+        tokio::select! {
+            served = axum::serve(listener, app.router()) => served.context("serving the console"),
+            _ = shutdown() => Ok(()),
+        }
+    });
+    // Leaving: nothing the agent started may go on moving the robot.
+    cancel.store(true, Ordering::SeqCst);
+    estop.halt("the console was shut down");
+    rt.shutdown_timeout(Duration::from_secs(2));
+    drop(worker);
+    drop(robot);
+    served
+}
+
+/// Ctrl-C, or the TERM a service manager sends.
+async fn shutdown() {
+    use tokio::signal::unix::{signal, SignalKind};
+    match signal(SignalKind::terminate()) {
+        Ok(mut term) => {
+            tokio::select! {
+                _ = tokio::signal::ctrl_c() => {}
+                _ = term.recv() => {}
+            }
+        }
+        Err(_) => {
+            let _ = tokio::signal::ctrl_c().await;
+        }
+    }
+    eprintln!("ferrosa serve: shutting down (the robot is braked)");
+}
+
+/// The robot view's topic: `--pose-topic`, or the sim's turtle; none for another robot
+/// unless named. A fenced topic is refused.
+fn view(args: &ServeArgs, agent: &Agent) -> anyhow::Result<Option<View>> {
+    let (topic, bounds) = match (&args.pose_topic, args.agent.robot.is_sim()) {
+        (Some(t), _) => (t.clone(), None),
+        (None, true) => (
+            "/turtle1/pose".to_string(),
+            Some([0.0, 0.0, crate::ros::sim::ARENA, crate::ros::sim::ARENA]),
+        ),
+        (None, false) => return Ok(None),
+    };
+    anyhow::ensure!(
+        args.agent.robot != super::agent::Robot::None,
+        "--pose-topic {topic} needs a robot: add --robot sim, ros2 or ros1"
+    );
+    anyhow::ensure!(
+        !agent.fence().denies(&topic),
+        "--pose-topic {topic}: the policy's deny-list covers this topic; the console does not read it"
+    );
+    Ok(Some(View { topic, bounds }))
+}
+
+/// What the page shows of this console at start.
+fn info(agent: &Agent, args: &AgentArgs, view: Option<&View>) -> Value {
+    let tools: Vec<Value> = agent
+        .registry()
+        .tools()
+        .map(|t| json!({"name": t.spec().name, "effect": format!("{:?}", t.effect()).to_lowercase()}))
+        .collect();
+    let languages: Vec<Value> = crate::agent::language::ALL
+        .iter()
+        .map(|l| json!({"code": l.code(), "name": l.name()}))
+        .collect();
+    json!({
+        "engine": agent.engine(),
+        "robot": format!("{:?}", args.robot).to_lowercase(),
+        "tools": tools,
+        "languages": languages,
+        "language": args.language.map(Language::code),
+        "view": view,
+        "max_request_chars": http::MAX_REQUEST_CHARS,
+    })
+}
+
+/// Tell every client when the e-stop is engaged or released, whoever did it.
+async fn follow_estop(hub: Arc<Hub>) {
+    let mut rx = hub.estop.subscribe();
+    loop {
+        let state = rx.borrow_and_update().clone();
+        hub.publish("estop", &hub::estop_json(state.as_ref()), true);
+        if rx.changed().await.is_err() {
+            return;
+        }
+    }
+}
+
+/// The console's token: `FERROSA_CONSOLE_TOKEN`, else 128 random bits in hex.
+fn token() -> anyhow::Result<String> {
+    if let Some(t) = std::env::var_os(TOKEN_ENV) {
+        let t = t.to_string_lossy().into_owned();
+        anyhow::ensure!(
+            t.len() >= 16
+                && t.bytes()
+                    .all(|b| b.is_ascii_alphanumeric() || b == b'-' || b == b'_'),
+            "{TOKEN_ENV} must be at least 16 characters of letters, digits, '-' or '_'"
+        );
+        return Ok(t);
+    }
+    let mut bytes = [0u8; 16];
+    use std::io::Read;
+    std::fs::File::open("/dev/urandom")
+        .and_then(|mut f| f.read_exact(&mut bytes))
+        .context(
+            "drawing the console's token from /dev/urandom; set FERROSA_CONSOLE_TOKEN instead",
+        )?;
+    Ok(bytes.iter().map(|b| format!("{b:02x}")).collect())
+}

@@ -1,0 +1,326 @@
+//! `ferrosa serve` in a real browser: headless Chromium, driven over WebDriver, against
+//! the console with the built-in sim and the default model, inside a loopback-only
+//! network namespace. An operator's session: a question, a move approved and seen on the
+//! canvas, an e-stop during a move, a denied move; a screenshot of each step goes to
+//! `target/test-artifacts/console/`. Then the HTTP rules: the token off loopback, the
+//! host and origin checks, JSON only.
+
+use std::io::{BufRead, BufReader};
+use std::path::PathBuf;
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use serde_json::Value;
+
+use crate::support::webdriver::{http, Browser};
+use crate::util::{models_dir, rerun_in_loopback_netns, stop};
+
+const TEST: &str = "console::an_operator_drives_the_robot_from_the_console_in_a_browser";
+
+/// Start `ferrosa serve ARGS` and wait for the address it prints.
+fn serve(args: &[&str], env: &[(&str, &str)]) -> (Child, String) {
+    let mut cmd = Command::new("timeout");
+    cmd.args(["-k", "5", "500", env!("CARGO_BIN_EXE_ferrosa"), "serve"])
+        .args(args)
+        .env("FERROSA_MODELS_DIR", models_dir())
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped());
+    for (k, v) in env {
+        cmd.env(k, v);
+    }
+    let mut child = cmd.spawn().expect("running ferrosa serve");
+    let mut lines = BufReader::new(child.stderr.take().unwrap()).lines();
+    let start = Instant::now();
+    let url = loop {
+        let line = lines
+            .next()
+            .expect("ferrosa serve ended before serving")
+            .unwrap();
+        eprintln!("serve: {line}");
+        if let Some(rest) = line.strip_prefix("ferrosa serve: console on ") {
+            break rest.split_whitespace().next().unwrap().to_string();
+        }
+        assert!(
+            start.elapsed() < Duration::from_secs(120),
+            "no address yet: {line}"
+        );
+    };
+    std::thread::spawn(move || lines.for_each(|l| eprintln!("serve: {}", l.unwrap_or_default())));
+    (child, url)
+}
+
+fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port()
+}
+
+fn shots() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("target/test-artifacts/console")
+}
+
+/// The number the canvas shows for the turtle's `x`.
+fn turtle_x(b: &Browser) -> f64 {
+    let v = b.wait_for(
+        "the turtle on the canvas",
+        "return document.getElementById('canvas').dataset.x",
+        Duration::from_secs(20),
+    );
+    v.as_str().unwrap().parse().unwrap()
+}
+
+/// Type `request`, send it, and return the run's bubble selector once the page shows
+/// the request sent (the agent busy).
+fn send(b: &Browser, request: &str) -> String {
+    let before = b.eval("return document.querySelectorAll('#messages li.agent').length");
+    b.type_into("#prompt", request);
+    b.click("#send");
+    b.wait_for(
+        "the request to be taken",
+        &format!("return document.querySelectorAll('#messages li.agent').length > {before}"),
+        Duration::from_secs(10),
+    );
+    "#messages li.agent:last-child".to_string()
+}
+
+/// Wait for the last run to finish; its answer.
+fn answer(b: &Browser) -> String {
+    b.wait_for(
+        "the answer",
+        "const li = document.querySelector('#messages li.agent:last-child');
+         return li && !li.classList.contains('writing') && document.body.dataset.busy === 'false' && li.innerText",
+        Duration::from_secs(180),
+    )
+    .as_str()
+    .unwrap()
+    .to_string()
+}
+
+/// Wait for the approval dialog; the call it shows (name, arguments).
+fn approval_shown(b: &Browser) -> (String, Value) {
+    b.wait_for(
+        "the approval dialog",
+        "return document.getElementById('approval').open",
+        Duration::from_secs(120),
+    );
+    let name = b.eval("return document.getElementById('approval-name').textContent");
+    let args = b.eval("return document.getElementById('approval-args').textContent");
+    (
+        name.as_str().unwrap().to_string(),
+        serde_json::from_str(args.as_str().unwrap()).unwrap(),
+    )
+}
+
+#[test]
+#[ignore = "needs the default model, Debian's chromium and chromium-driver (.ci/setup) and a loopback-only network namespace: cargo test --release -- --include-ignored"]
+fn an_operator_drives_the_robot_from_the_console_in_a_browser() {
+    if rerun_in_loopback_netns(TEST, 900) {
+        return;
+    }
+    let traces = tempfile_dir("traces");
+    let (mut server, url) = serve(
+        &[
+            "--robot",
+            "sim",
+            "--bind",
+            "127.0.0.1:0",
+            "--trace-dir",
+            traces.to_str().unwrap(),
+        ],
+        &[],
+    );
+    let b = Browser::start(free_port(), 1280, 900);
+    b.open(&url);
+    b.wait_for(
+        "the page to load its state",
+        "return document.getElementById('engine').textContent",
+        Duration::from_secs(20),
+    );
+    let x0 = turtle_x(&b);
+
+    // A question: the answer names the sim's node, the trace shows the call.
+    let bubble = send(&b, "list the ROS nodes");
+    let said = answer(&b);
+    assert!(said.contains("/turtlesim"), "{bubble}: {said}");
+    b.wait_for(
+        "the call in the trace",
+        "return document.querySelector('#trace li.call[data-name=\"ros_node_list\"]') !== null",
+        Duration::from_secs(5),
+    );
+    b.screenshot(&shots().join("1-question.png"));
+
+    // A move: asked for approval with its arguments, approved, seen on the canvas.
+    send(&b, "move the turtle forward 1 meter");
+    let (name, args) = approval_shown(&b);
+    eprintln!("approval asked: {name} {args}");
+    b.screenshot(&shots().join("2-approval.png"));
+    b.click("#approve");
+    let said = answer(&b);
+    let x1 = turtle_x(&b);
+    b.screenshot(&shots().join("3-moved.png"));
+    assert!(
+        x1 - x0 > 0.5,
+        "the turtle did not move forward on the canvas ({x0} → {x1}) after approving {name} {args}: {said}"
+    );
+    assert!(
+        b.eval(
+            "return document.querySelector('#trace li.call[data-decision=\"confirmed\"]') !== null"
+        ) == Value::Bool(true),
+        "no confirmed call in the trace"
+    );
+
+    // An e-stop during a move: the turtle stops short and stays.
+    send(&b, "move the turtle forward 3 meters");
+    approval_shown(&b);
+    b.click("#approve");
+    b.wait_for(
+        "the turtle to start moving",
+        &format!(
+            "return Number(document.getElementById('canvas').dataset.x) > {}",
+            x1 + 0.2
+        ),
+        Duration::from_secs(20),
+    );
+    b.click("#estop");
+    b.wait_for(
+        "the e-stop banner",
+        "return !document.getElementById('estop-banner').hidden",
+        Duration::from_secs(5),
+    );
+    std::thread::sleep(Duration::from_millis(700));
+    let stopped = turtle_x(&b);
+    std::thread::sleep(Duration::from_millis(1500));
+    let later = turtle_x(&b);
+    b.screenshot(&shots().join("4-estop.png"));
+    assert!(
+        (later - stopped).abs() < 0.05,
+        "the turtle went on after the e-stop: {stopped} → {later}"
+    );
+    assert!(
+        later < x1 + 2.7,
+        "the e-stop did not stop the move short: {x1} → {later}"
+    );
+    answer(&b);
+    b.click("#reset");
+    b.wait_for(
+        "the e-stop released",
+        "return document.getElementById('estop-banner').hidden",
+        Duration::from_secs(5),
+    );
+
+    // A denied move: refused in the trace, the turtle where it was.
+    send(&b, "move the turtle forward 1 meter");
+    approval_shown(&b);
+    b.click("#deny");
+    let said = answer(&b);
+    b.screenshot(&shots().join("5-denied.png"));
+    let refused = b.eval(
+        "const li = [...document.querySelectorAll('#trace li.call')].pop();
+         return li && li.dataset.decision",
+    );
+    assert_eq!(refused, "refused", "the last call was not refused: {said}");
+    assert!(
+        (turtle_x(&b) - later).abs() < 0.05,
+        "the turtle moved after a denial"
+    );
+
+    // The session's trace, as the download link gives it.
+    let host = url.trim_start_matches("http://").trim_end_matches('/');
+    let (status, _, jsonl) = http(host, "GET", "/api/trace.jsonl", &[], None);
+    assert_eq!(status, 200);
+    let queries = jsonl
+        .lines()
+        .filter_map(|l| serde_json::from_str::<Value>(l).ok())
+        .filter(|v| v["kind"] == "query")
+        .count();
+    assert_eq!(queries, 4, "{jsonl}");
+    drop(b);
+    stop(&mut server);
+
+    http_rules();
+}
+
+/// The rules a request passes first, on a console bound to every address (inside this
+/// namespace that is loopback too) and on one bound to loopback.
+fn http_rules() {
+    let token = "test-token-0123456789";
+    let (mut open, url) = serve(
+        &["--bind", "0.0.0.0:0"],
+        &[("FERROSA_CONSOLE_TOKEN", token)],
+    );
+    assert!(url.ends_with(&format!("/?token={token}")), "{url}");
+    let addr = url
+        .trim_start_matches("http://")
+        .split('/')
+        .next()
+        .unwrap()
+        .replace("0.0.0.0", "127.0.0.1");
+    let get = |headers: &[(&str, &str)], path: &str| http(&addr, "GET", path, headers, None);
+    let (status, _, body) = get(&[], "/api/state");
+    assert_eq!(status, 401, "{body}");
+    assert!(body.contains("token"), "{body}");
+    assert_eq!(
+        get(
+            &[("Authorization", "Bearer wrong-token-000000000")],
+            "/api/state"
+        )
+        .0,
+        401
+    );
+    let bearer = format!("Bearer {token}");
+    assert_eq!(get(&[("Authorization", &bearer)], "/api/state").0, 200);
+    let (status, head, _) = get(&[], &format!("/?token={token}"));
+    assert_eq!(status, 303, "{head}");
+    let cookie = head
+        .lines()
+        .find_map(|l| l.strip_prefix("set-cookie: "))
+        .unwrap_or_else(|| panic!("no cookie: {head}"));
+    assert!(
+        cookie.contains("HttpOnly") && cookie.contains("SameSite=Strict"),
+        "{cookie}"
+    );
+    let cookie = cookie.split(';').next().unwrap();
+    assert_eq!(get(&[("Cookie", cookie)], "/api/state").0, 200);
+    // With the token: JSON only, and from the console's own page.
+    let post = |headers: &[(&str, &str)]| {
+        let mut h = vec![("Authorization", bearer.as_str())];
+        h.extend_from_slice(headers);
+        http(&addr, "POST", "/api/reset", &h, Some("{}")).0
+    };
+    assert_eq!(post(&[("Content-Type", "text/plain")]), 415);
+    assert_eq!(
+        post(&[
+            ("Content-Type", "application/json"),
+            ("Origin", "http://evil.example")
+        ]),
+        403
+    );
+    assert_eq!(post(&[("Content-Type", "application/json")]), 200);
+    stop(&mut open);
+
+    // On loopback: a name that is not loopback is refused (a rebound name).
+    let (mut local, url) = serve(&["--bind", "127.0.0.1:0"], &[]);
+    let addr = url
+        .trim_start_matches("http://")
+        .trim_end_matches('/')
+        .to_string();
+    let (status, _, body) = http(
+        &addr,
+        "GET",
+        "/api/state",
+        &[("Host", "evil.example")],
+        None,
+    );
+    stop(&mut local);
+    assert_eq!(status, 403, "{body}");
+}
+
+fn tempfile_dir(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("ferrosa-console-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}

@@ -1,0 +1,337 @@
+// ferrosa's operator console: the page side of `ferrosa serve`. Everything it shows
+// comes from the server's event stream (/api/events), replayed from the start when the
+// page loads, so every open page shows the same session. Text from the robot or the
+// model is only ever set as text, never as markup.
+"use strict";
+
+const $ = (id) => document.getElementById(id);
+const runs = new Map();        // run → {bubble, raw, calls: Map, answered}
+const approvals = new Map();   // id → {name, arguments, timeout_s}
+let view = null;
+let trail = [];
+let drawing = false;
+let shownApproval = null;
+
+async function post(path, body) {
+  const r = await fetch(path, {
+    method: "POST",
+    headers: { "Content-Type": "application/json" },
+    body: JSON.stringify(body || {}),
+  });
+  const data = await r.json().catch(() => ({}));
+  if (!r.ok) throw new Error(data.error || `HTTP ${r.status}`);
+  return data;
+}
+
+function notice(text) {
+  $("notice").textContent = text || "";
+}
+
+function el(tag, cls, text) {
+  const e = document.createElement(tag);
+  if (cls) e.className = cls;
+  if (text !== undefined) e.textContent = text;
+  return e;
+}
+
+function scrollDown(list) {
+  list.scrollTop = list.scrollHeight;
+}
+
+// ---- the answer as it is written ------------------------------------------------
+
+// The text of the answer tool's call so far, decoded from the JSON being written; the
+// text itself when the model writes prose; null while it writes another call.
+function answerSoFar(raw) {
+  const m = raw.match(/"name"\s*:\s*"reply"\s*,\s*"arguments"\s*:\s*\{\s*"text"\s*:\s*"/);
+  if (m) return partialString(raw.slice(m.index + m[0].length));
+  if (!/^\s*(<|\[|\{)/.test(raw)) return raw;
+  return null;
+}
+
+// A JSON string's content up to its closing quote or the end of what is written.
+function partialString(s) {
+  let out = "";
+  for (let i = 0; i < s.length; i++) {
+    const c = s[i];
+    if (c === '"') break;
+    if (c !== "\\") { out += c; continue; }
+    const n = s[i + 1];
+    if (n === undefined) break;
+    const simple = { n: "\n", t: "\t", r: "", b: "", f: "", '"': '"', "\\": "\\", "/": "/" };
+    if (n in simple) { out += simple[n]; i++; continue; }
+    if (n === "u") {
+      const hex = s.slice(i + 2, i + 6);
+      if (hex.length < 4) break;
+      out += String.fromCharCode(parseInt(hex, 16));
+      i += 5;
+      continue;
+    }
+    i++;
+  }
+  return out;
+}
+
+// ---- conversation and trace ------------------------------------------------------
+
+function onRequest(d) {
+  const list = $("messages");
+  list.append(el("li", "user", d.text));
+  const bubble = el("li", "agent writing", "…");
+  bubble.dataset.run = d.run;
+  list.append(bubble);
+  runs.set(d.run, { bubble, raw: "", calls: new Map(), answered: false });
+  scrollDown(list);
+  setBusy(true);
+}
+
+function traceItem(cls) {
+  const li = el("li", cls);
+  $("trace").append(li);
+  scrollDown($("trace"));
+  return li;
+}
+
+function onAgent(d) {
+  const r = runs.get(d.run);
+  if (!r) return;
+  switch (d.event) {
+    case "step":
+      r.raw = "";
+      traceItem("step").textContent =
+        `run ${d.run} · step ${d.step} · ${d.prompt_tokens} prompt tokens (${d.reused_tokens} cached) · ${d.tools.length} tools offered`;
+      break;
+    case "token": {
+      r.raw += d.text;
+      const shown = answerSoFar(r.raw);
+      if (shown !== null && !r.answered) r.bubble.textContent = shown || "…";
+      break;
+    }
+    case "tool_call": {
+      const li = traceItem("call");
+      li.dataset.key = `${d.run}/${d.step}/${d.index}`;
+      li.dataset.name = d.name;
+      const details = el("details");
+      const summary = el("summary");
+      const decision = d.decision.decision;
+      li.dataset.decision = decision;
+      summary.append(el("code", "name", d.name), " ",
+        el("span", `decision ${decision}`, decision), " ", el("span", "ms muted", ""));
+      details.append(summary, el("div", "muted", "arguments"),
+        el("pre", "arguments", JSON.stringify(d.arguments, null, 1)));
+      if (d.decision.reason) details.append(el("div", "muted", "reason"), el("pre", "reason", d.decision.reason));
+      li.append(details);
+      r.calls.set(li.dataset.key, li);
+      break;
+    }
+    case "tool_result": {
+      const li = r.calls.get(`${d.run}/${d.step}/${d.index}`);
+      if (!li) break;
+      li.dataset.ok = d.ok;
+      li.querySelector(".ms").textContent = `${d.ok ? "✓" : "✗"} ${Math.round(d.ms)} ms`;
+      if (!d.ok) li.querySelector(".decision").classList.add("failed");
+      const details = li.querySelector("details");
+      details.append(el("div", "muted", "result"), el("pre", "result", JSON.stringify(d.output, null, 1)));
+      break;
+    }
+    case "answer":
+      r.answered = true;
+      r.bubble.textContent = d.text;
+      r.bubble.classList.remove("writing");
+      r.bubble.classList.add("answered");
+      break;
+    case "error":
+      traceItem("step failed").textContent = `run ${d.run}: ${d.message}`;
+      break;
+  }
+}
+
+function onDone(d) {
+  const r = runs.get(d.run);
+  setBusy(false);
+  if (!r) return;
+  r.bubble.classList.remove("writing");
+  if (d.error) {
+    r.bubble.classList.add("failed");
+    r.bubble.textContent = `The agent failed: ${d.error}`;
+    return;
+  }
+  const secs = (d.timings.total_ms / 1000).toFixed(1);
+  const finish = d.finish === "answer" ? "" : ` · ${d.finish.replace("_", " ")}`;
+  r.bubble.append(el("span", "meta", `${d.calls} call${d.calls === 1 ? "" : "s"} · ${secs} s${finish}`));
+  scrollDown($("messages"));
+}
+
+function setBusy(busy) {
+  $("send").disabled = busy;
+  $("clear").disabled = busy;
+  document.body.dataset.busy = busy;
+}
+
+// ---- approvals -------------------------------------------------------------------
+
+function showApproval() {
+  const dialog = $("approval");
+  const next = approvals.keys().next();
+  if (next.done) {
+    shownApproval = null;
+    if (dialog.open) dialog.close();
+    return;
+  }
+  const id = next.value;
+  const a = approvals.get(id);
+  shownApproval = id;
+  dialog.dataset.id = id;
+  $("approval-name").textContent = a.name;
+  $("approval-args").textContent = JSON.stringify(a.arguments, null, 2);
+  $("approval-time").textContent = `Refused by itself after ${a.timeout_s} s without an answer, or at an e-stop.`;
+  if (!dialog.open) dialog.showModal();
+}
+
+async function answerApproval(approve) {
+  if (shownApproval === null) return;
+  try {
+    await post("/api/approval", { id: shownApproval, approve });
+  } catch (e) {
+    notice(e.message);
+  }
+}
+
+// ---- e-stop ----------------------------------------------------------------------
+
+function setEstop(s) {
+  $("estop-banner").hidden = !s.engaged;
+  $("estop-source").textContent = s.engaged && s.source ? `(by ${s.source})` : "";
+  document.body.dataset.estop = s.engaged;
+}
+
+// ---- robot view ------------------------------------------------------------------
+
+function requestDraw() {
+  if (drawing) return;
+  drawing = true;
+  requestAnimationFrame(() => { drawing = false; draw(); });
+}
+
+function draw() {
+  const c = $("canvas");
+  const g = c.getContext("2d");
+  const W = c.width, H = c.height;
+  g.clearRect(0, 0, W, H);
+  if (!view) {
+    g.fillStyle = "#667085";
+    g.font = "14px system-ui";
+    g.fillText("No pose topic (ferrosa serve --pose-topic TOPIC)", 12, H / 2);
+    return;
+  }
+  let [x0, y0, x1, y1] = view.bounds || fit();
+  const scale = Math.min(W / (x1 - x0), H / (y1 - y0));
+  const px = (x) => (x - x0) * scale;
+  const py = (y) => H - (y - y0) * scale;
+  g.strokeStyle = "#cdd9ea";
+  g.lineWidth = 1;
+  for (let m = Math.ceil(x0); m <= x1; m++) { g.beginPath(); g.moveTo(px(m), 0); g.lineTo(px(m), H); g.stroke(); }
+  for (let m = Math.ceil(y0); m <= y1; m++) { g.beginPath(); g.moveTo(0, py(m)); g.lineTo(W, py(m)); g.stroke(); }
+  if (trail.length > 1) {
+    g.strokeStyle = "#2457c5";
+    g.lineWidth = 2;
+    g.beginPath();
+    g.moveTo(px(trail[0].x), py(trail[0].y));
+    for (const p of trail) g.lineTo(px(p.x), py(p.y));
+    g.stroke();
+  }
+  const p = trail[trail.length - 1];
+  if (!p) return;
+  g.save();
+  g.translate(px(p.x), py(p.y));
+  g.rotate(-p.theta);
+  g.fillStyle = document.body.dataset.estop === "true" ? "#c8102e" : "#137333";
+  g.beginPath();
+  g.moveTo(14, 0);
+  g.lineTo(-9, 8);
+  g.lineTo(-9, -8);
+  g.closePath();
+  g.fill();
+  g.restore();
+  c.dataset.x = p.x.toFixed(3);
+  c.dataset.y = p.y.toFixed(3);
+  c.dataset.theta = p.theta.toFixed(3);
+  $("pose-text").textContent =
+    `x ${p.x.toFixed(2)} m, y ${p.y.toFixed(2)} m, heading ${(p.theta * 180 / Math.PI).toFixed(0)}°`;
+}
+
+// The trail's extent with a margin, square, at least 2 m across.
+function fit() {
+  if (!trail.length) return [-1, -1, 1, 1];
+  let x0 = Infinity, y0 = Infinity, x1 = -Infinity, y1 = -Infinity;
+  for (const p of trail) { x0 = Math.min(x0, p.x); y0 = Math.min(y0, p.y); x1 = Math.max(x1, p.x); y1 = Math.max(y1, p.y); }
+  const side = Math.max(2, x1 - x0, y1 - y0) * 1.2;
+  const cx = (x0 + x1) / 2, cy = (y0 + y1) / 2;
+  return [cx - side / 2, cy - side / 2, cx + side / 2, cy + side / 2];
+}
+
+// ---- start -----------------------------------------------------------------------
+
+function connect() {
+  const es = new EventSource("/api/events");
+  es.onopen = () => { $("offline").hidden = true; };
+  es.onerror = () => { $("offline").hidden = false; };
+  const on = (kind, f) => es.addEventListener(kind, (e) => f(JSON.parse(e.data)));
+  on("request", onRequest);
+  on("agent", onAgent);
+  on("done", onDone);
+  on("approval", (a) => { approvals.set(a.id, a); showApproval(); });
+  on("approved", (a) => {
+    approvals.delete(a.id);
+    const li = traceItem(`step ${a.approved ? "confirmed" : "refused"}`);
+    li.textContent = `approval ${a.id}: ${a.approved ? "approved" : "refused"} (${a.why})`;
+    showApproval();
+  });
+  on("estop", (s) => { setEstop(s); requestDraw(); });
+  on("pose", (p) => { trail.push(p); if (trail.length > 4000) trail.shift(); requestDraw(); });
+  on("cleared", () => $("messages").append(el("li", "agent", "— conversation cleared —")));
+  on("lagged", () => notice("This page fell behind the agent's text; the answers are complete."));
+}
+
+async function start() {
+  const r = await fetch("/api/state");
+  if (!r.ok) {
+    notice((await r.json().catch(() => ({}))).error || `HTTP ${r.status}`);
+    return;
+  }
+  const info = await r.json();
+  $("engine").textContent = `robot: ${info.robot} · model: ${info.engine}`;
+  const select = $("language");
+  for (const l of info.languages) select.append(new Option(l.name, l.code));
+  select.value = localStorage.getItem("ferrosa.language") || info.language || "auto";
+  select.addEventListener("change", () => localStorage.setItem("ferrosa.language", select.value));
+  if (!info.trace) $("download").hidden = true;
+  view = info.view;
+  trail = info.trail || [];
+  setEstop(info.estop);
+  setBusy(info.busy);
+  draw();
+
+  $("ask").addEventListener("submit", async (e) => {
+    e.preventDefault();
+    const text = $("prompt").value.trim();
+    if (!text) return;
+    try {
+      await post("/api/ask", { text, language: select.value });
+      $("prompt").value = "";
+      notice("");
+    } catch (err) {
+      notice(err.message);
+    }
+  });
+  $("estop").addEventListener("click", () => post("/api/estop").catch((e) => notice(e.message)));
+  $("reset").addEventListener("click", () => post("/api/reset").catch((e) => notice(e.message)));
+  $("clear").addEventListener("click", () => post("/api/clear").catch((e) => notice(e.message)));
+  $("approve").addEventListener("click", () => answerApproval(true));
+  $("deny").addEventListener("click", () => answerApproval(false));
+  // Escape denies rather than leaving the agent waiting on a hidden question.
+  $("approval").addEventListener("cancel", (e) => { e.preventDefault(); answerApproval(false); });
+  connect();
+}
+
+start();
