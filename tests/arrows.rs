@@ -23,6 +23,7 @@ const ALLOWED: &[(&str, &[&str])] = &[
     ("clock", &[]),
     ("dirs", &[]),
     ("metrics", &[]),
+    ("speech", &[]),
     ("backend", &["chat", "clock", "metrics"]),
     ("models", &["backend", "metrics", "dirs"]),
     ("tool", &["chat", "lexicon", "estop", "fence", "limits"]),
@@ -52,7 +53,7 @@ const ALLOWED: &[(&str, &[&str])] = &[
         "eval",
         &[
             "agent", "strategy", "decode", "backend", "tool", "tools", "ros", "chat", "lexicon",
-            "models", "metrics", "clock", "json", "estop", "fence", "limits", "remote",
+            "models", "metrics", "clock", "json", "estop", "fence", "limits", "remote", "speech",
         ],
     ),
     (
@@ -60,7 +61,7 @@ const ALLOWED: &[(&str, &[&str])] = &[
         &[
             "agent", "strategy", "decode", "backend", "tool", "tools", "ros", "chat", "lexicon",
             "models", "metrics", "clock", "eval", "json", "estop", "fence", "limits", "dirs",
-            "remote",
+            "remote", "speech",
         ],
     ),
 ];

@@ -1,9 +1,11 @@
 //! `ferrosa serve` in a real browser: headless Chromium, driven over WebDriver, against
 //! the console with the built-in sim and the default model, inside a loopback-only
 //! network namespace. An operator's session: a question, a move approved and seen on the
-//! canvas, an e-stop during a move, a denied move; a screenshot of each step goes to
-//! `target/test-artifacts/console/`. Then the HTTP rules: the token off loopback, the
-//! host and origin checks, JSON only.
+//! canvas, an e-stop during a move, a denied move, a request spoken into the page's
+//! microphone (Chromium's fake capture device plays a WAV espeak-ng spoke) and
+//! transcribed; a screenshot of each step goes to `target/test-artifacts/console/`. Then
+//! the HTTP rules: the token off loopback, the host and origin checks, JSON only, and the
+//! spoken answer.
 
 use std::io::{BufRead, BufReader};
 use std::path::PathBuf;
@@ -102,8 +104,8 @@ fn answer(b: &Browser) -> String {
 /// Wait for the approval dialog; the call it shows (name, arguments).
 fn approval_shown(b: &Browser) -> (String, Value) {
     b.wait_for(
-        "the approval dialog",
-        "return document.getElementById('approval').open",
+        "the approval dialog, ready to answer",
+        "return document.getElementById('approval').open && !document.getElementById('approve').disabled",
         Duration::from_secs(120),
     );
     let name = b.eval("return document.getElementById('approval-name').textContent");
@@ -132,7 +134,31 @@ fn an_operator_drives_the_robot_from_the_console_in_a_browser() {
         ],
         &[],
     );
-    let b = Browser::start(free_port(), 1280, 900);
+    // What the page's microphone will hear: a request, spoken once, then silence.
+    let spoken = traces.join("spoken.wav");
+    let said = Command::new(env!("CARGO_BIN_EXE_ferrosa"))
+        .args([
+            "say",
+            "where is the turtle",
+            "--out",
+            spoken.to_str().unwrap(),
+        ])
+        .status()
+        .expect("ferrosa say");
+    assert!(
+        said.success(),
+        "ferrosa say (espeak-ng, installed by .ci/setup)"
+    );
+    let mic = [
+        "--use-fake-ui-for-media-stream".to_string(),
+        "--use-fake-device-for-media-stream".to_string(),
+        format!(
+            "--use-file-for-fake-audio-capture={}%noloop",
+            spoken.display()
+        ),
+        "--autoplay-policy=no-user-gesture-required".to_string(),
+    ];
+    let b = Browser::start(free_port(), 1280, 900, &mic);
     b.open(&url);
     b.wait_for(
         "the page to load its state",
@@ -227,6 +253,31 @@ fn an_operator_drives_the_robot_from_the_console_in_a_browser() {
         "the turtle moved after a denial"
     );
 
+    // Speech: click to talk, the request plays into the microphone, click to send; the
+    // transcript is the request, and the agent answers it.
+    let asked = b.eval("return document.querySelectorAll('#messages li.user').length");
+    b.click("#talk");
+    b.wait_for(
+        "the page to listen",
+        "return document.getElementById('talk').classList.contains('recording')",
+        Duration::from_secs(10),
+    );
+    std::thread::sleep(Duration::from_millis(3500));
+    b.click("#talk");
+    let heard = b.wait_for(
+        "the spoken request to be sent",
+        &format!(
+            "const u = document.querySelectorAll('#messages li.user');
+             return u.length > {asked} && u[u.length - 1].textContent"
+        ),
+        Duration::from_secs(60),
+    );
+    let heard = heard.as_str().unwrap().to_lowercase();
+    assert!(heard.contains("turtle"), "heard {heard:?}");
+    let said = answer(&b);
+    b.screenshot(&shots().join("6-spoken.png"));
+    eprintln!("spoken: {heard:?} → {said:?}");
+
     // The session's trace, as the download link gives it.
     let host = url.trim_start_matches("http://").trim_end_matches('/');
     let (status, _, jsonl) = http(host, "GET", "/api/trace.jsonl", &[], None);
@@ -236,7 +287,7 @@ fn an_operator_drives_the_robot_from_the_console_in_a_browser() {
         .filter_map(|l| serde_json::from_str::<Value>(l).ok())
         .filter(|v| v["kind"] == "query")
         .count();
-    assert_eq!(queries, 4, "{jsonl}");
+    assert_eq!(queries, 5, "{jsonl}");
     drop(b);
     stop(&mut server);
 
@@ -314,8 +365,19 @@ fn http_rules() {
         &[("Host", "evil.example")],
         None,
     );
-    stop(&mut local);
     assert_eq!(status, 403, "{body}");
+    // An answer read aloud: a WAV from espeak-ng.
+    let json = [("Content-Type", "application/json")];
+    let text = r#"{"text": "The turtle is at five, five."}"#;
+    let (status, head, wav) = http(&addr, "POST", "/api/say", &json, Some(text));
+    assert_eq!(status, 200, "{head}");
+    assert!(wav.starts_with("RIFF"), "{head}");
+    // A recording that is not WAV is refused with what to do.
+    let wav_type = [("Content-Type", "audio/wav")];
+    let (status, _, body) = http(&addr, "POST", "/api/transcribe", &wav_type, Some("OggS"));
+    assert_eq!(status, 400, "{body}");
+    assert!(body.contains("WAV"), "{body}");
+    stop(&mut local);
 }
 
 fn tempfile_dir(name: &str) -> PathBuf {

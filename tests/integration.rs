@@ -32,3 +32,4 @@ mod ros;
 mod ros1;
 mod runtime;
 mod safety;
+mod speech;

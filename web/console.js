@@ -11,6 +11,11 @@ let view = null;
 let trail = [];
 let drawing = false;
 let shownApproval = null;
+let live = false;              // past the replay: answers may be spoken
+let rec = null;                // the recording in progress
+// The dialog's buttons wait this long after it shows a call, so a second click meant
+// for one call never answers the next.
+const SETTLE_MS = 800;
 
 async function post(path, body) {
   const r = await fetch(path, {
@@ -135,6 +140,7 @@ function onAgent(d) {
       break;
     }
     case "answer":
+      if (live && $("speak").checked) speak(d.text);
       r.answered = true;
       r.bubble.textContent = d.text;
       r.bubble.classList.remove("writing");
@@ -162,6 +168,17 @@ function onDone(d) {
   scrollDown($("messages"));
 }
 
+async function submit() {
+  const text = $("prompt").value.trim();
+  if (!text) return;
+  try {
+    await post("/api/ask", { text, language: $("language").value });
+    $("prompt").value = "";
+  } catch (err) {
+    notice(err.message);
+  }
+}
+
 function setBusy(busy) {
   $("send").disabled = busy;
   $("clear").disabled = busy;
@@ -180,6 +197,7 @@ function showApproval() {
   }
   const id = next.value;
   const a = approvals.get(id);
+  if (shownApproval !== id) settle();
   shownApproval = id;
   dialog.dataset.id = id;
   $("approval-name").textContent = a.name;
@@ -188,12 +206,20 @@ function showApproval() {
   if (!dialog.open) dialog.showModal();
 }
 
+function settle() {
+  for (const b of [$("approve"), $("deny")]) b.disabled = true;
+  setTimeout(() => { for (const b of [$("approve"), $("deny")]) b.disabled = false; }, SETTLE_MS);
+}
+
 async function answerApproval(approve) {
-  if (shownApproval === null) return;
+  if (shownApproval === null || $("approve").disabled) return;
+  // One answer per call shown: the buttons wait for the next call to settle.
+  for (const b of [$("approve"), $("deny")]) b.disabled = true;
   try {
     await post("/api/approval", { id: shownApproval, approve });
   } catch (e) {
     notice(e.message);
+    settle();
   }
 }
 
@@ -203,6 +229,94 @@ function setEstop(s) {
   $("estop-banner").hidden = !s.engaged;
   $("estop-source").textContent = s.engaged && s.source ? `(by ${s.source})` : "";
   document.body.dataset.estop = s.engaged;
+}
+
+// ---- speech ---------------------------------------------------------------------
+
+// The longest recording, as the recogniser takes it.
+const MAX_RECORDING_S = 29;
+
+async function startTalk() {
+  const stream = await navigator.mediaDevices.getUserMedia({ audio: { channelCount: 1 } });
+  const ctx = new AudioContext();
+  const src = ctx.createMediaStreamSource(stream);
+  const node = ctx.createScriptProcessor(4096, 1, 1);
+  const chunks = [];
+  node.onaudioprocess = (e) => chunks.push(new Float32Array(e.inputBuffer.getChannelData(0)));
+  src.connect(node);
+  node.connect(ctx.destination);
+  const timer = setTimeout(() => stopTalk().catch((e) => notice(e.message)), MAX_RECORDING_S * 1000);
+  rec = { ctx, stream, src, node, chunks, timer, started: performance.now() };
+  $("talk").classList.add("recording");
+  $("talk").textContent = "■ Send";
+  notice("Listening… click again (or release) to send.");
+}
+
+async function stopTalk() {
+  const r = rec;
+  if (!r) return;
+  rec = null;
+  clearTimeout(r.timer);
+  r.node.disconnect();
+  r.src.disconnect();
+  r.stream.getTracks().forEach((t) => t.stop());
+  const rate = r.ctx.sampleRate;
+  await r.ctx.close();
+  $("talk").classList.remove("recording");
+  $("talk").textContent = "… transcribing";
+  $("talk").disabled = true;
+  try {
+    const resp = await fetch("/api/transcribe", {
+      method: "POST",
+      headers: { "Content-Type": "audio/wav" },
+      body: wav(r.chunks, rate),
+    });
+    const data = await resp.json().catch(() => ({}));
+    if (!resp.ok) throw new Error(data.error || `HTTP ${resp.status}`);
+    if (!data.text) {
+      notice("Nothing was heard; speak closer to the microphone.");
+      return;
+    }
+    notice(`Heard in ${(data.ms / 1000).toFixed(1)} s.`);
+    $("prompt").value = data.text;
+    await submit();
+  } finally {
+    $("talk").textContent = "● Talk";
+    $("talk").disabled = false;
+  }
+}
+
+// 16-bit mono PCM WAV of the recorded chunks.
+function wav(chunks, rate) {
+  const n = chunks.reduce((a, c) => a + c.length, 0);
+  const buf = new ArrayBuffer(44 + n * 2);
+  const v = new DataView(buf);
+  const text = (at, s) => { for (let i = 0; i < s.length; i++) v.setUint8(at + i, s.charCodeAt(i)); };
+  text(0, "RIFF"); v.setUint32(4, 36 + n * 2, true); text(8, "WAVEfmt ");
+  v.setUint32(16, 16, true); v.setUint16(20, 1, true); v.setUint16(22, 1, true);
+  v.setUint32(24, rate, true); v.setUint32(28, rate * 2, true); v.setUint16(32, 2, true);
+  v.setUint16(34, 16, true); text(36, "data"); v.setUint32(40, n * 2, true);
+  let at = 44;
+  for (const c of chunks) {
+    for (const s of c) { v.setInt16(at, Math.max(-1, Math.min(1, s)) * 32767, true); at += 2; }
+  }
+  return new Blob([buf], { type: "audio/wav" });
+}
+
+async function speak(text) {
+  const language = $("language").value === "auto" ? "en" : $("language").value;
+  try {
+    const r = await fetch("/api/say", {
+      method: "POST",
+      headers: { "Content-Type": "application/json" },
+      body: JSON.stringify({ text, language }),
+    });
+    if (!r.ok) throw new Error((await r.json().catch(() => ({}))).error || `HTTP ${r.status}`);
+    const audio = new Audio(URL.createObjectURL(await r.blob()));
+    await audio.play();
+  } catch (e) {
+    notice(`Cannot speak the answer: ${e.message}`);
+  }
 }
 
 // ---- robot view ------------------------------------------------------------------
@@ -275,7 +389,8 @@ function fit() {
 function connect() {
   const es = new EventSource("/api/events");
   es.onopen = () => { $("offline").hidden = true; };
-  es.onerror = () => { $("offline").hidden = false; };
+  es.onerror = () => { $("offline").hidden = false; live = false; };
+  es.addEventListener("ready", () => { live = true; });
   const on = (kind, f) => es.addEventListener(kind, (e) => f(JSON.parse(e.data)));
   on("request", onRequest);
   on("agent", onAgent);
@@ -290,7 +405,6 @@ function connect() {
   on("estop", (s) => { setEstop(s); requestDraw(); });
   on("pose", (p) => { trail.push(p); if (trail.length > 4000) trail.shift(); requestDraw(); });
   on("cleared", () => $("messages").append(el("li", "agent", "— conversation cleared —")));
-  on("lagged", () => notice("This page fell behind the agent's text; the answers are complete."));
 }
 
 async function start() {
@@ -312,18 +426,17 @@ async function start() {
   setBusy(info.busy);
   draw();
 
-  $("ask").addEventListener("submit", async (e) => {
-    e.preventDefault();
-    const text = $("prompt").value.trim();
-    if (!text) return;
-    try {
-      await post("/api/ask", { text, language: select.value });
-      $("prompt").value = "";
-      notice("");
-    } catch (err) {
-      notice(err.message);
-    }
+  $("ask").addEventListener("submit", (e) => { e.preventDefault(); submit(); });
+  // Click to start and click to send, or hold while speaking and release to send.
+  $("talk").addEventListener("pointerdown", () => {
+    if (rec) return;
+    startTalk().catch((e) => notice(`Cannot record: ${e.message}`));
   });
+  $("talk").addEventListener("pointerup", () => {
+    if (rec && performance.now() - rec.started > 600) stopTalk().catch((e) => notice(e.message));
+  });
+  $("speak").checked = localStorage.getItem("ferrosa.speak") === "true";
+  $("speak").addEventListener("change", () => localStorage.setItem("ferrosa.speak", $("speak").checked));
   $("estop").addEventListener("click", () => post("/api/estop").catch((e) => notice(e.message)));
   $("reset").addEventListener("click", () => post("/api/reset").catch((e) => notice(e.message)));
   $("clear").addEventListener("click", () => post("/api/clear").catch((e) => notice(e.message)));

@@ -6,10 +6,13 @@
 //! - `bfcl`: reading BFCL files and answers, Python-typed docs to JSON schema
 //! - `score`: the checker (names, required parameters, allowed values, parallel order)
 //! - `ros`: the ROS task suite (agent episodes on the sim): cases and their checker
+//! - `speech`: speech recognition on spoken operator requests (word error rate)
 
 pub mod bfcl;
 pub mod ros;
 pub mod score;
+#[cfg(feature = "candle")]
+pub mod speech;
 
 use std::ops::ControlFlow;
 use std::time::Instant;

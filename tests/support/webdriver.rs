@@ -109,8 +109,9 @@ pub struct Browser {
 }
 
 impl Browser {
-    /// Start chromedriver on `port` and a headless Chromium of `width`×`height`.
-    pub fn start(port: u16, width: u32, height: u32) -> Browser {
+    /// Start chromedriver on `port` and a headless Chromium of `width`×`height`, with
+    /// `args` besides the headless ones.
+    pub fn start(port: u16, width: u32, height: u32, args: &[String]) -> Browser {
         for exe in [CHROMIUM, CHROMEDRIVER] {
             assert!(
                 Path::new(exe).exists(),
@@ -133,14 +134,25 @@ impl Browser {
             std::thread::sleep(Duration::from_millis(100));
         }
         let profile = std::env::temp_dir().join(format!("ferrosa-chromium-{}", std::process::id()));
+        let mut all: Vec<String> = [
+            "--headless",
+            "--no-sandbox",
+            "--disable-gpu",
+            "--disable-quic",
+            "--no-first-run",
+            "--disable-background-networking",
+            "--disable-component-update",
+            "--disable-sync",
+            "--disable-dev-shm-usage",
+        ]
+        .map(String::from)
+        .to_vec();
+        all.push(format!("--window-size={width},{height}"));
+        all.push(format!("--user-data-dir={}", profile.display()));
+        all.extend(args.iter().cloned());
         let caps = json!({"capabilities": {"alwaysMatch": {
             "browserName": "chrome",
-            "goog:chromeOptions": {"binary": CHROMIUM, "args": [
-                "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-                "--disable-background-networking", "--disable-component-update", "--disable-sync",
-                "--disable-dev-shm-usage", format!("--window-size={width},{height}"),
-                format!("--user-data-dir={}", profile.display()),
-            ]}
+            "goog:chromeOptions": {"binary": CHROMIUM, "args": all}
         }}});
         let mut b = Browser {
             driver,

@@ -5,13 +5,15 @@
 //!   console through a name it rebinds to 127.0.0.1.
 //! - With a token (any other address), a request carries it as `Authorization: Bearer`
 //!   or in the cookie the browser got by opening the printed address once.
-//! - A POST must send JSON and, when the browser names its origin, come from the
-//!   console's own page: another site's form cannot approve a call or ask for a move.
+//! - A POST must send JSON (a recording to transcribe: WAV) and, when the browser names
+//!   its origin, come from the console's own page: another site's form cannot approve a
+//!   call or ask for a move.
 //!
 //! Routes: `GET /` (the page), `/console.js`, `/console.css`; `GET /api/state`,
 //! `GET /api/events` (SSE, replayed from `Last-Event-ID`), `GET /api/trace.jsonl`;
 //! `POST /api/ask {text, language?}`, `/api/approval {id, approve}`, `/api/estop`,
-//! `/api/reset`, `/api/clear`.
+//! `/api/reset`, `/api/clear`; `POST /api/transcribe` (a WAV recording → `{text}`),
+//! `/api/say {text, language}` (→ a WAV of it spoken).
 
 use std::convert::Infallible;
 use std::net::SocketAddr;
@@ -33,17 +35,19 @@ use serde::Deserialize;
 use serde_json::{json, Value};
 use tokio::sync::broadcast::error::RecvError;
 
+use super::ears::{Ears, SpeechFailure};
 use super::hub::{Hub, Logged};
 use super::worker::Job;
 use crate::agent::language::Language;
 
 /// The longest request the console takes, in characters.
 pub const MAX_REQUEST_CHARS: usize = 2000;
+/// The largest recording taken (30 s of 48 kHz stereo 32-bit is 11.5 MB).
+const MAX_RECORDING: usize = 12 << 20;
 
 const PAGE: &str = include_str!("../../../web/console.html");
 const SCRIPT: &str = include_str!("../../../web/console.js");
 const STYLE: &str = include_str!("../../../web/console.css");
-const COOKIE: &str = "ferrosa_token";
 
 /// What the handlers share.
 #[derive(Clone)]
@@ -55,6 +59,9 @@ pub struct App {
     loopback: bool,
     trace: Option<Arc<PathBuf>>,
     next_run: Arc<AtomicU64>,
+    /// The token's cookie, named for the port (cookies are not kept apart by port).
+    cookie: Arc<str>,
+    ears: Arc<Ears>,
 }
 
 type Failure = (StatusCode, Json<Value>);
@@ -71,6 +78,7 @@ impl App {
         token: Option<String>,
         bind: SocketAddr,
         trace: Option<PathBuf>,
+        ears: Ears,
     ) -> App {
         App {
             hub,
@@ -80,6 +88,8 @@ impl App {
             loopback: bind.ip().is_loopback(),
             trace: trace.map(Arc::new),
             next_run: Arc::new(AtomicU64::new(1)),
+            cookie: format!("ferrosa_token_{}", bind.port()).into(),
+            ears: Arc::new(ears),
         }
     }
 
@@ -105,6 +115,11 @@ impl App {
             .route("/api/estop", post(estop))
             .route("/api/reset", post(reset))
             .route("/api/clear", post(clear))
+            .route(
+                "/api/transcribe",
+                post(transcribe).layer(axum::extract::DefaultBodyLimit::max(MAX_RECORDING)),
+            )
+            .route("/api/say", post(say))
             .layer(middleware::from_fn_with_state(self.clone(), check))
             .with_state(self)
     }
@@ -118,7 +133,7 @@ fn page(body: &'static str, kind: &'static str) -> Response {
             (header::CONTENT_TYPE, kind),
             (
                 header::CONTENT_SECURITY_POLICY,
-                "default-src 'self'; img-src 'self' data:; frame-ancestors 'none'",
+                "default-src 'self'; img-src 'self' data:; media-src 'self' blob:; frame-ancestors 'none'",
             ),
             (header::X_FRAME_OPTIONS, "DENY"),
             (header::CACHE_CONTROL, "no-cache"),
@@ -153,14 +168,14 @@ async fn check(State(app): State<App>, req: Request, next: Next) -> Response {
             .iter()
             .filter_map(|h| h.to_str().ok())
             .flat_map(|h| h.split(';'))
-            .filter_map(|c| c.trim().strip_prefix(COOKIE)?.strip_prefix('='));
+            .filter_map(|c| c.trim().strip_prefix(&*app.cookie)?.strip_prefix('='));
         let held = bearer.into_iter().chain(cookie).any(|t| same(t, token));
         if !held {
             let query = req.uri().query().unwrap_or_default();
             let given = query.split('&').find_map(|kv| kv.strip_prefix("token="));
             if req.method() == Method::GET && given.is_some_and(|t| same(t, token)) {
                 // Kept as a cookie, and taken off the address bar.
-                let cookie = format!("{COOKIE}={token}; Path=/; HttpOnly; SameSite=Strict");
+                let cookie = format!("{}={token}; Path=/; HttpOnly; SameSite=Strict", app.cookie);
                 return (
                     StatusCode::SEE_OTHER,
                     [
@@ -178,14 +193,18 @@ async fn check(State(app): State<App>, req: Request, next: Next) -> Response {
         }
     }
     if req.method() == Method::POST {
-        let json = headers
+        let kind = headers
             .get(header::CONTENT_TYPE)
             .and_then(|h| h.to_str().ok())
-            .is_some_and(|t| t.starts_with("application/json"));
-        if !json {
+            .unwrap_or_default();
+        let wanted = match req.uri().path() {
+            "/api/transcribe" => ["audio/wav", "audio/x-wav"].as_slice(),
+            _ => ["application/json"].as_slice(),
+        };
+        if !wanted.iter().any(|w| kind.starts_with(w)) {
             return fail(
                 StatusCode::UNSUPPORTED_MEDIA_TYPE,
-                "send the request as JSON (Content-Type: application/json)",
+                format!("send the request as {} (Content-Type)", wanted[0]),
             )
             .into_response();
         }
@@ -259,17 +278,17 @@ async fn events(
                     return Some((Ok(sse(&l)), (rx, seq)));
                 }
                 Ok(_) => {}
-                // Too slow a client misses streamed text; the kept events it can fetch again.
-                Err(RecvError::Lagged(n)) => {
-                    let e = SseEvent::default().event("lagged").data(n.to_string());
-                    return Some((Ok(e), (rx, last)));
-                }
+                // Too slow a client: the stream ends, and the browser reconnects from
+                // the last event it has (the kept ones are replayed; streamed text is not).
+                Err(RecvError::Lagged(_)) => return None,
                 Err(RecvError::Closed) => return None,
             }
         }
     });
     let past = futures::stream::iter(past.into_iter().map(|l| Ok(sse(&l))));
-    Sse::new(past.chain(live)).keep_alive(KeepAlive::default())
+    // "ready": the replay is over; what follows happens now.
+    let ready = futures::stream::once(async { Ok(SseEvent::default().event("ready").data("{}")) });
+    Sse::new(past.chain(ready).chain(live)).keep_alive(KeepAlive::default())
 }
 
 fn sse(l: &Logged) -> SseEvent {
@@ -411,6 +430,41 @@ async fn clear(State(app): State<App>) -> Result<Json<Value>, Failure> {
         )
     })?;
     Ok(Json(json!({"cleared": true})))
+}
+
+fn speech_failure(e: SpeechFailure) -> Failure {
+    match e {
+        SpeechFailure::Input(m) => fail(StatusCode::BAD_REQUEST, m),
+        SpeechFailure::Unavailable(m) => fail(StatusCode::SERVICE_UNAVAILABLE, m),
+    }
+}
+
+async fn transcribe(State(app): State<App>, bytes: Bytes) -> Result<Json<Value>, Failure> {
+    let ears = app.ears.clone();
+    tokio::task::spawn_blocking(move || ears.transcribe(&bytes))
+        .await
+        .map_err(|e| fail(StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?
+        .map(Json)
+        .map_err(speech_failure)
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct Say {
+    text: String,
+    #[serde(default)]
+    language: Option<String>,
+}
+
+async fn say(State(app): State<App>, bytes: Bytes) -> Result<Response, Failure> {
+    let s: Say = body(&bytes)?;
+    let ears = app.ears.clone();
+    let voice = s.language.unwrap_or_else(|| "en".into());
+    let wav = tokio::task::spawn_blocking(move || ears.say(&s.text, &voice))
+        .await
+        .map_err(|e| fail(StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?
+        .map_err(speech_failure)?;
+    Ok(([(header::CONTENT_TYPE, "audio/wav")], wav).into_response())
 }
 
 #[cfg(test)]

@@ -22,8 +22,10 @@ use crate::tool::{Confirm, ToolCall};
 
 /// How long an approval waits for an operator.
 pub const APPROVAL_WAIT: Duration = Duration::from_secs(120);
-/// Events kept for clients that join later (streamed text is never kept).
+/// Events kept for clients that join later (streamed text is never kept), at most
+/// this many and this many bytes.
 const KEPT: usize = 5000;
+const KEPT_BYTES: usize = 16 << 20;
 /// Poses kept for the robot view's trail.
 const TRAIL: usize = 4000;
 
@@ -44,6 +46,12 @@ pub struct Pose {
     pub theta: f64,
 }
 
+#[derive(Default)]
+struct Kept {
+    events: VecDeque<Arc<Logged>>,
+    bytes: usize,
+}
+
 struct Waiting {
     /// The call as shown (fenced names redacted).
     shown: ToolCall,
@@ -54,7 +62,7 @@ struct Waiting {
 /// The console's shared state (see the module header).
 pub struct Hub {
     seq: AtomicU64,
-    kept: Mutex<VecDeque<Arc<Logged>>>,
+    kept: Mutex<Kept>,
     live: broadcast::Sender<Arc<Logged>>,
     waiting: Mutex<BTreeMap<u64, Waiting>>,
     next_approval: AtomicU64,
@@ -71,7 +79,7 @@ impl Hub {
     pub fn new(estop: Arc<EStop>, cancel: Arc<AtomicBool>) -> Arc<Hub> {
         Arc::new(Hub {
             seq: AtomicU64::new(0),
-            kept: Mutex::new(VecDeque::new()),
+            kept: Mutex::new(Kept::default()),
             live: broadcast::channel(4096).0,
             waiting: Mutex::new(BTreeMap::new()),
             next_approval: AtomicU64::new(1),
@@ -100,9 +108,13 @@ impl Hub {
                 data: crate::ui::term::clean(&data.to_string()),
             });
             if keep {
-                kept.push_back(logged.clone());
-                if kept.len() > KEPT {
-                    kept.pop_front();
+                kept.bytes += logged.data.len();
+                kept.events.push_back(logged.clone());
+                while kept.events.len() > KEPT || kept.bytes > KEPT_BYTES {
+                    let Some(old) = kept.events.pop_front() else {
+                        break;
+                    };
+                    kept.bytes -= old.data.len();
                 }
             }
             let _ = self.live.send(logged.clone());
@@ -116,7 +128,12 @@ impl Hub {
     pub fn subscribe(&self, after: u64) -> (Vec<Arc<Logged>>, broadcast::Receiver<Arc<Logged>>) {
         let kept = self.kept.lock().expect("console log");
         let rx = self.live.subscribe();
-        let past = kept.iter().filter(|l| l.seq > after).cloned().collect();
+        let past = kept
+            .events
+            .iter()
+            .filter(|l| l.seq > after)
+            .cloned()
+            .collect();
         (past, rx)
     }
 
@@ -135,8 +152,12 @@ impl Hub {
         self.busy.load(Ordering::SeqCst)
     }
 
-    /// A new pose of the robot: kept for the trail when it moved, sent to clients.
+    /// A new pose of the robot: kept for the trail when it moved, sent to clients. A
+    /// pose that is not finite is dropped.
     pub fn pose(&self, p: Pose) {
+        if !(p.x.is_finite() && p.y.is_finite() && p.theta.is_finite()) {
+            return;
+        }
         {
             let mut trail = self.trail.lock().expect("trail");
             let moved = trail.back().is_none_or(|q| {
@@ -346,6 +367,7 @@ mod tests {
         };
         h.pose(p);
         h.pose(p);
+        h.pose(Pose { x: f64::NAN, ..p });
         h.pose(Pose { x: 1.5, ..p });
         assert_eq!(h.trail().len(), 2);
     }

@@ -12,11 +12,13 @@
 //! cookie once the printed address was opened; requests without it are refused.
 //!
 //! Layout:
+//! - `ears`: speech: recordings transcribed, answers spoken
 //! - `hub`: the shared session (events, approvals, trail, busy)
 //! - `http`: the routes, the SSE stream, the request checks (host, origin, token)
 //! - `pose`: the robot view's pose, read from a topic
 //! - `worker`: the agent's thread and the jobs it takes
 
+mod ears;
 mod http;
 pub mod hub;
 pub mod pose;
@@ -83,12 +85,13 @@ pub fn run(args: &ServeArgs) -> anyhow::Result<()> {
         .worker_threads(2)
         .enable_all()
         .build()?;
-    let app = http::App::new(hub.clone(), jobs, info, token.clone(), args.bind, trace);
     let served = rt.block_on(async {
         let listener = tokio::net::TcpListener::bind(args.bind)
             .await
             .with_context(|| format!("binding {}: is another console running there? choose another with --bind", args.bind))?;
         let addr = listener.local_addr()?;
+        let ears = ears::Ears::new(args.agent.model.models_dir.clone());
+        let app = http::App::new(hub.clone(), jobs, info, token.clone(), addr, trace, ears);
         match &token {
             None => eprintln!("ferrosa serve: console on http://{addr}/"),
             Some(t) => eprintln!(
@@ -175,12 +178,22 @@ fn info(agent: &Agent, args: &AgentArgs, view: Option<&View>) -> Value {
     })
 }
 
-/// Tell every client when the e-stop is engaged or released, whoever did it.
+/// Tell every client when the e-stop is engaged or released, whoever did it (a ROS
+/// node, the model's `robot_stop`, this page), and end the run in progress when it is
+/// engaged. Presses while engaged change nothing and are not told.
 async fn follow_estop(hub: Arc<Hub>) {
     let mut rx = hub.estop.subscribe();
+    let mut told = None;
     loop {
         let state = rx.borrow_and_update().clone();
-        hub.publish("estop", &hub::estop_json(state.as_ref()), true);
+        let now = state.as_ref().map(|e| e.source.clone());
+        if now.is_some() {
+            hub.cancel.store(true, Ordering::SeqCst);
+        }
+        if told.as_ref() != Some(&now) {
+            hub.publish("estop", &hub::estop_json(state.as_ref()), true);
+            told = Some(now);
+        }
         if rx.changed().await.is_err() {
             return;
         }

@@ -1,0 +1,21 @@
+//! Speech in and out, offline: Whisper on candle turns an operator's recording into a
+//! request, espeak-ng reads an answer aloud.
+//!
+//! Layout:
+//! - `wav`: WAV files in and out, resampling
+//! - `ggml`: whisper.cpp's model file, read into candle tensors
+//! - `whisper`: speech to text (needs the `candle` feature)
+//! - `voice`: text to speech with espeak-ng
+//! - `wer`: word error rate, for measuring the recogniser
+//!
+//! Depends on nothing else in the crate.
+
+#[cfg(feature = "candle")]
+pub mod ggml;
+pub mod voice;
+pub mod wav;
+pub mod wer;
+#[cfg(feature = "candle")]
+pub mod whisper;
+
+pub use wav::Audio;
