@@ -231,7 +231,8 @@ enum Command {
         /// Write the speech to this WAV file instead of playing it.
         #[arg(long)]
         out: Option<PathBuf>,
-        /// A language code (en, es, fr, de, it, pt) or an espeak-ng voice.
+        /// A language code (en, es, fr, de, it, pt; en is the Piper voice when
+        /// installed), piper, or an espeak-ng voice (en-gb, …).
         #[arg(long, default_value = "en")]
         voice: String,
         /// Words a minute (espeak-ng's default 175).
@@ -416,8 +417,8 @@ enum EvalCommand {
         /// Catalog name or path to a whisper.cpp ggml-*.bin file.
         #[arg(short, long)]
         model: Option<String>,
-        /// espeak-ng voices (repeatable).
-        #[arg(long = "voice", default_values_t = ["en-us".to_string(), "en-gb".to_string()])]
+        /// Voices (repeatable): espeak-ng's, and piper (skipped when not installed).
+        #[arg(long = "voice", default_values_t = ["en-us".to_string(), "en-gb".to_string(), "piper".to_string()])]
         voices: Vec<String>,
         /// Speaking rates in words a minute (repeatable).
         #[arg(long = "wpm", default_values_t = [140u32, 175, 210])]

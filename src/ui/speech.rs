@@ -130,9 +130,21 @@ pub fn eval(
         use crate::eval::speech;
         let requests = speech::requests(&text);
         anyhow::ensure!(!requests.is_empty(), "no requests to speak: one a line");
+        let voices: Vec<String> = voices
+            .iter()
+            .filter(|v| {
+                let there = v.as_str() != "piper" || voice::piper().is_some();
+                if !there {
+                    eprintln!("skipping the piper voice: not installed (scripts/install-piper.sh)");
+                }
+                there
+            })
+            .cloned()
+            .collect();
+        let voices = voices.as_slice();
         let mut whisper = load_whisper(models_dir, model)?;
         println!(
-            "speech model {} | {} requests × {} voices × {} speeds (espeak-ng) | {}, {} threads",
+            "speech model {} | {} requests × {} voices × {} speeds | {}, {} threads",
             model.unwrap_or(DEFAULT_SPEECH_MODEL),
             requests.len(),
             voices.len(),
