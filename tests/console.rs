@@ -7,15 +7,14 @@
 //! the HTTP rules: the token off loopback, the host and origin checks, JSON only, and the
 //! spoken answer.
 
-use std::io::{BufRead, BufReader};
 use std::path::PathBuf;
 use std::process::{Child, Command, Stdio};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use serde_json::Value;
 
 use crate::support::webdriver::{http, Browser};
-use crate::util::{models_dir, rerun_in_loopback_netns, stop};
+use crate::util::{models_dir, rerun_in_loopback_netns, spawn_until, stop};
 
 const TEST: &str = "console::an_operator_drives_the_robot_from_the_console_in_a_browser";
 
@@ -26,29 +25,17 @@ fn serve(args: &[&str], env: &[(&str, &str)]) -> (Child, String) {
         .args(args)
         .env("FERROSA_MODELS_DIR", models_dir())
         .stdin(Stdio::null())
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped());
+        .stdout(Stdio::null());
     for (k, v) in env {
         cmd.env(k, v);
     }
-    let mut child = cmd.spawn().expect("running ferrosa serve");
-    let mut lines = BufReader::new(child.stderr.take().unwrap()).lines();
-    let start = Instant::now();
-    let url = loop {
-        let line = lines
-            .next()
-            .expect("ferrosa serve ended before serving")
-            .unwrap();
-        eprintln!("serve: {line}");
-        if let Some(rest) = line.strip_prefix("ferrosa serve: console on ") {
-            break rest.split_whitespace().next().unwrap().to_string();
-        }
-        assert!(
-            start.elapsed() < Duration::from_secs(120),
-            "no address yet: {line}"
-        );
-    };
-    std::thread::spawn(move || lines.for_each(|l| eprintln!("serve: {}", l.unwrap_or_default())));
+    let (child, rest) = spawn_until(
+        &mut cmd,
+        "ferrosa serve: console on ",
+        "serve",
+        Duration::from_secs(120),
+    );
+    let url = rest.split_whitespace().next().unwrap().to_string();
     (child, url)
 }
 

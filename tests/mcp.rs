@@ -2,9 +2,8 @@
 //! PyPI (`tests/peers/mcp_client.py`, in the virtualenv `.ci/setup` makes), over stdio and
 //! over streamable HTTP on loopback, against the built-in sim. One namespace, one test.
 
-use std::io::{BufRead, BufReader};
 use std::process::{Command, Stdio};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use serde_json::Value;
 
@@ -115,31 +114,17 @@ fn an_mcp_client_lists_and_calls_the_tools_under_the_policy() {
     let seen = client(&["stdio", ferrosa, "mcp", "--robot", "sim"]);
     judge("stdio", &seen);
 
-    let mut server = Command::new("timeout")
-        .arg("200")
-        .arg(ferrosa)
-        .args(["mcp", "--robot", "sim", "--http", "127.0.0.1:0"])
-        .stdin(Stdio::null())
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("running ferrosa mcp --http");
-    let mut lines = BufReader::new(server.stderr.take().unwrap()).lines();
-    let start = Instant::now();
-    let url = loop {
-        let line = lines
-            .next()
-            .expect("ferrosa mcp ended before serving")
-            .unwrap();
-        if let Some(url) = line.strip_prefix("ferrosa mcp: streamable HTTP on ") {
-            break url.to_string();
-        }
-        assert!(
-            start.elapsed() < Duration::from_secs(60),
-            "no address: {line}"
-        );
-    };
-    std::thread::spawn(move || lines.for_each(drop));
+    let (mut server, url) = crate::util::spawn_until(
+        Command::new("timeout")
+            .arg("200")
+            .arg(ferrosa)
+            .args(["mcp", "--robot", "sim", "--http", "127.0.0.1:0"])
+            .stdin(Stdio::null())
+            .stdout(Stdio::null()),
+        "ferrosa mcp: streamable HTTP on ",
+        "mcp",
+        Duration::from_secs(60),
+    );
     let seen = client(&["http", &url]);
     crate::util::stop(&mut server);
     judge("http", &seen);

@@ -169,3 +169,33 @@ pub fn stop(child: &mut std::process::Child) {
     let _ = child.kill();
     let _ = child.wait();
 }
+
+/// Start `cmd` with its stderr piped and read that until a line starts with `prefix`
+/// (within `limit`); the rest of that line. Later lines are echoed as `label: line`.
+pub fn spawn_until(
+    cmd: &mut std::process::Command,
+    prefix: &str,
+    label: &'static str,
+    limit: std::time::Duration,
+) -> (std::process::Child, String) {
+    use std::io::BufRead;
+    let mut child = cmd
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap_or_else(|e| panic!("running {label}: {e}"));
+    let mut lines = std::io::BufReader::new(child.stderr.take().unwrap()).lines();
+    let start = std::time::Instant::now();
+    let rest = loop {
+        let line = lines
+            .next()
+            .unwrap_or_else(|| panic!("{label} ended before printing {prefix:?}"))
+            .unwrap();
+        eprintln!("{label}: {line}");
+        if let Some(rest) = line.strip_prefix(prefix) {
+            break rest.to_string();
+        }
+        assert!(start.elapsed() < limit, "no {prefix:?} yet: {line}");
+    };
+    std::thread::spawn(move || lines.for_each(|l| eprintln!("{label}: {}", l.unwrap_or_default())));
+    (child, rest)
+}

