@@ -24,7 +24,8 @@
 //!
 //! The sim speaks DDS, so the bench re-runs itself in a network namespace with only
 //! loopback (`unshare -n`, as root), under a time limit. Settings: FERROSA_BENCH_RUNS (3),
-//! FERROSA_BENCH_TURNS (40), FERROSA_BENCH_THREADS (physical cores). Output: markdown on
+//! FERROSA_BENCH_TURNS (40), FERROSA_BENCH_THREADS (physical cores), FERROSA_BENCH_PARTS
+//! (the parts to run, e.g. `2` or `1,4`; all by default; 4 needs 1). Output: markdown on
 //! stdout, target/bench/agent.json, target/bench/agent.svg.
 
 #[path = "common/chart.rs"]
@@ -136,6 +137,8 @@ fn main() {
     let runs = header::env_usize("FERROSA_BENCH_RUNS", 3).max(1);
     let turns = header::env_usize("FERROSA_BENCH_TURNS", 40).max(2);
     let threads = header::env_usize("FERROSA_BENCH_THREADS", ferrosa::backend::physical_cores());
+    let parts = std::env::var("FERROSA_BENCH_PARTS").unwrap_or_else(|_| "1,2,3,4".into());
+    let part = |n: &str| parts.split(',').any(|p| p.trim() == n);
     let args = AgentArgs {
         model: ModelArgs {
             models_dir: header::models_dir(),
@@ -191,15 +194,19 @@ fn main() {
     };
 
     // 1. Latency.
-    let first = ask(&mut agent, REQUESTS[0]);
+    let f = |s: &Spread| format!("{:.0} / **{:.0}** / {:.0}", s.min, s.median, s.max);
+    let first = part("1").then(|| ask(&mut agent, REQUESTS[0]));
     let rows: Vec<RequestRow> = REQUESTS
         .iter()
+        .filter(|_| first.is_some())
         .map(|q| request_row(&mut agent, q, runs))
         .collect();
-    let f = |s: &Spread| format!("{:.0} / **{:.0}** / {:.0}", s.min, s.median, s.max);
-    println!("## Requests against the sim (ms, min / **median** / max over {runs}, after /clear)");
-    println!();
-    println!(
+    if let Some(first) = &first {
+        println!(
+            "## Requests against the sim (ms, min / **median** / max over {runs}, after /clear)"
+        );
+        println!();
+        println!(
         "First request after start, nothing cached: \"{}\" {:.0} ms (first token {:.0} ms, prompt {} tokens), answer: {}",
         REQUESTS[0],
         first.timings.total_ms,
@@ -207,27 +214,32 @@ fn main() {
         first.timings.prompt_tokens.first().copied().unwrap_or(0),
         first.answer
     );
-    println!();
-    println!("| request | total | first token | model | tools | steps | calls (last run) | answer (last run) |");
-    println!("|---|---|---|---|---|---|---|---|");
-    for r in &rows {
-        println!(
-            "| {} | {} | {} | {} | {} | {:.0}–{:.0} | {} | {} |",
-            r.request,
-            f(&r.total_ms),
-            f(&r.first_token_ms),
-            f(&r.model_ms),
-            f(&r.tools_ms),
-            r.steps.min,
-            r.steps.max,
-            r.tools.join(" → "),
-            r.answer.replace('|', "\\|"),
-        );
+        println!();
+        println!("| request | total | first token | model | tools | steps | calls (last run) | answer (last run) |");
+        println!("|---|---|---|---|---|---|---|---|");
+        for r in &rows {
+            println!(
+                "| {} | {} | {} | {} | {} | {:.0}–{:.0} | {} | {} |",
+                r.request,
+                f(&r.total_ms),
+                f(&r.first_token_ms),
+                f(&r.model_ms),
+                f(&r.tools_ms),
+                r.steps.min,
+                r.steps.max,
+                r.tools.join(" → "),
+                r.answer.replace('|', "\\|"),
+            );
+        }
+        println!();
     }
-    println!();
 
     // 2. Cold start, with and without the prompt cache.
-    let cold = cold_start(&args, graph.clone(), runs);
+    let cold = if part("2") {
+        cold_start(&args, graph.clone(), runs)
+    } else {
+        Vec::new()
+    };
     println!("## Cold start: the first request of a new agent (\"{}\"), ms, min / **median** / max over {runs}", REQUESTS[0]);
     println!();
     println!("| prompt cache | agent built | first token | total | prompt tokens restored | answer (last run) |");
@@ -246,6 +258,7 @@ fn main() {
     println!();
 
     // 3. Memory over a long chat: the history grows until the agent trims it.
+    let memory = part("3").then(|| {
     agent.clear();
     let t = std::time::Instant::now();
     ask(&mut agent, SMALL_TALK);
@@ -298,10 +311,12 @@ fn main() {
         memory.seconds,
     );
     println!();
+    memory
+    });
 
     // 4. The remote engine, on a llama-server with the same model.
     drop(agent);
-    let remote = match llama_server::binary() {
+    let remote = match llama_server::binary().filter(|_| part("4") && !rows.is_empty()) {
         Some(bin) => Some(remote_engine(
             &args,
             graph.clone(),
@@ -310,6 +325,7 @@ fn main() {
             runs,
             &rows,
         )),
+        None if !part("4") || rows.is_empty() => None,
         None => {
             println!("## Remote engine: skipped (no llama-server: scripts/build-llama-cpp.sh llama-server, or LLAMA_SERVER)");
             println!();
@@ -320,7 +336,7 @@ fn main() {
     let out = root.join("target").join("bench");
     let _ = std::fs::create_dir_all(&out);
     let file = out.join("agent.json");
-    let json = serde_json::json!({"requests": rows, "memory": memory, "first": first.timings, "cold_start": cold, "remote": remote});
+    let json = serde_json::json!({"requests": rows, "memory": memory, "first": first.map(|f| f.timings), "cold_start": cold, "remote": remote});
     std::fs::write(&file, serde_json::to_string_pretty(&json).expect("json")).expect("write json");
     let mut latency = chart::Bars::new("ms (median)", &["total", "first token", "tools"]);
     for r in &rows {
@@ -337,14 +353,16 @@ fn main() {
         "MiB",
         &["RSS after 1 turn", "RSS after N turns", "KV cache"],
     );
-    mem.group(
-        &format!("{turns} turns"),
-        &[
-            memory.rss_after_1_mib,
-            memory.rss_after_n_mib,
-            memory.kv_cache_mib,
-        ],
-    );
+    if let Some(memory) = &memory {
+        mem.group(
+            &format!("{turns} turns"),
+            &[
+                memory.rss_after_1_mib,
+                memory.rss_after_n_mib,
+                memory.kv_cache_mib,
+            ],
+        );
+    }
     let svg = out.join("agent.svg");
     match chart::draw(
         &svg,

@@ -132,6 +132,76 @@ fn a_second_turn_evaluates_only_its_new_tokens() {
     );
 }
 
+/// Branches side by side in one batch (llama.cpp's sequences sharing their leading
+/// tokens) give each branch's tokens the logits that branch gets evaluated alone after
+/// the context (as a prompt's tail is, in one batch), and leave the main sequence as it
+/// was; on both models (Gemma 3's sliding-window layers too). Equal up to rounding: a
+/// row's logits depend on where it falls in the batch (llama.cpp's matrix kernels take
+/// rows in tiles), by up to half a logit on SmolLM2 and 2.7 on Gemma 3 (Q4_K_M) here,
+/// the likeliest token the same in every row.
+#[test]
+#[ignore = "needs the model weights (or a ROS peer): cargo test --release -- --include-ignored"]
+fn branches_side_by_side_score_as_each_alone() {
+    let max_diff = |a: &[f32], b: &[f32]| {
+        a.iter()
+            .zip(b)
+            .map(|(x, y)| (x - y).abs())
+            .fold(0.0f32, f32::max)
+    };
+    for (name, bound) in [(SMOL, 1.0), ("gemma3-270m", 4.0)] {
+        let mut m = load(name, BackendKind::Llama, 2048);
+        let text = "The turtle can list nodes, read topics and move. ".repeat(8);
+        let context = m.tokenize(&text, false).unwrap();
+        let words = [
+            "ros_node_list",
+            "ros_node_info",
+            "ros_topic_list",
+            "turtle_move",
+            "reply",
+        ];
+        let branches: Vec<Vec<u32>> = words
+            .iter()
+            .map(|w| m.tokenize(w, false).unwrap())
+            .collect();
+        m.forward(0, &context).unwrap();
+        let last = context.len() - 1;
+        let before = m.forward(last, &context[last..]).unwrap().to_vec();
+        // Alone: each leading part of each branch after the context, as one batch.
+        let mut alone = Vec::new();
+        for b in &branches {
+            for j in 1..=b.len() {
+                alone.push(m.forward(context.len(), &b[..j]).unwrap().to_vec());
+            }
+        }
+        m.forward(last, &context[last..]).unwrap();
+        let refs: Vec<&[u32]> = branches.iter().map(Vec::as_slice).collect();
+        let mut together = Vec::new();
+        m.branches(context.len(), &refs, &mut |_, _, logits| {
+            together.push(logits.to_vec())
+        })
+        .unwrap();
+        assert_eq!(
+            together.len(),
+            alone.len(),
+            "{name}: a row per branch token"
+        );
+        for (i, (a, t)) in alone.iter().zip(&together).enumerate() {
+            let diff = max_diff(a, t);
+            assert!(diff < bound, "{name}: row {i}: max logit difference {diff}");
+            let argmax = ferrosa::decode::sample::argmax;
+            assert_eq!(argmax(a), argmax(t), "{name}: row {i}");
+        }
+        // The main sequence holds the context alone: its last token again gives what it
+        // gave before the branches.
+        let again = m.forward(last, &context[last..]).unwrap().to_vec();
+        let diff = max_diff(&again, &before);
+        assert!(
+            diff < 1e-4,
+            "{name}: the context after the branches: {diff}"
+        );
+    }
+}
+
 #[test]
 #[ignore = "needs the model weights (or a ROS peer): cargo test --release -- --include-ignored"]
 fn small_batches_and_one_big_batch_agree() {

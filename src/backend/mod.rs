@@ -70,6 +70,34 @@ pub enum BackendError {
     },
 }
 
+/// `Backend::branches` one token per forward pass, sharing the leading tokens a branch
+/// has in common with the one before it.
+pub fn branches_one_by_one<B: Backend + ?Sized>(
+    backend: &mut B,
+    keep: usize,
+    branches: &[&[TokenId]],
+    each: &mut dyn FnMut(usize, usize, &[f32]),
+) -> Result<(), BackendError> {
+    // The logits after each token of the branch before, while the next shares them.
+    let mut path: Vec<(TokenId, Vec<f32>)> = Vec::new();
+    for (b, tokens) in branches.iter().enumerate() {
+        let shared = path
+            .iter()
+            .zip(tokens.iter())
+            .take_while(|((p, _), t)| p == *t)
+            .count();
+        path.truncate(shared);
+        for (j, &t) in tokens.iter().enumerate() {
+            if j >= path.len() {
+                let logits = backend.forward(keep + j, &[t])?;
+                path.push((t, logits.to_vec()));
+            }
+            each(b, j, &path[j].1);
+        }
+    }
+    Ok(())
+}
+
 /// A model's tokenizer, shareable across threads (the constrained decoder keeps one to
 /// tokenize forced text exactly as the model would).
 pub trait Tokenize: Send + Sync {
@@ -94,6 +122,21 @@ pub trait Backend: Send {
     /// Keep the first `keep` cached tokens, evaluate `tokens` after them in batches, and
     /// return the logits of the last one. `tokens` must not be empty.
     fn forward(&mut self, keep: usize, tokens: &[TokenId]) -> Result<&mut [f32], BackendError>;
+    /// Evaluate each of `branches` after the first `keep` cached tokens as if it alone
+    /// followed them, handing `each(branch, j, logits)` the logits after its token `j`.
+    /// Afterwards the cache holds those `keep` tokens and maybe one branch's tokens past
+    /// them (which the next `forward` from `keep` drops). The default evaluates the
+    /// branches one token per forward pass, sharing the leading tokens a branch has in
+    /// common with the one before it; a runtime with sequences side by side evaluates
+    /// them in one batch.
+    fn branches(
+        &mut self,
+        keep: usize,
+        branches: &[&[TokenId]],
+        each: &mut dyn FnMut(usize, usize, &[f32]),
+    ) -> Result<(), BackendError> {
+        branches_one_by_one(self, keep, branches, each)
+    }
     /// Most tokens one evaluation step takes (`forward` cuts longer input into such
     /// batches, from its first token): what keeps a restored prefix's state the one
     /// evaluating it gives (`Session::prepare`).

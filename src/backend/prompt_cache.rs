@@ -6,11 +6,12 @@
 //!   payload's length and sha256) and the runtime's snapshot of its KV cache. The key is
 //!   everything else that decides the snapshot: the model file's sha256 and the
 //!   runtime's `snapshot_key` (runtime version, context and batch sizes, threads).
-//! - Entries hold whole evaluation batches from the prompt's start, so a restored
-//!   prefix is exactly what evaluating it gives (`Session::prepare`). A cold prompt
-//!   takes the entry sharing the most whole batches with it; the entry's tokens past
-//!   those are dropped from the cache before the rest is evaluated, as with any reused
-//!   prefix.
+//! - An entry holds one stable prefix, evaluated on its own in batches from its start
+//!   (`Session::prepare`), so restoring it gives exactly the state evaluating it does.
+//!   A cold prompt whose stable prefix an entry holds takes all of it; otherwise the
+//!   entry sharing the most whole batches with the prompt, the entry's tokens past
+//!   those being dropped from the cache before the rest is evaluated, as with any
+//!   reused prefix.
 //! - Anything wrong with a file (truncated, corrupted, foreign, another key, refused by
 //!   the runtime) is a miss: logged, the file removed, never an error or a wrong
 //!   answer. The payload's hash is checked before the runtime reads a byte of it.
@@ -137,17 +138,21 @@ impl PromptCache {
             .collect()
     }
 
-    /// Load into `backend`, whose cache is empty, the entry sharing the most leading
-    /// tokens with `prompt` in whole multiples of `batch` (at least `MIN_GAIN`): `Hit`
-    /// holds that shared part (the runtime may hold more of the entry, which the next
-    /// evaluation drops).
-    pub fn restore(&self, backend: &mut dyn Backend, prompt: &[TokenId], batch: usize) -> Restored {
+    /// Load into `backend`, whose cache is empty, the entry holding the stable prefix
+    /// `stable` whole, or else the one sharing the most leading tokens with it in whole
+    /// multiples of `batch` (at least `MIN_GAIN`): `Hit` holds that shared part (the
+    /// runtime may hold more of the entry, which the next evaluation drops).
+    pub fn restore(&self, backend: &mut dyn Backend, stable: &[TokenId], batch: usize) -> Restored {
         let batch = batch.max(1);
+        let usable = |tokens: &[TokenId]| match shared_prefix(tokens, stable) {
+            n if n == tokens.len() && n == stable.len() => n,
+            n => n / batch * batch,
+        };
         let best = {
             let entries = self.shared.entries.lock().expect("prompt cache lock");
             entries
                 .iter()
-                .map(|e| (shared_prefix(&e.tokens, prompt) / batch * batch, e))
+                .map(|e| (usable(&e.tokens), e))
                 .max_by_key(|(n, _)| *n)
                 .filter(|(n, _)| *n >= MIN_GAIN)
                 .map(|(n, e)| (n, e.clone()))
@@ -518,6 +523,16 @@ mod tests {
             cache.restore(&mut rt, &prompt, 256),
             Restored::Miss
         ));
+        // A stable prefix an entry holds whole is restored whole, batches or not; one
+        // the entry only begins gets its whole batches.
+        match cache.restore(&mut rt, &prefix(100), 64) {
+            Restored::Hit(t) => assert_eq!(t, prefix(100)),
+            other => panic!("{other:?}"),
+        }
+        match cache.restore(&mut rt, &prefix(101), 64) {
+            Restored::Hit(t) => assert_eq!(t, prefix(64), "the 100-token entry, in batches"),
+            other => panic!("{other:?}"),
+        }
         // Another model or other settings: none of these entries is seen.
         let other = Recorder::new("k2");
         let c2 = PromptCache::open(dir.path(), "m", &other, DEFAULT_MAX_BYTES).unwrap();

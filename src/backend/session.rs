@@ -44,47 +44,47 @@ impl Session {
     }
 
     /// Bring the backend's cache into `prompt` as far as memory holds it, or, starting
-    /// cold (memory holds none of it), as far as the prompt cache does: the largest
-    /// whole number of batches of the stable prefix an entry shares is restored, and a
-    /// stable prefix no entry holds is evaluated in whole batches and kept. Whole
-    /// batches from the prompt's start are the batches evaluating it takes anyway, so
-    /// every position's state is computed exactly as without the cache: the cache
-    /// changes no logit. Returns how many tokens were held without evaluating them, and
-    /// how many are held now (both leave at least one token of `prompt` to evaluate).
+    /// cold (memory holds none of it), through its stable prefix: a cold prompt's stable
+    /// prefix is evaluated on its own, in batches from the prompt's start, the last one
+    /// ending where the prefix does, with or without a prompt cache. So a restored
+    /// prefix (the whole stable prefix an entry holds, or the whole batches one shares
+    /// with it) holds exactly the state evaluating it gives: the cache changes no logit.
+    /// A stable prefix no entry holds is kept once evaluated. Returns how many tokens
+    /// were held without evaluating them, and how many are held now (both leave at least
+    /// one token of `prompt` to evaluate).
     pub fn prepare(
         &mut self,
         backend: &mut dyn Backend,
         prompt: &[TokenId],
     ) -> Result<(usize, usize), BackendError> {
         let keep = self.reusable(prompt);
-        let Some(cache) = self.cache.clone().filter(|_| keep == 0) else {
-            return Ok((keep, keep));
-        };
         let stable = if prompt.starts_with(&self.stable) {
             self.stable.len().min(prompt.len().saturating_sub(1))
         } else {
             0
         };
-        let batch = backend.batch_len().max(1);
-        let whole = stable / batch * batch;
-        if whole < MIN_GAIN {
-            return Ok((0, 0));
+        if keep > 0 || stable == 0 {
+            return Ok((keep, keep));
         }
-        match cache.restore(backend, &prompt[..whole], batch) {
-            Restored::Hit(tokens) => self.tokens = tokens,
-            Restored::Cleared | Restored::Miss => self.clear(),
+        if let Some(cache) = self.cache.clone().filter(|_| stable >= MIN_GAIN) {
+            let batch = backend.batch_len().max(1);
+            match cache.restore(backend, &prompt[..stable], batch) {
+                Restored::Hit(tokens) => self.tokens = tokens,
+                Restored::Cleared | Restored::Miss => self.clear(),
+            }
         }
         let reused = self.tokens.len();
-        if whole >= reused + MIN_GAIN {
-            if let Err(e) = backend.forward(reused, &prompt[reused..whole]) {
+        if reused < stable {
+            if let Err(e) = backend.forward(reused, &prompt[reused..stable]) {
                 self.clear();
                 return Err(e);
             }
-            self.tokens.extend_from_slice(&prompt[reused..whole]);
-            cache.store(backend, &prompt[..whole]);
+            self.tokens.extend_from_slice(&prompt[reused..stable]);
+            if let Some(cache) = self.cache.as_ref().filter(|_| stable >= MIN_GAIN) {
+                cache.store(backend, &prompt[..stable]);
+            }
         }
-        let held = self.tokens.len();
-        Ok((reused, held))
+        Ok((reused, stable))
     }
 
     pub fn tokens(&self) -> &[TokenId] {

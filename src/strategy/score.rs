@@ -2,8 +2,9 @@
 //! sequences after a shared context, under its full distribution (no grammar). Calibrated
 //! choices (`strategy::choice`) compare these with and without the request.
 //!
-//! Cost: one forward pass per distinct token prefix of the candidates; candidates that
-//! share a prefix share the cache.
+//! Cost: the context's tail, then the candidates' tokens as branches after it
+//! (`Backend::branches`): one batch on llama.cpp, one forward pass per distinct token
+//! prefix elsewhere.
 
 use crate::backend::{Backend, BackendError, TokenId};
 use crate::decode::Session;
@@ -20,37 +21,53 @@ pub fn continuation_logprobs(
     session.truncate(keep);
     let root = log_softmax(backend.forward(keep, &context[keep..])?);
     session.extend(&context[keep..]);
-    // Visit continuations in token order so neighbours share the longest prefix.
-    let mut order: Vec<usize> = (0..continuations.len()).collect();
-    order.sort_by(|&a, &b| continuations[a].cmp(&continuations[b]));
-    let mut scores = vec![0.0; continuations.len()];
-    // The distribution after each prefix of the current continuation ([0]: the root).
-    // The cache holds the context and the longest of these prefixes.
-    let mut path: Vec<(Vec<TokenId>, Vec<f32>)> = vec![(Vec::new(), root)];
-    let base = context.len();
-    for i in order {
-        let cont = &continuations[i];
-        let shared = path.iter().take_while(|(p, _)| cont.starts_with(p)).count();
-        path.truncate(shared);
-        let mut total = 0.0;
-        for (j, &tok) in cont.iter().enumerate() {
-            if j >= path.len() {
-                let next = log_softmax(backend.forward(base + j - 1, &cont[j - 1..j])?);
-                session.truncate(base + j - 1);
-                session.extend(&cont[j - 1..j]);
-                path.push((cont[..j].to_vec(), next));
-            }
-            total += f64::from(path[j].1[tok as usize]);
+    let mut scores: Vec<f64> = continuations
+        .iter()
+        .map(|c| c.first().map_or(0.0, |&t| f64::from(root[t as usize])))
+        .collect();
+    // Every token but a continuation's last is evaluated, in branches: the distinct
+    // inputs no other input begins with (in sorted order, an input begins its
+    // successor if it begins any other).
+    let inputs: Vec<&[TokenId]> = continuations
+        .iter()
+        .map(|c| &c[..c.len().saturating_sub(1)])
+        .collect();
+    let mut sorted: Vec<&[TokenId]> = inputs.iter().copied().filter(|i| !i.is_empty()).collect();
+    sorted.sort();
+    sorted.dedup();
+    let branches: Vec<&[TokenId]> = (0..sorted.len())
+        .filter(|&k| k + 1 == sorted.len() || !sorted[k + 1].starts_with(sorted[k]))
+        .map(|k| sorted[k])
+        .collect();
+    // The continuations each branch scores.
+    let mut served: Vec<Vec<usize>> = vec![Vec::new(); branches.len()];
+    for (i, input) in inputs.iter().enumerate().filter(|(_, i)| !i.is_empty()) {
+        if let Some(b) = branches.iter().position(|b| b.starts_with(input)) {
+            served[b].push(i);
         }
-        scores[i] = total;
     }
+    backend.branches(context.len(), &branches, &mut |b, j, logits| {
+        let wanted = served[b]
+            .iter()
+            .filter(|&&i| j + 1 < continuations[i].len());
+        let mut norm = None;
+        for &i in wanted {
+            let norm = *norm.get_or_insert_with(|| log_sum_exp(logits));
+            let next = continuations[i][j + 1] as usize;
+            scores[i] += f64::from(logits[next] - norm);
+        }
+    })?;
     Ok(scores)
 }
 
-pub fn log_softmax(logits: &[f32]) -> Vec<f32> {
+fn log_sum_exp(logits: &[f32]) -> f32 {
     let max = logits.iter().copied().fold(f32::NEG_INFINITY, f32::max);
     let sum: f32 = logits.iter().map(|&l| (l - max).exp()).sum();
-    let norm = max + sum.ln();
+    max + sum.ln()
+}
+
+pub fn log_softmax(logits: &[f32]) -> Vec<f32> {
+    let norm = log_sum_exp(logits);
     logits.iter().map(|&l| l - norm).collect()
 }
 

@@ -34,7 +34,8 @@ use crate::tool::Package;
 
 /// Every ROS tool over `graph`.
 pub fn package(graph: Arc<dyn RosGraph>) -> Package {
-    let ros = Ros::new(graph);
+    let ros = Ros::new(graph.clone());
+    ros.params.prefetch(graph);
     let g = || ros.clone();
     Package::new("ros")
         .with(graph::NodeList(g()))

@@ -6,13 +6,14 @@
 //! Listing a node's parameters is a service call (`<node>/list_parameters`), and a turn
 //! never waits on the robot for long: the catalog answers from what it knows, and
 //! fetches the nodes it does not know on a thread of its own, waiting at most
-//! `FIRST_WAIT` for that fetch. A node is asked again after `RETRY`, whether it
-//! answered or not. A listing the agent made (`ros_param_list`) is recorded too. The fetch goes
-//! through the same graph as the tools, so the fence refuses what it refuses for them.
+//! `FIRST_WAIT` after a node was asked (by this turn or an earlier one, or by the
+//! prefetch made when the tools are built, so a first request finds them listed). A
+//! node is asked again after `RETRY`, whether it answered or not. A listing the agent
+//! made (`ros_param_list`) is recorded too. The fetch goes through the same graph as
+//! the tools, so the fence refuses what it refuses for them.
 
 use std::collections::BTreeMap;
-use std::sync::mpsc;
-use std::sync::{Arc, Mutex, PoisonError};
+use std::sync::{Arc, Condvar, Mutex, PoisonError};
 use std::time::{Duration, Instant};
 
 use serde_json::{json, Value};
@@ -27,9 +28,19 @@ const CALL_LIMIT: Duration = Duration::from_secs(2);
 /// were listed this long ago (a node may declare more, or restart).
 const RETRY: Duration = Duration::from_secs(30);
 
+/// How long the prefetch waits for the robot's nodes to be discovered.
+const PREFETCH_WINDOW: Duration = Duration::from_secs(10);
+
 #[derive(Default)]
 pub struct ParamNames {
+    shared: Arc<Shared>,
+}
+
+/// The catalog's state, and the signal a fetch gives when it records a node.
+#[derive(Default)]
+struct Shared {
     state: Mutex<State>,
+    recorded: Condvar,
 }
 
 #[derive(Default)]
@@ -66,22 +77,77 @@ impl ParamNames {
             missing
         };
         if !missing.is_empty() {
-            for (node, names) in fetch(graph.clone(), missing) {
-                self.record(&node, names);
-            }
+            fetch(self.shared.clone(), graph.clone(), missing);
         }
-        let s = self.lock();
+        // Wait for the nodes asked less than `FIRST_WAIT` ago and not listed since.
+        let mut s = self.lock();
+        loop {
+            let now = Instant::now();
+            let until = serving
+                .iter()
+                .filter_map(|n| {
+                    let asked = *s.asked.get(n)?;
+                    let listed = s.known.get(n).is_some_and(|(t, _)| *t >= asked);
+                    Some(asked + FIRST_WAIT).filter(|_| !listed)
+                })
+                .filter(|&until| until > now)
+                .max();
+            let Some(until) = until else { break };
+            s = self
+                .shared
+                .recorded
+                .wait_timeout(s, until - now)
+                .unwrap_or_else(PoisonError::into_inner)
+                .0;
+        }
         serving
             .into_iter()
             .filter_map(|n| Some((n.clone(), s.known.get(&n)?.1.clone())))
             .collect()
     }
 
+    /// List the parameters of the nodes `graph` shows once it shows any that serve
+    /// them (within `PREFETCH_WINDOW`), on a thread of its own, so the first turn does
+    /// not wait for them.
+    pub fn prefetch(self: &Arc<Self>, graph: Arc<dyn RosGraph>) {
+        let me = self.clone();
+        let _ = std::thread::Builder::new()
+            .name("param-prefetch".into())
+            .spawn(move || {
+                let start = Instant::now();
+                while start.elapsed() < PREFETCH_WINDOW {
+                    let g = crate::ros::graph_now(graph.as_ref());
+                    let serving = |g: &Graph| {
+                        let services = g.services();
+                        g.nodes
+                            .iter()
+                            .any(|n| services.contains_key(&list_service(n)))
+                    };
+                    if let Some(g) = g.filter(serving) {
+                        me.of(&graph, &g);
+                        return;
+                    }
+                    std::thread::sleep(Duration::from_millis(50));
+                }
+            });
+    }
+
     /// Record `node`'s parameters as a listing gave them.
     pub fn record(&self, node: &str, names: Vec<String>) {
+        self.shared.record(node, names);
+    }
+
+    fn lock(&self) -> std::sync::MutexGuard<'_, State> {
+        self.shared.lock()
+    }
+}
+
+impl Shared {
+    fn record(&self, node: &str, names: Vec<String>) {
         self.lock()
             .known
             .insert(node.to_string(), (Instant::now(), names));
+        self.recorded.notify_all();
     }
 
     fn lock(&self) -> std::sync::MutexGuard<'_, State> {
@@ -93,12 +159,9 @@ fn list_service(node: &str) -> String {
     format!("{}/list_parameters", node.trim_end_matches('/'))
 }
 
-/// The names of `nodes`' parameters, each as it came within `FIRST_WAIT`; the fetch
-/// goes on after, and what comes later is dropped (the node is asked again after
-/// `RETRY`).
-fn fetch(graph: Arc<dyn RosGraph>, nodes: Vec<String>) -> Vec<(String, Vec<String>)> {
-    let (tx, rx) = mpsc::channel();
-    let spawned = std::thread::Builder::new()
+/// List `nodes`' parameters on a thread of its own, recording each node as it answers.
+fn fetch(shared: Arc<Shared>, graph: Arc<dyn RosGraph>, nodes: Vec<String>) {
+    let _ = std::thread::Builder::new()
         .name("param-names".into())
         .spawn(move || {
             let Ok(rt) = tokio::runtime::Builder::new_current_thread()
@@ -116,24 +179,10 @@ fn fetch(graph: Arc<dyn RosGraph>, nodes: Vec<String>) -> Vec<(String, Vec<Strin
                     CALL_LIMIT,
                 );
                 if let Ok(reply) = rt.block_on(call) {
-                    if tx.send((node, names(&reply.response))).is_err() {
-                        return;
-                    }
+                    shared.record(&node, names(&reply.response));
                 }
             }
         });
-    let mut out = Vec::new();
-    if spawned.is_err() {
-        return out;
-    }
-    let deadline = Instant::now() + FIRST_WAIT;
-    while let Some(left) = deadline.checked_duration_since(Instant::now()) {
-        match rx.recv_timeout(left) {
-            Ok(item) => out.push(item),
-            Err(_) => break,
-        }
-    }
-    out
 }
 
 /// The names a `ListParameters` response holds.
