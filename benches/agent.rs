@@ -316,7 +316,8 @@ fn main() {
 
     // 4. The remote engine, on a llama-server with the same model.
     drop(agent);
-    let remote = match llama_server::binary().filter(|_| part("4") && !rows.is_empty()) {
+    let wanted = part("4") && !rows.is_empty();
+    let remote = match llama_server::binary().filter(|_| wanted) {
         Some(bin) => Some(remote_engine(
             &args,
             graph.clone(),
@@ -325,7 +326,7 @@ fn main() {
             runs,
             &rows,
         )),
-        None if !part("4") || rows.is_empty() => None,
+        None if !wanted => None,
         None => {
             println!("## Remote engine: skipped (no llama-server: scripts/build-llama-cpp.sh llama-server, or LLAMA_SERVER)");
             println!();

@@ -27,6 +27,19 @@ pub struct Bpe {
     specials: Vec<(String, TokenId)>,
 }
 
+/// The regexes llama.cpp splits text with before byte-level BPE, in order (each splits
+/// the pieces of the one before, keeping matches and gaps), for the file's
+/// `tokenizer.ggml.pre`.
+pub fn pre_tokenizer(g: &Gguf) -> Result<&'static [&'static str], String> {
+    match g.get_str("tokenizer.ggml.pre").unwrap_or("default") {
+        "smollm" | "starcoder" | "refact" | "command-r" | "codeshell" | "exaone" | "minerva-7b" => {
+            Ok(&[r"\p{N}", GPT2_WORDS])
+        }
+        "gpt-2" | "gpt2" | "default" | "phi-2" => Ok(&[GPT2_WORDS]),
+        other => Err(format!("pre-tokenizer '{other}' is not supported")),
+    }
+}
+
 impl Bpe {
     pub fn from_gguf(g: &Gguf, vocab: &Vocab) -> Result<Bpe, String> {
         let model = g.get_str("tokenizer.ggml.model").unwrap_or("");
@@ -41,14 +54,7 @@ impl Bpe {
         let merges = g
             .str_array("tokenizer.ggml.merges")
             .ok_or("no tokenizer.ggml.merges")?;
-        let pre = g.get_str("tokenizer.ggml.pre").unwrap_or("default");
-        let patterns: &[&str] = match pre {
-            "smollm" | "starcoder" | "refact" | "command-r" | "codeshell" | "exaone"
-            | "minerva-7b" => &[r"\p{N}", GPT2_WORDS],
-            "gpt-2" | "gpt2" | "default" | "phi-2" => &[GPT2_WORDS],
-            other => return Err(format!("pre-tokenizer '{other}' is not supported")),
-        };
-        let stages = patterns
+        let stages = pre_tokenizer(g)?
             .iter()
             .map(|p| Regex::new(p).map_err(|e| e.to_string()))
             .collect::<Result<Vec<_>, _>>()?;

@@ -26,6 +26,13 @@ const NAME: &str = "llama.cpp";
 /// Most branches one batch evaluates side by side (`Backend::branches`).
 const BRANCHES: usize = 15;
 
+fn eval(e: impl std::fmt::Display) -> BackendError {
+    BackendError::Eval {
+        backend: NAME,
+        reason: e.to_string(),
+    }
+}
+
 /// llama.cpp's global state may be initialised once per process.
 fn runtime() -> Result<&'static LlamaBackend, BackendError> {
     static RUNTIME: OnceLock<Result<LlamaBackend, String>> = OnceLock::new();
@@ -89,6 +96,26 @@ impl Tokenize for LlamaTokenizer {
 }
 
 impl LlamaCpp {
+    /// Before `more` new tokens (`tokens`) are evaluated after the first `keep` cached
+    /// ones: refuse what does not fit the context or the vocabulary, and drop the cache
+    /// past `keep`. Returns `keep` as the cache can hold it.
+    fn make_room<'t>(
+        &mut self,
+        keep: usize,
+        more: usize,
+        tokens: impl Iterator<Item = &'t TokenId>,
+    ) -> Result<usize, BackendError> {
+        let (held, limit, n_vocab) = (self.n_past, self.n_ctx, self.vocab.len());
+        let keep = super::admit(keep, held, more, tokens, limit, n_vocab)?;
+        if keep < self.n_past {
+            self.ctx
+                .kv_cache_seq_rm(0, Some(keep as u32), None)
+                .map_err(eval)?;
+        }
+        self.n_past = keep;
+        Ok(keep)
+    }
+
     /// Evaluate `group` (at most `max_branches` branches) in one batch as a tree: branch
     /// `b` is sequence `b + 1` after the main sequence's first `keep` cells, and a token
     /// the branches share with their leading tokens is evaluated once, in each of their
@@ -99,10 +126,6 @@ impl LlamaCpp {
         group: &[&[TokenId]],
         each: &mut dyn FnMut(usize, usize, &[f32]),
     ) -> Result<(), BackendError> {
-        let eval = |reason: String| BackendError::Eval {
-            backend: NAME,
-            reason,
-        };
         // The tree: each distinct leading part of a branch, with the sequences sharing
         // it, parents before children; and for each branch, its tokens' nodes.
         let mut nodes: Vec<(&[TokenId], Vec<i32>)> = Vec::new();
@@ -123,20 +146,14 @@ impl LlamaCpp {
             }
             path.push(at);
         }
-        if nodes.len() > self.n_batch {
-            return Err(eval(format!(
-                "branches of {} distinct tokens do not fit a batch of {}",
-                nodes.len(),
-                self.n_batch
-            )));
-        }
+        debug_assert!(nodes.len() <= self.n_batch, "a group fits a batch");
         if nodes.is_empty() {
             return Ok(());
         }
         for seq in 1..=group.len() as i32 {
             self.ctx
                 .kv_cache_seq_cp(0, seq, None, Some(keep as u32))
-                .map_err(|e| eval(e.to_string()))?;
+                .map_err(eval)?;
         }
         self.branch_batch.clear();
         for (lead, seqs) in &nodes {
@@ -146,11 +163,9 @@ impl LlamaCpp {
             );
             self.branch_batch
                 .add(LlamaToken(t as i32), pos as i32, seqs, true)
-                .map_err(|e| eval(e.to_string()))?;
+                .map_err(eval)?;
         }
-        self.ctx
-            .decode(&mut self.branch_batch)
-            .map_err(|e| eval(e.to_string()))?;
+        self.ctx.decode(&mut self.branch_batch).map_err(eval)?;
         let n_vocab = self.vocab.len();
         for (b, at) in path.iter().enumerate() {
             for (j, &n) in at.iter().enumerate() {
@@ -285,32 +300,9 @@ impl Backend for LlamaCpp {
     fn forward(&mut self, keep: usize, tokens: &[TokenId]) -> Result<&mut [f32], BackendError> {
         let _span = tracing::trace_span!("forward", n = tokens.len()).entered();
         if tokens.is_empty() {
-            return Err(BackendError::Eval {
-                backend: NAME,
-                reason: "forward called with no tokens".into(),
-            });
+            return Err(eval("forward called with no tokens"));
         }
-        let keep = keep.min(self.n_past);
-        let needed = keep + tokens.len();
-        if needed > self.n_ctx {
-            return Err(BackendError::ContextFull {
-                needed,
-                limit: self.n_ctx,
-            });
-        }
-        let n_vocab = self.vocab.len();
-        if let Some(&bad) = tokens.iter().find(|&&t| t as usize >= n_vocab) {
-            return Err(BackendError::BadToken(bad));
-        }
-        if keep < self.n_past {
-            self.ctx
-                .kv_cache_seq_rm(0, Some(keep as u32), None)
-                .map_err(|e| BackendError::Eval {
-                    backend: NAME,
-                    reason: e.to_string(),
-                })?;
-        }
-        self.n_past = keep;
+        self.make_room(keep, tokens.len(), tokens.iter())?;
         for chunk in tokens.chunks(self.n_batch) {
             self.batch.clear();
             let last = chunk.len() - 1;
@@ -322,23 +314,17 @@ impl Backend for LlamaCpp {
                         &[0],
                         i == last,
                     )
-                    .map_err(|e| BackendError::Eval {
-                        backend: NAME,
-                        reason: e.to_string(),
-                    })?;
+                    .map_err(eval)?;
             }
             if let Err(e) = self.ctx.decode(&mut self.batch) {
                 // The cache may hold part of this chunk; drop it so `n_past` stays true.
                 let _ = self.ctx.kv_cache_seq_rm(0, Some(self.n_past as u32), None);
-                return Err(BackendError::Eval {
-                    backend: NAME,
-                    reason: e.to_string(),
-                });
+                return Err(eval(e));
             }
             self.n_past += chunk.len();
         }
         let out = self.ctx.get_logits_ith(self.batch.n_tokens() - 1);
-        self.logits.copy_from_slice(&out[..n_vocab]);
+        self.logits.copy_from_slice(&out[..self.vocab.len()]);
         Ok(&mut self.logits)
     }
 
@@ -353,32 +339,12 @@ impl Backend for LlamaCpp {
         each: &mut dyn FnMut(usize, usize, &[f32]),
     ) -> Result<(), BackendError> {
         let _span = tracing::trace_span!("branches", n = branches.len()).entered();
-        let eval = |reason: String| BackendError::Eval {
-            backend: NAME,
-            reason,
-        };
-        let keep = keep.min(self.n_past);
         if self.max_branches == 0 || branches.iter().any(|b| b.len() > self.n_batch) {
             return super::branches_one_by_one(self, keep, branches, each);
         }
-        let total: usize = branches.iter().map(|b| b.len()).sum();
-        if keep + total > self.n_ctx {
-            return Err(BackendError::ContextFull {
-                needed: keep + total,
-                limit: self.n_ctx,
-            });
-        }
-        let n_vocab = self.vocab.len();
-        let bad = branches.iter().flat_map(|b| b.iter());
-        if let Some(&bad) = bad.clone().find(|&&t| t as usize >= n_vocab) {
-            return Err(BackendError::BadToken(bad));
-        }
-        if keep < self.n_past {
-            self.ctx
-                .kv_cache_seq_rm(0, Some(keep as u32), None)
-                .map_err(|e| eval(e.to_string()))?;
-            self.n_past = keep;
-        }
+        // Every branch's cells at once, at most: shared tokens take one.
+        let total = branches.iter().map(|b| b.len()).sum();
+        let keep = self.make_room(keep, total, branches.iter().flat_map(|b| b.iter()))?;
         // Groups of branches that fit one batch and the sequence ids, each branch
         // evaluated as sequence 1.. after the main sequence's first `keep` cells.
         let mut start = 0;
@@ -417,21 +383,16 @@ impl Backend for LlamaCpp {
         // SAFETY: `out` holds the size llama.cpp just reported for this sequence.
         let n = unsafe { self.ctx.state_seq_get_data_ext(out.as_mut_ptr(), 0, flags) };
         if n != size {
-            return Err(BackendError::Eval {
-                backend: NAME,
-                reason: format!("the cache's snapshot took {n} bytes, not {size}"),
-            });
+            return Err(eval(format!(
+                "the cache's snapshot took {n} bytes, not {size}"
+            )));
         }
         Ok(out)
     }
 
     fn restore(&mut self, snapshot: &[u8], tokens: usize) -> Result<(), BackendError> {
-        let fail = |reason: String| BackendError::Eval {
-            backend: NAME,
-            reason,
-        };
         if tokens == 0 || tokens > self.n_ctx {
-            return Err(fail(format!("a snapshot of {tokens} tokens does not fit")));
+            return Err(eval(format!("a snapshot of {tokens} tokens does not fit")));
         }
         let _ = self.ctx.kv_cache_seq_rm(0, None, None);
         self.n_past = 0;
@@ -445,7 +406,7 @@ impl Backend for LlamaCpp {
         };
         if !ok {
             let _ = self.ctx.kv_cache_seq_rm(0, None, None);
-            return Err(fail("llama.cpp refused the snapshot".into()));
+            return Err(eval("llama.cpp refused the snapshot"));
         }
         self.n_past = tokens;
         Ok(())

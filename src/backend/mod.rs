@@ -71,6 +71,28 @@ pub enum BackendError {
     },
 }
 
+/// What every runtime checks before evaluating `more` new tokens (`tokens`) after the
+/// first `keep` of the `held` it caches: that they fit its `limit`-token context and its
+/// `n_vocab`-token vocabulary. Returns `keep` as the cache can hold it.
+pub(crate) fn admit<'t>(
+    keep: usize,
+    held: usize,
+    more: usize,
+    mut tokens: impl Iterator<Item = &'t TokenId>,
+    limit: usize,
+    n_vocab: usize,
+) -> Result<usize, BackendError> {
+    let keep = keep.min(held);
+    let needed = keep + more;
+    if needed > limit {
+        return Err(BackendError::ContextFull { needed, limit });
+    }
+    if let Some(&bad) = tokens.find(|&&t| t as usize >= n_vocab) {
+        return Err(BackendError::BadToken(bad));
+    }
+    Ok(keep)
+}
+
 /// `Backend::branches` one token per forward pass, sharing the leading tokens a branch
 /// has in common with the one before it.
 pub fn branches_one_by_one<B: Backend + ?Sized>(

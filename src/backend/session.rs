@@ -66,7 +66,9 @@ impl Session {
         if keep > 0 || stable == 0 {
             return Ok((keep, keep));
         }
-        if let Some(cache) = self.cache.clone().filter(|_| stable >= MIN_GAIN) {
+        // An entry worth reading, and one worth writing, spares `MIN_GAIN` tokens.
+        let cache = self.cache.clone().filter(|_| stable >= MIN_GAIN);
+        if let Some(cache) = &cache {
             let batch = backend.batch_len().max(1);
             match cache.restore(backend, &prompt[..stable], batch) {
                 Restored::Hit(tokens) => self.tokens = tokens,
@@ -80,7 +82,7 @@ impl Session {
                 return Err(e);
             }
             self.tokens.extend_from_slice(&prompt[reused..stable]);
-            if let Some(cache) = self.cache.as_ref().filter(|_| stable >= MIN_GAIN) {
+            if let Some(cache) = &cache {
                 cache.store(backend, &prompt[..stable]);
             }
         }

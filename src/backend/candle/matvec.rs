@@ -20,6 +20,8 @@ pub struct Q41 {
     data: Vec<u8>,
     rows: usize,
     cols: usize,
+    /// Whether this CPU runs `dot_avx2`.
+    simd: bool,
 }
 
 struct Q81 {
@@ -36,6 +38,7 @@ impl Q41 {
             data,
             rows,
             cols,
+            simd: simd_available(),
         })
     }
 
@@ -49,14 +52,14 @@ impl Q41 {
         let xq: Vec<Q81> = x.chunks_exact(QK).map(quantize).collect();
         let row_bytes = self.cols / QK * Q4_1_BYTES;
         let mut out = vec![0.0f32; self.rows];
-        let simd = simd_available();
+        let simd = self.simd;
         let dst = Rows(out.as_mut_ptr());
         candle_core::utils::barrier_pool().execute_chunked(self.rows, |range| {
             let dst = &dst;
             for r in range {
                 let row = &self.data[r * row_bytes..(r + 1) * row_bytes];
                 let v = if simd {
-                    // SAFETY: the CPU has AVX2, FMA and F16C (checked above).
+                    // SAFETY: the CPU has AVX2, FMA and F16C (checked at `new`).
                     unsafe { dot_avx2(row, &xq) }
                 } else {
                     dot_scalar(row, &xq)

@@ -12,7 +12,6 @@ use std::io::BufReader;
 use std::sync::{Arc, Once};
 
 use candle_core::quantized::gguf_file;
-use candle_core::Device;
 
 use self::model::{Family, Model};
 pub use self::tokenizer::HfTokenizer;
@@ -36,7 +35,6 @@ pub struct Candle {
     n_ctx: usize,
     n_past: usize,
     logits: Vec<f32>,
-    device: Device,
 }
 
 impl Candle {
@@ -78,7 +76,6 @@ impl Candle {
             template,
             n_ctx,
             n_past: 0,
-            device: Device::Cpu,
         })
     }
 }
@@ -113,17 +110,8 @@ impl Backend for Candle {
         if tokens.is_empty() {
             return Err(err("forward called with no tokens"));
         }
-        let keep = keep.min(self.n_past);
-        let needed = keep + tokens.len();
-        if needed > self.n_ctx {
-            return Err(BackendError::ContextFull {
-                needed,
-                limit: self.n_ctx,
-            });
-        }
-        if let Some(&bad) = tokens.iter().find(|&&t| t as usize >= self.vocab.len()) {
-            return Err(BackendError::BadToken(bad));
-        }
+        let (held, limit, n_vocab) = (self.n_past, self.n_ctx, self.vocab.len());
+        let keep = super::admit(keep, held, tokens.len(), tokens.iter(), limit, n_vocab)?;
         // Dropping the tail of the cache is just forgetting it: positions past `keep`
         // are overwritten by the next append.
         self.n_past = keep;
@@ -134,8 +122,7 @@ impl Backend for Candle {
         }
         let logits = last
             .expect("tokens is not empty")
-            .to_device(&self.device)
-            .and_then(|t| t.to_vec1::<f32>())
+            .to_vec1::<f32>()
             .map_err(err)?;
         self.logits.copy_from_slice(&logits[..self.vocab.len()]);
         Ok(&mut self.logits)

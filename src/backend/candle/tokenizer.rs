@@ -26,12 +26,10 @@ use tokenizers::{
     AddedToken, NormalizerWrapper, PreTokenizerWrapper, SplitDelimiterBehavior, Tokenizer,
 };
 
+use super::super::bpe::pre_tokenizer;
 use super::super::gguf::{Gguf, MetaValue};
 use super::super::vocab::{TokenKind, Vocab};
 use super::super::{TokenId, Tokenize};
-
-const GPT2_WORDS: &str =
-    r"'s|'t|'re|'ve|'m|'ll|'d| ?\p{L}+| ?\p{N}+| ?[^\s\p{L}\p{N}]+|\s+(?!\S)|\s+";
 
 /// A model's tokenizer: one that reads control-token texts as those tokens (for rendered
 /// templates), one that reads them as plain text (for what anyone wrote).
@@ -100,14 +98,7 @@ fn byte_level(g: &Gguf, tokens: &[&str]) -> Result<Tokenizer, String> {
         .filter_map(|m| m.split_once(' '))
         .map(|(a, b)| (a.to_string(), b.to_string()))
         .collect();
-    let pre = g.get_str("tokenizer.ggml.pre").unwrap_or("default");
-    let patterns: &[&str] = match pre {
-        "smollm" | "starcoder" | "refact" | "command-r" | "codeshell" | "exaone" | "minerva-7b" => {
-            &[r"\p{N}", GPT2_WORDS]
-        }
-        "gpt-2" | "gpt2" | "default" | "phi-2" => &[GPT2_WORDS],
-        other => return Err(format!("pre-tokenizer '{other}' is not supported")),
-    };
+    let patterns = pre_tokenizer(g)?;
     let bpe = BPE::builder()
         .vocab_and_merges(ids(tokens), merges)
         .build()

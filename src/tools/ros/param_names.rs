@@ -55,13 +55,7 @@ impl ParamNames {
     /// The parameter names known now of the nodes of `g` that serve `list_parameters`.
     /// Nodes not known are fetched first, waiting at most `FIRST_WAIT` for them.
     pub fn of(&self, graph: &Arc<dyn RosGraph>, g: &Graph) -> BTreeMap<String, Vec<String>> {
-        let services = g.services();
-        let serving: Vec<String> = g
-            .nodes
-            .iter()
-            .filter(|n| services.contains_key(&list_service(n)))
-            .cloned()
-            .collect();
+        let serving = serving(g);
         let missing: Vec<String> = {
             let mut s = self.lock();
             let now = Instant::now();
@@ -117,13 +111,7 @@ impl ParamNames {
                 let start = Instant::now();
                 while start.elapsed() < PREFETCH_WINDOW {
                     let g = crate::ros::graph_now(graph.as_ref());
-                    let serving = |g: &Graph| {
-                        let services = g.services();
-                        g.nodes
-                            .iter()
-                            .any(|n| services.contains_key(&list_service(n)))
-                    };
-                    if let Some(g) = g.filter(serving) {
+                    if let Some(g) = g.filter(|g| !serving(g).is_empty()) {
                         me.of(&graph, &g);
                         return;
                     }
@@ -153,6 +141,16 @@ impl Shared {
     fn lock(&self) -> std::sync::MutexGuard<'_, State> {
         self.state.lock().unwrap_or_else(PoisonError::into_inner)
     }
+}
+
+/// The nodes of `g` that serve `list_parameters`.
+fn serving(g: &Graph) -> Vec<String> {
+    let services = g.services();
+    g.nodes
+        .iter()
+        .filter(|n| services.contains_key(&list_service(n)))
+        .cloned()
+        .collect()
 }
 
 fn list_service(node: &str) -> String {
