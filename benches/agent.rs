@@ -4,7 +4,8 @@
 //! 1. End-to-end latency of a fixed set of operator requests (query → tool calls →
 //!    answer): the first request after start (nothing cached), then each request N times
 //!    after `/clear` (the system prompt stays cached), min / median / max, with the time to
-//!    the first token, the model's and the tools' share, and what was called.
+//!    the first token (the call's opening, shown once the model has read it), to the
+//!    first call written whole, the model's and the tools' share, and what was called.
 //! 2. Cold start: the first request of a freshly built agent (model loaded, nothing in
 //!    memory), with the prompt cache off, on but empty (the request stores its prefix),
 //!    and on with the prefix kept by an earlier process; each N times, in a temporary
@@ -78,6 +79,8 @@ struct RequestRow {
     request: String,
     total_ms: Spread,
     first_token_ms: Spread,
+    /// Query to the first call written whole (when the robot could first act).
+    first_call_ms: Spread,
     model_ms: Spread,
     /// The model's time per turn (a turn: the model writing one step's calls or answer).
     turn_ms: Spread,
@@ -102,6 +105,7 @@ fn request_row(agent: &mut ferrosa::agent::Agent, q: &str, runs: usize) -> Reque
         request: q.to_string(),
         total_ms: spread(&|r| r.timings.total_ms),
         first_token_ms: spread(&|r| r.timings.first_token_ms.unwrap_or(0.0)),
+        first_call_ms: spread(&|r| r.timings.first_call_ms.unwrap_or(0.0)),
         model_ms: spread(&|r| r.timings.model_ms),
         turn_ms: spread(&|r| r.timings.model_ms / turns(r)),
         turns: spread(&turns),
@@ -215,14 +219,15 @@ fn main() {
         first.answer
     );
         println!();
-        println!("| request | total | first token | model | tools | steps | calls (last run) | answer (last run) |");
-        println!("|---|---|---|---|---|---|---|---|");
+        println!("| request | total | first token | first call | model | tools | steps | calls (last run) | answer (last run) |");
+        println!("|---|---|---|---|---|---|---|---|---|");
         for r in &rows {
             println!(
-                "| {} | {} | {} | {} | {} | {:.0}–{:.0} | {} | {} |",
+                "| {} | {} | {} | {} | {} | {} | {:.0}–{:.0} | {} | {} |",
                 r.request,
                 f(&r.total_ms),
                 f(&r.first_token_ms),
+                f(&r.first_call_ms),
                 f(&r.model_ms),
                 f(&r.tools_ms),
                 r.steps.min,
@@ -242,14 +247,15 @@ fn main() {
     };
     println!("## Cold start: the first request of a new agent (\"{}\"), ms, min / **median** / max over {runs}", REQUESTS[0]);
     println!();
-    println!("| prompt cache | agent built | first token | total | prompt tokens restored | answer (last run) |");
-    println!("|---|---|---|---|---|---|");
+    println!("| prompt cache | agent built | first token | first call | total | prompt tokens restored | answer (last run) |");
+    println!("|---|---|---|---|---|---|---|");
     for c in &cold {
         println!(
-            "| {} | {} | {} | {} | {} | {} |",
+            "| {} | {} | {} | {} | {} | {} | {} |",
             c.cache,
             f(&c.build_ms),
             f(&c.first_token_ms),
+            f(&c.first_call_ms),
             f(&c.total_ms),
             c.restored_tokens,
             c.answer.replace('|', "\\|")
@@ -381,6 +387,7 @@ struct ColdRow {
     cache: &'static str,
     build_ms: Spread,
     first_token_ms: Spread,
+    first_call_ms: Spread,
     total_ms: Spread,
     /// Prompt tokens restored from disk in the last run.
     restored_tokens: usize,
@@ -401,7 +408,8 @@ fn cold_start(
     let kept = tempfile::tempdir().expect("a cache directory");
     let mut rows = Vec::new();
     for cache in ["off", "on, empty", "on, kept"] {
-        let (mut build, mut first, mut total) = (Vec::new(), Vec::new(), Vec::new());
+        let (mut build, mut first, mut call, mut total) =
+            (Vec::new(), Vec::new(), Vec::new(), Vec::new());
         let (mut restored, mut answer) = (0, String::new());
         // "kept" starts from what an agent kept before it.
         let runs = if cache == "on, kept" { runs + 1 } else { runs };
@@ -445,6 +453,7 @@ fn cold_start(
             }
             build.push(built);
             first.push(r.timings.first_token_ms.unwrap_or(0.0));
+            call.push(r.timings.first_call_ms.unwrap_or(0.0));
             total.push(r.timings.total_ms);
             answer = r.answer;
         }
@@ -452,6 +461,7 @@ fn cold_start(
             cache,
             build_ms: Spread::of(build),
             first_token_ms: Spread::of(first),
+            first_call_ms: Spread::of(call),
             total_ms: Spread::of(total),
             restored_tokens: restored,
             answer,

@@ -132,13 +132,14 @@ fn a_second_turn_evaluates_only_its_new_tokens() {
     );
 }
 
-/// Branches side by side in one batch (llama.cpp's sequences sharing their leading
-/// tokens) give each branch's tokens the logits that branch gets evaluated alone after
-/// the context (as a prompt's tail is, in one batch), and leave the main sequence as it
-/// was; on both models (Gemma 3's sliding-window layers too). Equal up to rounding: a
-/// row's logits depend on where it falls in the batch (llama.cpp's matrix kernels take
-/// rows in tiles), by up to half a logit on SmolLM2 and 2.7 on Gemma 3 (Q4_K_M) here,
-/// the likeliest token the same in every row.
+/// Branches side by side in one batch after a shared tail (llama.cpp's sequences sharing
+/// their leading tokens, the tail in every one of them and in the main sequence) give
+/// the tail's last token and each branch's tokens the logits they get evaluated alone
+/// after the context (as a prompt's tail is, in one batch), and leave the main sequence
+/// holding the context and the tail; on both models (Gemma 3's sliding-window layers
+/// too). Equal up to rounding: a row's logits depend on where it falls in the batch
+/// (llama.cpp's matrix kernels take rows in tiles), by up to half a logit on SmolLM2
+/// and 2.7 on Gemma 3 (Q4_K_M) here, the likeliest token the same in every row.
 #[test]
 #[ignore = "needs the model weights (or a ROS peer): cargo test --release -- --include-ignored"]
 fn branches_side_by_side_score_as_each_alone() {
@@ -152,6 +153,9 @@ fn branches_side_by_side_score_as_each_alone() {
         let mut m = load(name, BackendKind::Llama, 2048);
         let text = "The turtle can list nodes, read topics and move. ".repeat(8);
         let context = m.tokenize(&text, false).unwrap();
+        let tail = m
+            .tokenize("Which tool lists them? The tool", false)
+            .unwrap();
         let words = [
             "ros_node_list",
             "ros_node_info",
@@ -163,23 +167,34 @@ fn branches_side_by_side_score_as_each_alone() {
             .iter()
             .map(|w| m.tokenize(w, false).unwrap())
             .collect();
+        let at = context.len();
+        let mut whole = context.clone();
+        whole.extend_from_slice(&tail);
+        let last = whole.len() - 1;
+        // Alone: the tail after the context, then the tail and each leading part of
+        // each branch, each as one batch.
         m.forward(0, &context).unwrap();
-        let last = context.len() - 1;
-        let before = m.forward(last, &context[last..]).unwrap().to_vec();
-        // Alone: each leading part of each branch after the context, as one batch.
+        let root_alone = m.forward(at, &tail).unwrap().to_vec();
         let mut alone = Vec::new();
         for b in &branches {
             for j in 1..=b.len() {
-                alone.push(m.forward(context.len(), &b[..j]).unwrap().to_vec());
+                let mut input = tail.clone();
+                input.extend_from_slice(&b[..j]);
+                alone.push(m.forward(at, &input).unwrap().to_vec());
             }
         }
-        m.forward(last, &context[last..]).unwrap();
+        let before = m.forward(last, &whole[last..]).unwrap().to_vec();
         let refs: Vec<&[u32]> = branches.iter().map(Vec::as_slice).collect();
         let mut together = Vec::new();
-        m.branches(context.len(), &refs, &mut |_, _, logits| {
-            together.push(logits.to_vec())
-        })
-        .unwrap();
+        let root = m
+            .branches(at, &tail, &refs, &mut |_, _, logits| {
+                together.push(logits.to_vec())
+            })
+            .unwrap();
+        let argmax = ferrosa::decode::sample::argmax;
+        let diff = max_diff(&root, &root_alone);
+        assert!(diff < bound, "{name}: after the tail: {diff}");
+        assert_eq!(argmax(&root), argmax(&root_alone), "{name}: after the tail");
         assert_eq!(
             together.len(),
             alone.len(),
@@ -188,16 +203,20 @@ fn branches_side_by_side_score_as_each_alone() {
         for (i, (a, t)) in alone.iter().zip(&together).enumerate() {
             let diff = max_diff(a, t);
             assert!(diff < bound, "{name}: row {i}: max logit difference {diff}");
-            let argmax = ferrosa::decode::sample::argmax;
             assert_eq!(argmax(a), argmax(t), "{name}: row {i}");
         }
-        // The main sequence holds the context alone: its last token again gives what it
-        // gave before the branches.
-        let again = m.forward(last, &context[last..]).unwrap().to_vec();
+        // The main sequence holds the context and the tail: its last token again gives
+        // what it gave before, up to the tail's own rounding in the branches' batch.
+        let again = m.forward(last, &whole[last..]).unwrap().to_vec();
         let diff = max_diff(&again, &before);
         assert!(
-            diff < 1e-4,
-            "{name}: the context after the branches: {diff}"
+            diff < bound,
+            "{name}: the context and tail after the branches: {diff}"
+        );
+        assert_eq!(
+            argmax(&again),
+            argmax(&before),
+            "{name}: after the branches"
         );
     }
 }

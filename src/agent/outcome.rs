@@ -50,6 +50,9 @@ pub struct Timings {
     pub first_token_ms: Option<f64>,
     /// Query to the first token of the first tool call.
     pub first_call_token_ms: Option<f64>,
+    /// Query to the first tool call written whole (the turn that made it ended), before
+    /// the guards and the policy: when the robot could first act.
+    pub first_call_ms: Option<f64>,
 }
 
 #[derive(Debug, Clone, Serialize)]

@@ -367,6 +367,7 @@ impl Run<'_> {
         }
         if self.timings.first_call_token_ms.is_none() {
             self.timings.first_call_token_ms = self.step_first_token;
+            self.timings.first_call_ms = Some(self.start.elapsed().as_secs_f64() * 1e3);
         }
         Ok(Thought::Calls(turn.calls))
     }

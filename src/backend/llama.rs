@@ -116,16 +116,19 @@ impl LlamaCpp {
         Ok(keep)
     }
 
-    /// Evaluate `group` (at most `max_branches` branches) in one batch as a tree: branch
-    /// `b` is sequence `b + 1` after the main sequence's first `keep` cells, and a token
+    /// Evaluate `lead` and `group` (at most `max_branches` branches) in one batch as a
+    /// tree after the main sequence's first `keep` cells: `lead` goes into the main
+    /// sequence and every branch's, branch `b` is sequence `b + 1` after it, and a token
     /// the branches share with their leading tokens is evaluated once, in each of their
-    /// sequences. The caller removes those sequences after.
+    /// sequences. Returns the logits after `lead`'s last token, if it has one. The caller
+    /// removes the branches' sequences after.
     fn branch_group(
         &mut self,
         keep: usize,
+        lead: &[TokenId],
         group: &[&[TokenId]],
         each: &mut dyn FnMut(usize, usize, &[f32]),
-    ) -> Result<(), BackendError> {
+    ) -> Result<Option<Vec<f32>>, BackendError> {
         // The tree: each distinct leading part of a branch, with the sequences sharing
         // it, parents before children; and for each branch, its tokens' nodes.
         let mut nodes: Vec<(&[TokenId], Vec<i32>)> = Vec::new();
@@ -133,11 +136,11 @@ impl LlamaCpp {
         for (b, tokens) in group.iter().enumerate() {
             let mut at = Vec::with_capacity(tokens.len());
             for j in 0..tokens.len() {
-                let lead = &tokens[..=j];
-                let n = match nodes.iter().position(|(k, _)| *k == lead) {
+                let part = &tokens[..=j];
+                let n = match nodes.iter().position(|(k, _)| *k == part) {
                     Some(n) => n,
                     None => {
-                        nodes.push((lead, Vec::new()));
+                        nodes.push((part, Vec::new()));
                         nodes.len() - 1
                     }
                 };
@@ -146,9 +149,12 @@ impl LlamaCpp {
             }
             path.push(at);
         }
-        debug_assert!(nodes.len() <= self.n_batch, "a group fits a batch");
-        if nodes.is_empty() {
-            return Ok(());
+        debug_assert!(
+            lead.len() + nodes.len() <= self.n_batch,
+            "a group fits a batch"
+        );
+        if lead.is_empty() && nodes.is_empty() {
+            return Ok(None);
         }
         for seq in 1..=group.len() as i32 {
             self.ctx
@@ -156,23 +162,44 @@ impl LlamaCpp {
                 .map_err(eval)?;
         }
         self.branch_batch.clear();
-        for (lead, seqs) in &nodes {
+        let every: Vec<i32> = (0..=group.len() as i32).collect();
+        for (i, &t) in lead.iter().enumerate() {
+            let pos = (keep + i) as i32;
+            let last = i + 1 == lead.len();
+            self.branch_batch
+                .add(LlamaToken(t as i32), pos, &every, last)
+                .map_err(eval)?;
+        }
+        let start = keep + lead.len();
+        for (part, seqs) in &nodes {
             let (&t, pos) = (
-                lead.last().expect("a node has a token"),
-                keep + lead.len() - 1,
+                part.last().expect("a node has a token"),
+                start + part.len() - 1,
             );
             self.branch_batch
                 .add(LlamaToken(t as i32), pos as i32, seqs, true)
                 .map_err(eval)?;
         }
-        self.ctx.decode(&mut self.branch_batch).map_err(eval)?;
+        if let Err(e) = self.ctx.decode(&mut self.branch_batch) {
+            // The main sequence may hold part of `lead`: drop it so `n_past` stays true.
+            let _ = self.ctx.kv_cache_seq_rm(0, Some(keep as u32), None);
+            return Err(eval(e));
+        }
+        self.n_past = start;
         let n_vocab = self.vocab.len();
+        let root = (!lead.is_empty())
+            .then(|| self.ctx.get_logits_ith(lead.len() as i32 - 1)[..n_vocab].to_vec());
+        let first = lead.len();
         for (b, at) in path.iter().enumerate() {
             for (j, &n) in at.iter().enumerate() {
-                each(b, j, &self.ctx.get_logits_ith(n as i32)[..n_vocab]);
+                each(
+                    b,
+                    j,
+                    &self.ctx.get_logits_ith((first + n) as i32)[..n_vocab],
+                );
             }
         }
-        Ok(())
+        Ok(root)
     }
 
     pub fn load(gguf: &Gguf, opts: &LoadOptions) -> Result<LlamaCpp, BackendError> {
@@ -335,22 +362,34 @@ impl Backend for LlamaCpp {
     fn branches(
         &mut self,
         keep: usize,
+        shared: &[TokenId],
         branches: &[&[TokenId]],
         each: &mut dyn FnMut(usize, usize, &[f32]),
-    ) -> Result<(), BackendError> {
+    ) -> Result<Vec<f32>, BackendError> {
         let _span = tracing::trace_span!("branches", n = branches.len()).entered();
-        if self.max_branches == 0 || branches.iter().any(|b| b.len() > self.n_batch) {
-            return super::branches_one_by_one(self, keep, branches, each);
+        if shared.is_empty() {
+            return Err(eval("branches called with no shared tokens"));
         }
-        // Every branch's cells at once, at most: shared tokens take one.
-        let total = branches.iter().map(|b| b.len()).sum();
-        let keep = self.make_room(keep, total, branches.iter().flat_map(|b| b.iter()))?;
-        // Groups of branches that fit one batch and the sequence ids, each branch
-        // evaluated as sequence 1.. after the main sequence's first `keep` cells.
+        if self.max_branches == 0 || branches.iter().any(|b| b.len() > self.n_batch) {
+            return super::branches_one_by_one(self, keep, shared, branches, each);
+        }
+        // `shared` rides in the first group's batch when it leaves room for any branch;
+        // a longer one is a prompt of its own first.
+        let longest = branches.iter().map(|b| b.len()).max().unwrap_or(0);
+        let (mut root, mut lead, mut keep) = (None, shared, keep);
+        if shared.len() + longest > self.n_batch {
+            root = Some(self.forward(keep, shared)?.to_vec());
+            (lead, keep) = (&[], keep + shared.len());
+        }
+        // Every cell at once, at most: shared tokens take one.
+        let total = lead.len() + branches.iter().map(|b| b.len()).sum::<usize>();
+        let tokens = lead.iter().chain(branches.iter().flat_map(|b| b.iter()));
+        let mut keep = self.make_room(keep, total, tokens)?;
+        // Groups of branches that fit one batch and the sequence ids.
         let mut start = 0;
         while start < branches.len() {
             let mut end = start;
-            let mut len = 0;
+            let mut len = lead.len();
             while end < branches.len()
                 && end - start < self.max_branches
                 && (end == start || len + branches[end].len() <= self.n_batch)
@@ -359,14 +398,21 @@ impl Backend for LlamaCpp {
                 end += 1;
             }
             let group = &branches[start..end];
-            let result = self.branch_group(keep, group, &mut |b, j, l| each(start + b, j, l));
+            let result = self.branch_group(keep, lead, group, &mut |b, j, l| each(start + b, j, l));
             for s in 1..=group.len() {
                 let _ = self.ctx.kv_cache_seq_rm(s as i32, None, None);
             }
-            result?;
+            if let Some(r) = result? {
+                root = Some(r);
+            }
+            (keep, lead) = (keep + lead.len(), &[]);
             start = end;
         }
-        Ok(())
+        match root {
+            Some(root) => Ok(root),
+            // No branch at all: the shared tokens alone.
+            None => Ok(self.forward(keep, lead)?.to_vec()),
+        }
     }
 
     fn snapshot_key(&self) -> Option<String> {

@@ -93,14 +93,17 @@ pub(crate) fn admit<'t>(
     Ok(keep)
 }
 
-/// `Backend::branches` one token per forward pass, sharing the leading tokens a branch
-/// has in common with the one before it.
+/// `Backend::branches` one token per forward pass: `shared` first, then each branch,
+/// sharing the leading tokens a branch has in common with the one before it.
 pub fn branches_one_by_one<B: Backend + ?Sized>(
     backend: &mut B,
     keep: usize,
+    shared: &[TokenId],
     branches: &[&[TokenId]],
     each: &mut dyn FnMut(usize, usize, &[f32]),
-) -> Result<(), BackendError> {
+) -> Result<Vec<f32>, BackendError> {
+    let root = backend.forward(keep, shared)?.to_vec();
+    let keep = keep + shared.len();
     // The logits after each token of the branch before, while the next shares them.
     let mut path: Vec<(TokenId, Vec<f32>)> = Vec::new();
     for (b, tokens) in branches.iter().enumerate() {
@@ -118,7 +121,7 @@ pub fn branches_one_by_one<B: Backend + ?Sized>(
             each(b, j, &path[j].1);
         }
     }
-    Ok(())
+    Ok(root)
 }
 
 /// A model's tokenizer, shareable across threads (the constrained decoder keeps one to
@@ -145,20 +148,23 @@ pub trait Backend: Send {
     /// Keep the first `keep` cached tokens, evaluate `tokens` after them in batches, and
     /// return the logits of the last one. `tokens` must not be empty.
     fn forward(&mut self, keep: usize, tokens: &[TokenId]) -> Result<&mut [f32], BackendError>;
-    /// Evaluate each of `branches` after the first `keep` cached tokens as if it alone
-    /// followed them, handing `each(branch, j, logits)` the logits after its token `j`.
-    /// Afterwards the cache holds those `keep` tokens and maybe one branch's tokens past
-    /// them (which the next `forward` from `keep` drops). The default evaluates the
-    /// branches one token per forward pass, sharing the leading tokens a branch has in
-    /// common with the one before it; a runtime with sequences side by side evaluates
-    /// them in one batch.
+    /// Keep the first `keep` cached tokens and evaluate `shared` after them, as `forward`
+    /// would (the cache holds them after), then each of `branches` after those as if it
+    /// alone followed, handing `each(branch, j, logits)` the logits after its token `j`.
+    /// Returns the logits after `shared`'s last token (`shared` must not be empty).
+    /// Afterwards the cache holds `keep` and `shared`, and maybe one branch's tokens past
+    /// them (which the next `forward` from there drops). The default evaluates `shared`,
+    /// then the branches one token per forward pass, sharing the leading tokens a branch
+    /// has in common with the one before it; a runtime with sequences side by side
+    /// evaluates them all in one batch.
     fn branches(
         &mut self,
         keep: usize,
+        shared: &[TokenId],
         branches: &[&[TokenId]],
         each: &mut dyn FnMut(usize, usize, &[f32]),
-    ) -> Result<(), BackendError> {
-        branches_one_by_one(self, keep, branches, each)
+    ) -> Result<Vec<f32>, BackendError> {
+        branches_one_by_one(self, keep, shared, branches, each)
     }
     /// Most tokens one evaluation step takes (`forward` cuts longer input into such
     /// batches, from its first token): what keeps a restored prefix's state the one

@@ -336,8 +336,9 @@ impl TurnDecoder {
     }
 
     /// Decode from here until `until` or the end of the turn, shifting logits with
-    /// `hook`; with `stream`, text goes to `on_text` as it comes (which may break to
-    /// stop the turn). Returns why it stopped: `Finish::Stopped` when `until` was met
+    /// `hook`; with `stream`, text goes to `on_text` as it comes, with any not shown
+    /// before it (which the model has read once it writes a token), and `on_text` may
+    /// break to stop the turn. Returns why it stopped: `Finish::Stopped` when `until` was met
     /// (or `on_text` broke).
     #[allow(clippy::too_many_arguments)]
     pub fn run(
@@ -354,11 +355,9 @@ impl TurnDecoder {
         let mut full = self.prompt.clone();
         full.extend_from_slice(&self.written);
         session.set_stable(self.stable_prefix());
-        let start_len = self.scan.text().len();
         let calls_before = self.scan.closed_call_spans().len();
         let mut new_tokens = Vec::new();
-        let mut shown = self.shown.max(start_len);
-        let was_shown = self.shown;
+        let mut shown = self.shown;
         let steer = Steering {
             sampler,
             constraint: self.constraint.as_mut(),
@@ -374,7 +373,7 @@ impl TurnDecoder {
             |tok, scan| {
                 new_tokens.push(tok);
                 let mut flow = ControlFlow::Continue(());
-                if stream && was_shown >= start_len {
+                if stream {
                     let text = scan.text();
                     let end = whole_chars_end(text, shown, usize::MAX);
                     if end > shown {
@@ -388,7 +387,7 @@ impl TurnDecoder {
                 flow
             },
         )?;
-        if stream && was_shown >= start_len {
+        if stream {
             self.shown = shown;
         }
         self.written.extend_from_slice(&new_tokens);
@@ -446,19 +445,15 @@ pub fn assistant_turn(
     mut on_text: impl FnMut(&str) -> ControlFlow<()>,
 ) -> Result<TurnResult, DecodeError> {
     let mut turn = TurnDecoder::new(backend, grammars, req)?;
-    if turn.flush(&mut on_text) {
-        turn.run(
-            backend,
-            session,
-            sampler,
-            hook,
-            Until::End,
-            true,
-            &mut on_text,
-        )?;
-    } else {
-        turn.finish = Finish::Stopped;
-    }
+    turn.run(
+        backend,
+        session,
+        sampler,
+        hook,
+        Until::End,
+        true,
+        &mut on_text,
+    )?;
     turn.flush(&mut on_text);
     Ok(turn.finish(req))
 }

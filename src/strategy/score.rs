@@ -2,9 +2,9 @@
 //! sequences after a shared context, under its full distribution (no grammar). Calibrated
 //! choices (`strategy::choice`) compare these with and without the request.
 //!
-//! Cost: the context's tail, then the candidates' tokens as branches after it
-//! (`Backend::branches`): one batch on llama.cpp, one forward pass per distinct token
-//! prefix elsewhere.
+//! Cost: the context's tail and the candidates' tokens as branches after it
+//! (`Backend::branches`): one batch on llama.cpp; elsewhere the tail, then one forward
+//! pass per distinct token prefix.
 
 use crate::backend::{Backend, BackendError, TokenId};
 use crate::decode::Session;
@@ -19,12 +19,6 @@ pub fn continuation_logprobs(
 ) -> Result<Vec<f64>, BackendError> {
     let (_, keep) = session.prepare(backend, context)?;
     session.truncate(keep);
-    let root = log_softmax(backend.forward(keep, &context[keep..])?);
-    session.extend(&context[keep..]);
-    let mut scores: Vec<f64> = continuations
-        .iter()
-        .map(|c| c.first().map_or(0.0, |&t| f64::from(root[t as usize])))
-        .collect();
     // Every token but a continuation's last is evaluated, in branches: the distinct
     // inputs no other input begins with (in sorted order, an input begins its
     // successor if it begins any other).
@@ -46,7 +40,10 @@ pub fn continuation_logprobs(
             served[b].push(i);
         }
     }
-    backend.branches(context.len(), &branches, &mut |b, j, logits| {
+    // The context's tail and the branches after it, together; each continuation's
+    // token scores kept in order, to be added after its first.
+    let mut later: Vec<Vec<f64>> = vec![Vec::new(); continuations.len()];
+    let root = backend.branches(keep, &context[keep..], &branches, &mut |b, j, logits| {
         let wanted = served[b]
             .iter()
             .filter(|&&i| j + 1 < continuations[i].len());
@@ -54,9 +51,19 @@ pub fn continuation_logprobs(
         for &i in wanted {
             let norm = *norm.get_or_insert_with(|| log_sum_exp(logits));
             let next = continuations[i][j + 1] as usize;
-            scores[i] += f64::from(logits[next] - norm);
+            later[i].push(f64::from(logits[next] - norm));
         }
     })?;
+    session.extend(&context[keep..]);
+    let root = log_softmax(&root);
+    let scores = continuations
+        .iter()
+        .zip(&later)
+        .map(|(c, later)| {
+            let first = c.first().map_or(0.0, |&t| f64::from(root[t as usize]));
+            later.iter().fold(first, |sum, l| sum + l)
+        })
+        .collect();
     Ok(scores)
 }
 

@@ -158,6 +158,11 @@ impl Gate {
         let Some(chosen) = chosen else {
             return decode_rest(engine, turn, pipeline, on_text);
         };
+        // The model has read the call's opening (the grammar forced it) with the names
+        // after it: it is the turn's, whichever call follows, and is shown now.
+        if !turn.flush(on_text) {
+            return Ok(());
+        }
         let before_name = turn.mark();
         turn.force(engine.backend, &self.names[chosen])?;
         let opening = turn.mark();
@@ -294,16 +299,14 @@ fn closed_call(turn: &TurnDecoder) -> Option<(ToolCall, usize)> {
     ))
 }
 
-/// Decode the rest of the turn as usual, streaming.
+/// Decode the rest of the turn as usual, streaming: text not shown yet goes out with
+/// the first token the model writes, once it has read that text.
 fn decode_rest(
     engine: &mut Engine,
     turn: &mut TurnDecoder,
     pipeline: &mut Pipeline,
     on_text: &mut dyn FnMut(&str) -> ControlFlow<()>,
 ) -> Result<(), DecodeError> {
-    if !turn.flush(on_text) {
-        return Ok(());
-    }
     if !turn.is_done() {
         let e = &mut *engine;
         turn.run(
