@@ -132,14 +132,15 @@ fn a_second_turn_evaluates_only_its_new_tokens() {
     );
 }
 
-/// Branches side by side in one batch after a shared tail (llama.cpp's sequences sharing
-/// their leading tokens, the tail in every one of them and in the main sequence) give
-/// the tail's last token and each branch's tokens the logits they get evaluated alone
-/// after the context (as a prompt's tail is, in one batch), and leave the main sequence
-/// holding the context and the tail; on both models (Gemma 3's sliding-window layers
-/// too). Equal up to rounding: a row's logits depend on where it falls in the batch
-/// (llama.cpp's matrix kernels take rows in tiles), by up to half a logit on SmolLM2
-/// and 2.7 on Gemma 3 (Q4_K_M) here, the likeliest token the same in every row.
+/// Branches side by side after a shared tail (llama.cpp's sequences sharing their leading
+/// tokens, the tail in every one of them and in the main sequence; 18 branches, so two
+/// batches) give the tail's last token and each branch's tokens the logits they get
+/// evaluated alone after the context (as a prompt's tail is, in one batch), and leave the
+/// main sequence holding the context and the tail; on both models (Gemma 3's
+/// sliding-window layers too). Equal up to rounding: a row's logits depend on where it
+/// falls in the batch (llama.cpp's matrix kernels take rows in tiles), by up to half a
+/// logit on SmolLM2 and 2.7 on Gemma 3 (Q4_K_M) here, the likeliest token the same in
+/// every row.
 #[test]
 #[ignore = "needs the model weights (or a ROS peer): cargo test --release -- --include-ignored"]
 fn branches_side_by_side_score_as_each_alone() {
@@ -156,13 +157,18 @@ fn branches_side_by_side_score_as_each_alone() {
         let tail = m
             .tokenize("Which tool lists them? The tool", false)
             .unwrap();
-        let words = [
+        // More branches than one batch holds side by side (15), so they take two, the
+        // tail riding in the first.
+        let mut words: Vec<String> = [
             "ros_node_list",
             "ros_node_info",
             "ros_topic_list",
             "turtle_move",
             "reply",
-        ];
+        ]
+        .map(String::from)
+        .to_vec();
+        words.extend((0..13).map(|i| format!("robot_tool_{i}")));
         let branches: Vec<Vec<u32>> = words
             .iter()
             .map(|w| m.tokenize(w, false).unwrap())

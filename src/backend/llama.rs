@@ -58,7 +58,8 @@ pub struct LlamaCpp {
     /// a `'static` reference that is valid because this Arc is dropped after the context.
     model: Arc<LlamaModel>,
     batch: LlamaBatch<'static>,
-    /// A batch whose tokens may each be in every branch (`Backend::branches`).
+    /// A batch whose tokens may each be in the main sequence and every branch
+    /// (`Backend::branches`).
     branch_batch: LlamaBatch<'static>,
     /// Most branches one batch holds (sequences besides the main one).
     max_branches: usize,
@@ -162,6 +163,11 @@ impl LlamaCpp {
                 .map_err(eval)?;
         }
         self.branch_batch.clear();
+        // llama-cpp-2 does not check a token's sequence count against the batch's
+        // (`branch_batch` has room for the main sequence and `max_branches`).
+        if group.len() > self.max_branches {
+            return Err(eval("more branches than a batch holds"));
+        }
         let every: Vec<i32> = (0..=group.len() as i32).collect();
         for (i, &t) in lead.iter().enumerate() {
             let pos = (keep + i) as i32;
@@ -254,7 +260,8 @@ impl LlamaCpp {
             ctx: ManuallyDrop::new(ctx),
             model,
             batch: LlamaBatch::new(n_batch, 1),
-            branch_batch: LlamaBatch::new(n_batch, branches.max(1) as i32),
+            // A token shared by every branch is in the main sequence and all of theirs.
+            branch_batch: LlamaBatch::new(n_batch, branches as i32 + 1),
             max_branches: branches,
             n_batch,
             n_ctx,

@@ -7,7 +7,8 @@
 //! may make a list, each call is written before it is shown: reviewed when it closes
 //! (kept, written again more strictly, or dropped), and the list goes on or closes as the
 //! pipeline decides. A turned-down first call gives way to the fallback tool (the one
-//! that answers in words).
+//! that answers in words). Text the grammar forced (a call's opening) is shown once the
+//! model has read it: after the pick, or with the first token plain decoding writes.
 
 use std::ops::ControlFlow;
 
