@@ -377,7 +377,8 @@ impl Backend for LlamaCpp {
         if shared.is_empty() {
             return Err(eval("branches called with no shared tokens"));
         }
-        if self.max_branches == 0 || branches.iter().any(|b| b.len() > self.n_batch) {
+        let too_long = branches.iter().any(|b| b.len() > self.n_batch);
+        if self.max_branches == 0 || branches.is_empty() || too_long {
             return super::branches_one_by_one(self, keep, shared, branches, each);
         }
         // `shared` rides in the first group's batch when it leaves room for any branch;
@@ -415,11 +416,7 @@ impl Backend for LlamaCpp {
             (keep, lead) = (keep + lead.len(), &[]);
             start = end;
         }
-        match root {
-            Some(root) => Ok(root),
-            // No branch at all: the shared tokens alone.
-            None => Ok(self.forward(keep, lead)?.to_vec()),
-        }
+        Ok(root.expect("the first group carries `shared`, or it was evaluated first"))
     }
 
     fn snapshot_key(&self) -> Option<String> {

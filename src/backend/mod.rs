@@ -107,12 +107,12 @@ pub fn branches_one_by_one<B: Backend + ?Sized>(
     // The logits after each token of the branch before, while the next shares them.
     let mut path: Vec<(TokenId, Vec<f32>)> = Vec::new();
     for (b, tokens) in branches.iter().enumerate() {
-        let shared = path
+        let common = path
             .iter()
             .zip(tokens.iter())
             .take_while(|((p, _), t)| p == *t)
             .count();
-        path.truncate(shared);
+        path.truncate(common);
         for (j, &t) in tokens.iter().enumerate() {
             if j >= path.len() {
                 let logits = backend.forward(keep + j, &[t])?;

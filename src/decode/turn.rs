@@ -387,9 +387,8 @@ impl TurnDecoder {
                 flow
             },
         )?;
-        if stream {
-            self.shown = shown;
-        }
+        // Unchanged unless streaming.
+        self.shown = shown;
         self.written.extend_from_slice(&new_tokens);
         add_stats(&mut self.stats, &stats);
         self.finish = finish;

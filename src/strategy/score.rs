@@ -40,9 +40,8 @@ pub fn continuation_logprobs(
             served[b].push(i);
         }
     }
-    // The context's tail and the branches after it, together; each continuation's
-    // token scores kept in order, to be added after its first.
-    let mut later: Vec<Vec<f64>> = vec![Vec::new(); continuations.len()];
+    // The context's tail and the branches after it, together.
+    let mut scores = vec![0.0; continuations.len()];
     let root = backend.branches(keep, &context[keep..], &branches, &mut |b, j, logits| {
         let wanted = served[b]
             .iter()
@@ -51,19 +50,14 @@ pub fn continuation_logprobs(
         for &i in wanted {
             let norm = *norm.get_or_insert_with(|| log_sum_exp(logits));
             let next = continuations[i][j + 1] as usize;
-            later[i].push(f64::from(logits[next] - norm));
+            scores[i] += f64::from(logits[next] - norm);
         }
     })?;
     session.extend(&context[keep..]);
     let root = log_softmax(&root);
-    let scores = continuations
-        .iter()
-        .zip(&later)
-        .map(|(c, later)| {
-            let first = c.first().map_or(0.0, |&t| f64::from(root[t as usize]));
-            later.iter().fold(first, |sum, l| sum + l)
-        })
-        .collect();
+    for (score, c) in scores.iter_mut().zip(continuations) {
+        *score += c.first().map_or(0.0, |&t| f64::from(root[t as usize]));
+    }
     Ok(scores)
 }
 
