@@ -16,7 +16,7 @@ use ferrosa::decode::{
     generate, Decoding, Finish, Grammars, JsonScan, NoHook, Sampler, SamplerConfig, Session,
     Steering,
 };
-use ferrosa::strategy::choice::Calibrated;
+use ferrosa::strategy::choice::{Calibrated, Weighed};
 use ferrosa::strategy::turn::{run, Engine};
 use ferrosa::strategy::verify::Verification;
 use ferrosa::strategy::Pipeline;
@@ -691,6 +691,118 @@ fn weather_lister(city: impl Fn(usize) -> &'static str + Send + 'static) -> ByTe
         }
         vec![("<|im_end|>".into(), 0.0)]
     })
+}
+
+/// Forced text (a call's opening, which the grammar writes) is shown once the model has
+/// read it, and not before. Through the weighed pick: right after the pick's batch, before
+/// the model is asked for the call's arguments (the call itself is shown once written and
+/// reviewed). Through plain decoding: with the first token the model writes, never before
+/// the model has been asked anything.
+#[test]
+fn forced_text_is_shown_once_the_model_has_read_it() {
+    let specs = weather_specs(json!({"type": "string"}));
+    let seen = std::sync::Arc::new(std::sync::Mutex::new(Vec::<String>::new()));
+    let model = || {
+        let seen = seen.clone();
+        ByText::new(move |text| {
+            seen.lock().unwrap().push(text.to_string());
+            let turn = text.rsplit("assistant\n").next().unwrap_or("");
+            let names = [("weather\"", -0.5), ("reply\"", -2.0)];
+            if let Some(next) = after(turn, "{\"name\": \"", &names) {
+                return next;
+            }
+            if let Some(next) = after(turn, "\"city\": \"", &[("Paris\"", -0.1)]) {
+                return next;
+            }
+            if turn.ends_with("}}") {
+                return vec![("\n]</tool_call>".into(), 0.0)];
+            }
+            vec![("<|im_end|>".into(), 0.0)]
+        })
+    };
+    let messages = [ChatMessage::new(Role::User, "weather in Paris")];
+    let req = TurnRequest {
+        messages: &messages,
+        specs: &specs,
+        allowed: None,
+        envelope: Envelope::Smollm2,
+        choice: ToolChoice::Required,
+        parallel: true,
+        decoding: Decoding::Constrained,
+        max_tokens: 200,
+    };
+    // What the model had been asked about when each piece was shown.
+    let shown = std::cell::RefCell::new(Vec::<(String, Vec<String>)>::new());
+    let mut on_text = |piece: &str| {
+        let asked = seen.lock().unwrap().clone();
+        shown.borrow_mut().push((piece.to_string(), asked));
+        ControlFlow::Continue(())
+    };
+
+    let mut picked = model();
+    let grammars = Grammars::new(picked.vocab(), picked.tokenizer()).unwrap();
+    let mut pipeline = Pipeline::new().with(Weighed {
+        prior: vec![0.0, 0.0],
+        weight: 1.0,
+    });
+    let mut sampler = Sampler::new(SamplerConfig::default(), picked.vocab().len());
+    let mut session = Session::new();
+    let mut engine = Engine {
+        backend: &mut picked,
+        session: &mut session,
+        grammars: &grammars,
+        sampler: &mut sampler,
+        remote: None,
+    };
+    let r = run(
+        &mut engine,
+        &req,
+        &mut pipeline,
+        Some("reply"),
+        &mut on_text,
+    )
+    .unwrap();
+    assert_eq!(r.turn.unwrap().calls[0].name, "weather");
+    let (first, asked) = shown.borrow()[0].clone();
+    assert_eq!(
+        first, "<tool_call>[\n{\"name\": \"",
+        "shown first: {shown:?}"
+    );
+    assert!(
+        asked.iter().any(|t| t.ends_with(first.as_str())),
+        "the opening is shown before the model read it: {asked:?}"
+    );
+    // What the turn had written in each text the model read (none: the prompt alone).
+    let turn = |t: &String| {
+        t.rsplit_once("<|im_start|>assistant\n")
+            .map_or(String::new(), |(_, turn)| turn.to_string())
+    };
+    assert!(
+        !asked.iter().any(|t| turn(t).contains("\"city\"")),
+        "the opening waited for the call's arguments: {asked:?}"
+    );
+
+    seen.lock().unwrap().clear();
+    shown.borrow_mut().clear();
+    let mut plain = model();
+    let mut sampler = Sampler::new(SamplerConfig::default(), plain.vocab().len());
+    let r = assistant_turn(
+        &mut plain,
+        &mut Session::new(),
+        &grammars,
+        &mut sampler,
+        &req,
+        &mut NoHook,
+        &mut on_text,
+    )
+    .unwrap();
+    assert_eq!(r.turn.unwrap().calls[0].name, "weather");
+    let (first, asked) = shown.borrow()[0].clone();
+    assert!(first.starts_with("<tool_call>["), "shown first: {shown:?}");
+    assert!(
+        !asked.is_empty(),
+        "plain decoding showed {first:?} before the model read anything"
+    );
 }
 
 /// A list goes on when the request raised the odds of another call, and a further call
