@@ -7,6 +7,7 @@
 //! `tests/integration/arrows.rs` fails on any other arrow):
 //! - `chat`: the conversation types (`ChatMessage`, `Role`)
 //! - `lexicon`: words and numbers, read one way everywhere
+//! - `stop_intent`: whether the operator asks to stop, in six languages, without a model
 //! - `json`: the one incremental reader of JSON text (where a turn stands)
 //! - `clock`: wall-clock time as calendar fields
 //! - `dirs`: the platform's directories ferrosa keeps files in (cache, data)
@@ -51,6 +52,7 @@ pub mod models;
 pub mod remote;
 pub mod ros;
 pub mod speech;
+pub mod stop_intent;
 pub mod strategy;
 pub mod tool;
 pub mod tools;

@@ -18,6 +18,9 @@ use crate::util::{models_dir, rerun_in_loopback_netns, spawn_until, stop};
 
 const TEST: &str = "console::an_operator_drives_the_robot_from_the_console_in_a_browser";
 
+/// The console's secret in these tests (the browser signs in with the printed address).
+const TOKEN: &str = "console-test-token-0123456789";
+
 /// Start `ferrosa serve ARGS` and wait for the address it prints.
 fn serve(args: &[&str], env: &[(&str, &str)]) -> (Child, String) {
     let mut cmd = Command::new("timeout");
@@ -119,7 +122,7 @@ fn an_operator_drives_the_robot_from_the_console_in_a_browser() {
             "--trace-dir",
             traces.to_str().unwrap(),
         ],
-        &[],
+        &[("FERROSA_CONSOLE_TOKEN", TOKEN)],
     );
     // What the page's microphone will hear: a request, spoken once, then silence.
     let spoken = traces.join("spoken.wav");
@@ -266,8 +269,10 @@ fn an_operator_drives_the_robot_from_the_console_in_a_browser() {
     eprintln!("spoken: {heard:?} → {said:?}");
 
     // The session's trace, as the download link gives it.
-    let host = url.trim_start_matches("http://").trim_end_matches('/');
-    let (status, _, jsonl) = http(host, "GET", "/api/trace.jsonl", &[], None);
+    let host = url.trim_start_matches("http://").split('/').next().unwrap();
+    let bearer = format!("Bearer {TOKEN}");
+    let auth = [("Authorization", bearer.as_str())];
+    let (status, _, jsonl) = http(host, "GET", "/api/trace.jsonl", &auth, None);
     assert_eq!(status, 200);
     let queries = jsonl
         .lines()
@@ -289,7 +294,7 @@ fn http_rules() {
         &["--bind", "0.0.0.0:0"],
         &[("FERROSA_CONSOLE_TOKEN", token)],
     );
-    assert!(url.ends_with(&format!("/?token={token}")), "{url}");
+    assert!(url.contains("/?login="), "{url}");
     let addr = url
         .trim_start_matches("http://")
         .split('/')
@@ -322,6 +327,10 @@ fn http_rules() {
     );
     let cookie = cookie.split(';').next().unwrap();
     assert_eq!(get(&[("Cookie", cookie)], "/api/state").0, 200);
+    // The printed address signs in once.
+    let login = &url[url.find("/?login=").unwrap()..];
+    assert_eq!(get(&[], login).0, 303);
+    assert_eq!(get(&[], login).0, 401);
     // With the token: JSON only, and from the console's own page.
     let post = |headers: &[(&str, &str)]| {
         let mut h = vec![("Authorization", bearer.as_str())];
@@ -340,11 +349,17 @@ fn http_rules() {
     stop(&mut open);
 
     // On loopback: a name that is not loopback is refused (a rebound name).
-    let (mut local, url) = serve(&["--bind", "127.0.0.1:0"], &[]);
+    let (mut local, url) = serve(
+        &["--bind", "127.0.0.1:0"],
+        &[("FERROSA_CONSOLE_TOKEN", TOKEN)],
+    );
     let addr = url
         .trim_start_matches("http://")
-        .trim_end_matches('/')
+        .split('/')
+        .next()
+        .unwrap()
         .to_string();
+    let bearer = format!("Bearer {TOKEN}");
     let (status, _, body) = http(
         &addr,
         "GET",
@@ -354,13 +369,19 @@ fn http_rules() {
     );
     assert_eq!(status, 403, "{body}");
     // An answer read aloud: a WAV from espeak-ng.
-    let json = [("Content-Type", "application/json")];
+    let json = [
+        ("Content-Type", "application/json"),
+        ("Authorization", bearer.as_str()),
+    ];
     let text = r#"{"text": "The turtle is at five, five."}"#;
     let (status, head, wav) = http(&addr, "POST", "/api/say", &json, Some(text));
     assert_eq!(status, 200, "{head}");
     assert!(wav.starts_with("RIFF"), "{head}");
     // A recording that is not WAV is refused with what to do.
-    let wav_type = [("Content-Type", "audio/wav")];
+    let wav_type = [
+        ("Content-Type", "audio/wav"),
+        ("Authorization", bearer.as_str()),
+    ];
     let (status, _, body) = http(&addr, "POST", "/api/transcribe", &wav_type, Some("OggS"));
     assert_eq!(status, 400, "{body}");
     assert!(body.contains("WAV"), "{body}");

@@ -18,6 +18,9 @@ fn python() -> String {
     venv
 }
 
+/// The secret the HTTP server is started with, and the client sends.
+const TOKEN: &str = "mcp-test-token-0123456789";
+
 fn client(args: &[&str]) -> Value {
     let script = format!("{}/tests/peers/mcp_client.py", env!("CARGO_MANIFEST_DIR"));
     let out = Command::new("timeout")
@@ -25,6 +28,7 @@ fn client(args: &[&str]) -> Value {
         .arg(python())
         .arg(script)
         .args(args)
+        .env("FERROSA_MCP_TOKEN", TOKEN)
         .output()
         .expect("running the MCP client");
     let stdout = String::from_utf8_lossy(&out.stdout);
@@ -114,18 +118,20 @@ fn an_mcp_client_lists_and_calls_the_tools_under_the_policy() {
     let seen = client(&["stdio", ferrosa, "mcp", "--robot", "sim"]);
     judge("stdio", &seen);
 
-    let (mut server, url) = crate::util::spawn_until(
+    let (mut server, rest) = crate::util::spawn_until(
         Command::new("timeout")
             .arg("200")
             .arg(ferrosa)
             .args(["mcp", "--robot", "sim", "--http", "127.0.0.1:0"])
+            .env("FERROSA_MCP_TOKEN", TOKEN)
             .stdin(Stdio::null())
             .stdout(Stdio::null()),
         "ferrosa mcp: streamable HTTP on ",
         "mcp",
         Duration::from_secs(60),
     );
-    let seen = client(&["http", &url]);
+    let url = rest.split_whitespace().next().unwrap();
+    let seen = client(&["http", url]);
     crate::util::stop(&mut server);
     judge("http", &seen);
 

@@ -172,15 +172,17 @@ async function submit() {
   const text = $("prompt").value.trim();
   if (!text) return;
   try {
-    await post("/api/ask", { text, language: $("language").value });
+    const r = await post("/api/ask", { text, language: $("language").value });
     $("prompt").value = "";
+    if (r.stopped) notice("Stopped: the e-stop is engaged. Reset it to move again.");
   } catch (err) {
     notice(err.message);
   }
 }
 
+// Send stays enabled while the agent works: a stop typed or spoken then is taken at
+// once (the server engages the e-stop); anything else is refused until the answer.
 function setBusy(busy) {
-  $("send").disabled = busy;
   $("clear").disabled = busy;
   document.body.dataset.busy = busy;
 }

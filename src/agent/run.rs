@@ -108,7 +108,8 @@ impl Run<'_> {
     /// Run steps until the run ends. A request to stop stops the robot before anything
     /// else, without the model (stopping needs no model, no intent, no confirmation).
     pub fn run(mut self) -> Result<RunResult, AgentError> {
-        if super::concepts::asks_to_stop(self.query) {
+        if crate::stop_intent::asks_to_stop(self.query) || super::concepts::asks_to_stop(self.query)
+        {
             let estop = self.agent.exec.policy().estop().clone();
             estop.trigger(&format!("the operator: {}", self.query.trim()));
             self.answer =

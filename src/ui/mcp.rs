@@ -2,6 +2,14 @@
 //! assistant, an IDE, another agent), over stdio or, with `--http ADDR`, streamable HTTP
 //! on loopback. No model runs here: the client's model chooses the calls.
 //!
+//! Who may call: over stdio, the process that started this one (the operator's client).
+//! Over HTTP, only a client holding the server's secret (`ui::secret`: drawn at start or
+//! taken from `FERROSA_MCP_TOKEN`, kept in a file only the user can read), sent as
+//! `Authorization: Bearer`; any other local process is refused before the protocol
+//! starts, as is any request that names a browser origin or a host that is not
+//! loopback (DNS rebinding). So an elicitation's answer, the operator's approval, comes
+//! from the operator's own client on either transport.
+//!
 //! Every call goes through exactly the agent's path (`tool::exec`): the deny-list and the
 //! fence, read-only, the limits, the e-stop (`robot_stop` is one of the tools), the time
 //! limit and redaction. An actuating call needs the operator's approval: with `--yes` it
@@ -36,10 +44,14 @@ use rmcp::{ErrorData, RoleServer, ServerHandler, ServiceExt};
 use serde_json::Value;
 
 use super::agent::{robot_tools, AgentArgs};
+use super::secret::{bearer, Secret};
 use super::term::report_call;
 use crate::estop::EStop;
 use crate::tool::exec::Executor;
 use crate::tool::{Confirm, Effect, ToolCall};
+
+/// The environment variable that sets the HTTP server's secret (else one is drawn).
+pub const TOKEN_ENV: &str = "FERROSA_MCP_TOKEN";
 
 /// How long the operator has to answer an approval request.
 const APPROVAL_WAIT: Duration = Duration::from_secs(120);
@@ -280,7 +292,8 @@ pub fn run(args: &McpArgs) -> anyhow::Result<()> {
     served
 }
 
-/// Streamable HTTP on `addr` (loopback), until the process ends.
+/// Streamable HTTP on `addr` (loopback), until the process ends; every request
+/// authenticated first (see the module header).
 async fn serve_http(server: RobotServer, addr: SocketAddr) -> anyhow::Result<()> {
     use rmcp::transport::streamable_http_server::session::local::LocalSessionManager;
     use rmcp::transport::streamable_http_server::{
@@ -289,18 +302,30 @@ async fn serve_http(server: RobotServer, addr: SocketAddr) -> anyhow::Result<()>
     let service = StreamableHttpService::new(
         move || Ok(server.clone()),
         Arc::new(LocalSessionManager::default()),
-        StreamableHttpServerConfig::default(),
+        // Loopback hosts only (the default), and no browser origin at all.
+        StreamableHttpServerConfig::default().enforce_origin_validation(),
     );
     let listener = tokio::net::TcpListener::bind(addr)
         .await
         .with_context(|| format!("binding {addr}"))?;
+    let local = listener.local_addr()?;
+    let secret = Arc::new(Secret::create(TOKEN_ENV, &format!("mcp-{}", local.port()))?);
     eprintln!(
-        "ferrosa mcp: streamable HTTP on http://{}/mcp",
-        listener.local_addr()?
+        "ferrosa mcp: streamable HTTP on http://{local}/mcp (clients send Authorization: Bearer TOKEN; {})",
+        secret.where_kept()
     );
     loop {
         let (stream, _) = listener.accept().await?;
-        let svc = hyper_util::service::TowerToHyperService::new(service.clone());
+        let (service, secret) = (service.clone(), secret.clone());
+        let svc = hyper::service::service_fn(move |req: hyper::Request<hyper::body::Incoming>| {
+            let (service, secret) = (service.clone(), secret.clone());
+            async move {
+                if let Some(refused) = refuse(&req, &secret) {
+                    return Ok::<_, std::convert::Infallible>(refused);
+                }
+                Ok(service.handle(req).await)
+            }
+        });
         tokio::spawn(async move {
             let io = hyper_util::rt::TokioIo::new(stream);
             if let Err(e) = hyper::server::conn::http1::Builder::new()
@@ -311,4 +336,44 @@ async fn serve_http(server: RobotServer, addr: SocketAddr) -> anyhow::Result<()>
             }
         });
     }
+}
+
+type Body = http_body_util::combinators::BoxBody<bytes::Bytes, std::convert::Infallible>;
+
+/// The answer to a request that does not hold the secret or names a browser origin;
+/// `None` for one that may go on to the protocol.
+fn refuse<B>(req: &hyper::Request<B>, secret: &Secret) -> Option<hyper::Response<Body>> {
+    use http_body_util::BodyExt;
+    use hyper::StatusCode;
+    let (status, message) = if req.headers().contains_key(hyper::header::ORIGIN) {
+        (
+            StatusCode::FORBIDDEN,
+            "ferrosa mcp takes no requests from web pages (the request names an Origin)",
+        )
+    } else if !bearer(req.headers()).is_some_and(|t| secret.matches(t)) {
+        (
+            StatusCode::UNAUTHORIZED,
+            "ferrosa mcp needs its secret: send Authorization: Bearer TOKEN (the token is in the file `ferrosa mcp` printed at start, or set it with FERROSA_MCP_TOKEN)",
+        )
+    } else {
+        return None;
+    };
+    let body = serde_json::json!({"error": message}).to_string();
+    let mut resp = hyper::Response::new(
+        http_body_util::Full::new(bytes::Bytes::from(body))
+            .map_err(|never| match never {})
+            .boxed(),
+    );
+    *resp.status_mut() = status;
+    resp.headers_mut().insert(
+        hyper::header::CONTENT_TYPE,
+        hyper::header::HeaderValue::from_static("application/json"),
+    );
+    if status == StatusCode::UNAUTHORIZED {
+        resp.headers_mut().insert(
+            hyper::header::WWW_AUTHENTICATE,
+            hyper::header::HeaderValue::from_static("Bearer"),
+        );
+    }
+    Some(resp)
 }

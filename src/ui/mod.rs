@@ -9,9 +9,11 @@
 //! - `term`: cleaning what is printed, the input thread, terminal confirmation
 //! - `choice`: the command line's names for the library's choices
 //! - `console`: `ferrosa serve`, the operator console in a web page
+//! - `secret`: the secret every client of a local surface (console, MCP over HTTP) holds
 //! - `eval`: `ferrosa eval bfcl`
 //! - `generate`: `ferrosa generate`, streaming text from a model, with `--stats`
 //! - `models`: `ferrosa models list|fetch|verify`
+//! - `mcp`: `ferrosa mcp`, the robot's tools for an MCP client (stdio or HTTP)
 
 pub mod agent;
 pub mod call;
@@ -22,6 +24,7 @@ pub mod generate;
 pub mod mcp;
 pub mod models;
 pub mod robot;
+pub mod secret;
 pub mod speech;
 pub mod term;
 

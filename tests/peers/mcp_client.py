@@ -2,6 +2,7 @@
 
     mcp_client.py stdio FERROSA [ARGS...]   # one server process per session
     mcp_client.py http URL                  # every session against one server
+                                            # (the server's secret in FERROSA_MCP_TOKEN)
 
 Three sessions, each: initialize, list the tools, call ros_node_list, then ask
 turtle_move to drive 0.5 m. The first session's client cannot elicit; the second
@@ -11,11 +12,13 @@ each session saw, for the Rust test to judge.
 
 import asyncio
 import json
+import os
 import sys
 
 import mcp.types as types
 from mcp import ClientSession, StdioServerParameters, stdio_client
 from mcp.client.streamable_http import streamable_http_client
+from mcp.shared._httpx_utils import create_mcp_http_client
 
 ASKED = []
 
@@ -64,8 +67,11 @@ async def main():
             async with stdio_client(params) as streams:
                 out[name] = await session(streams, elicit)
         else:
-            async with streamable_http_client(target) as streams:
-                out[name] = await session(streams, elicit)
+            # The server's secret, as the operator's own client holds it.
+            headers = {"Authorization": "Bearer " + os.environ["FERROSA_MCP_TOKEN"]}
+            async with create_mcp_http_client(headers=headers) as http:
+                async with streamable_http_client(target, http_client=http) as streams:
+                    out[name] = await session(streams, elicit)
         out[name]["asked"] = list(ASKED)
     print(json.dumps(out))
 

@@ -3,15 +3,17 @@
 //!
 //! - On loopback, the `Host` must be a loopback name: a page elsewhere cannot reach the
 //!   console through a name it rebinds to 127.0.0.1.
-//! - With a token (any other address), a request carries it as `Authorization: Bearer`
-//!   or in the cookie the browser got by opening the printed address once.
+//! - Every request carries the console's secret (`ui::secret`), on every address,
+//!   loopback included: as `Authorization: Bearer`, or in the HttpOnly cookie the browser
+//!   got by opening the printed address (its login code works once) or `/?token=…`.
 //! - A POST must send JSON (a recording to transcribe: WAV) and, when the browser names
 //!   its origin, come from the console's own page: another site's form cannot approve a
 //!   call or ask for a move.
 //!
 //! Routes: `GET /` (the page), `/console.js`, `/console.css`; `GET /api/state`,
 //! `GET /api/events` (SSE, replayed from `Last-Event-ID`), `GET /api/trace.jsonl`;
-//! `POST /api/ask {text, language?}`, `/api/approval {id, approve}`, `/api/estop`,
+//! `POST /api/ask {text, language?}` (a request that asks to stop engages the e-stop at
+//! once, busy or not, and runs nothing), `/api/approval {id, approve}`, `/api/estop`,
 //! `/api/reset`, `/api/clear`; `POST /api/transcribe` (a WAV recording → `{text}`),
 //! `/api/say {text, language}` (→ a WAV of it spoken).
 
@@ -20,7 +22,7 @@ use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::mpsc::Sender;
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 
 use axum::body::Bytes;
 use axum::extract::{Request, State};
@@ -39,6 +41,7 @@ use super::ears::{Ears, SpeechFailure};
 use super::hub::{Hub, Logged};
 use super::worker::Job;
 use crate::agent::language::Language;
+use crate::ui::secret::{bearer, Secret};
 
 /// The longest request the console takes, in characters.
 const MAX_REQUEST_CHARS: usize = 2000;
@@ -48,6 +51,7 @@ const MAX_RECORDING: usize = 12 << 20;
 const PAGE: &str = include_str!("../../../web/console.html");
 const SCRIPT: &str = include_str!("../../../web/console.js");
 const STYLE: &str = include_str!("../../../web/console.css");
+const SIGN_IN: &str = include_str!("../../../web/sign-in.html");
 
 /// What the handlers share.
 #[derive(Clone)]
@@ -55,13 +59,22 @@ pub struct App {
     hub: Arc<Hub>,
     jobs: Sender<Job>,
     info: Arc<Value>,
-    token: Option<Arc<str>>,
+    secret: Arc<Secret>,
+    /// The printed address's login code, until it is used.
+    login: Arc<Mutex<Option<String>>>,
     loopback: bool,
     trace: Option<Arc<PathBuf>>,
     next_run: Arc<AtomicU64>,
     /// The token's cookie, named for the port (cookies are not kept apart by port).
     cookie: Arc<str>,
     ears: Arc<Ears>,
+}
+
+/// How a client signs in: the console's secret, and the login code of the printed
+/// address (spent by its first use).
+pub struct SignIn {
+    pub secret: Arc<Secret>,
+    pub login: String,
 }
 
 type Failure = (StatusCode, Json<Value>);
@@ -75,7 +88,7 @@ impl App {
         hub: Arc<Hub>,
         jobs: Sender<Job>,
         info: Value,
-        token: Option<String>,
+        sign_in: SignIn,
         bind: SocketAddr,
         trace: Option<PathBuf>,
         ears: Ears,
@@ -84,7 +97,8 @@ impl App {
             hub,
             jobs,
             info: Arc::new(info),
-            token: token.map(Into::into),
+            secret: sign_in.secret,
+            login: Arc::new(Mutex::new(Some(sign_in.login))),
             loopback: bind.ip().is_loopback(),
             trace: trace.map(Arc::new),
             next_run: Arc::new(AtomicU64::new(1)),
@@ -106,6 +120,83 @@ impl App {
                 "the agent has stopped; restart ferrosa serve",
             )
         })
+    }
+
+    /// `None` when `req` holds the secret (header or cookie); otherwise the answer: a
+    /// redirect that keeps the secret as a cookie when the address carries the login
+    /// code (once) or the token, else 401 saying how to get in.
+    fn authenticate(&self, req: &Request) -> Option<Response> {
+        let headers = req.headers();
+        let cookie = headers
+            .get_all(header::COOKIE)
+            .iter()
+            .filter_map(|h| h.to_str().ok())
+            .flat_map(|h| h.split(';'))
+            .filter_map(|c| c.trim().strip_prefix(&*self.cookie)?.strip_prefix('='));
+        if bearer(headers)
+            .into_iter()
+            .chain(cookie)
+            .any(|t| self.secret.matches(t))
+        {
+            return None;
+        }
+        let query = req.uri().query().unwrap_or_default();
+        let given = |key: &str| {
+            query
+                .split('&')
+                .find_map(|kv| kv.strip_prefix(key)?.strip_prefix('='))
+        };
+        let by_token = given("token").is_some_and(|t| self.secret.matches(t));
+        // The login code is spent by its first use, right or wrong page.
+        let by_login = given("login").is_some_and(|code| {
+            let mut login = self.login.lock().unwrap_or_else(|p| p.into_inner());
+            let ok = login
+                .as_deref()
+                .is_some_and(|l| crate::ui::secret::same(l, code));
+            if ok {
+                *login = None;
+            }
+            ok
+        });
+        if req.method() == Method::GET && (by_token || by_login) {
+            // Kept as a cookie, and taken off the address bar.
+            let cookie = format!(
+                "{}={}; Path=/; HttpOnly; SameSite=Strict",
+                self.cookie,
+                self.secret.token()
+            );
+            return Some(
+                (
+                    StatusCode::SEE_OTHER,
+                    [
+                        (header::SET_COOKIE, cookie),
+                        (header::LOCATION, req.uri().path().to_string()),
+                    ],
+                )
+                    .into_response(),
+            );
+        }
+        if req.method() == Method::GET && req.uri().path() == "/" {
+            // A browser without the secret gets a page saying how to sign in (and a box
+            // for the token from the file), not a bare error.
+            return Some(
+                (
+                    StatusCode::UNAUTHORIZED,
+                    page(SIGN_IN, "text/html; charset=utf-8"),
+                )
+                    .into_response(),
+            );
+        }
+        Some(
+            fail(
+                StatusCode::UNAUTHORIZED,
+                format!(
+                    "this console needs its secret: open the address `ferrosa serve` printed (its login code works once), or send Authorization: Bearer TOKEN ({})",
+                    self.secret.where_kept()
+                ),
+            )
+            .into_response(),
+        )
     }
 
     pub fn router(self) -> Router {
@@ -173,39 +264,8 @@ async fn check(State(app): State<App>, req: Request, next: Next) -> Response {
         )
         .into_response();
     }
-    if let Some(token) = &app.token {
-        let bearer = headers
-            .get(header::AUTHORIZATION)
-            .and_then(|h| h.to_str().ok())
-            .and_then(|h| h.strip_prefix("Bearer "));
-        let cookie = headers
-            .get_all(header::COOKIE)
-            .iter()
-            .filter_map(|h| h.to_str().ok())
-            .flat_map(|h| h.split(';'))
-            .filter_map(|c| c.trim().strip_prefix(&*app.cookie)?.strip_prefix('='));
-        let held = bearer.into_iter().chain(cookie).any(|t| same(t, token));
-        if !held {
-            let query = req.uri().query().unwrap_or_default();
-            let given = query.split('&').find_map(|kv| kv.strip_prefix("token="));
-            if req.method() == Method::GET && given.is_some_and(|t| same(t, token)) {
-                // Kept as a cookie, and taken off the address bar.
-                let cookie = format!("{}={token}; Path=/; HttpOnly; SameSite=Strict", app.cookie);
-                return (
-                    StatusCode::SEE_OTHER,
-                    [
-                        (header::SET_COOKIE, cookie),
-                        (header::LOCATION, req.uri().path().to_string()),
-                    ],
-                )
-                    .into_response();
-            }
-            return fail(
-                StatusCode::UNAUTHORIZED,
-                "this console needs its token: open the address `ferrosa serve` printed (…/?token=…), or send Authorization: Bearer TOKEN",
-            )
-            .into_response();
-        }
+    if let Some(refused) = app.authenticate(&req) {
+        return refused;
     }
     if req.method() == Method::POST {
         let kind = headers
@@ -246,15 +306,6 @@ fn loopback_host(host: &str) -> bool {
         || name
             .parse::<std::net::IpAddr>()
             .is_ok_and(|ip| ip.is_loopback())
-}
-
-/// Equal, in time that does not depend on where they differ.
-fn same(a: &str, b: &str) -> bool {
-    a.len() == b.len()
-        && a.bytes()
-            .zip(b.bytes())
-            .fold(0u8, |acc, (x, y)| acc | (x ^ y))
-            == 0
 }
 
 /// A JSON body as `T`, or a 400 saying what was wrong.
@@ -368,6 +419,15 @@ async fn ask(State(app): State<App>, bytes: Bytes) -> Result<Response, Failure> 
             format!("a request is at most {MAX_REQUEST_CHARS} characters"),
         ));
     }
+    // Stop wins: the e-stop first, whatever is running or waiting, and no model.
+    if crate::stop_intent::asks_to_stop(&text) {
+        let estop = app.hub.estop.clone();
+        let _ = tokio::task::spawn_blocking(move || {
+            estop.trigger("the operator (a stop sent to the web console)")
+        })
+        .await;
+        return Ok((StatusCode::OK, Json(json!({"stopped": true}))).into_response());
+    }
     let language = match a.language.as_deref().map(str::trim) {
         None | Some("") | Some("auto") => None,
         Some(code) => Some(Language::parse(code).map_err(|e| fail(StatusCode::BAD_REQUEST, e))?),
@@ -395,14 +455,15 @@ async fn ask(State(app): State<App>, bytes: Bytes) -> Result<Response, Failure> 
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct Approval {
-    id: u64,
+    /// The approval's id as the event gave it (64 random bits in hex: not guessable).
+    id: String,
     approve: bool,
 }
 
 async fn approval(State(app): State<App>, bytes: Bytes) -> Result<Json<Value>, Failure> {
     let a: Approval = body(&bytes)?;
     app.hub
-        .answer(a.id, a.approve)
+        .answer(&a.id, a.approve)
         .map_err(|e| fail(StatusCode::CONFLICT, e))?;
     Ok(Json(json!({"id": a.id, "approve": a.approve})))
 }
@@ -493,13 +554,5 @@ mod tests {
         ] {
             assert!(!loopback_host(h), "{h}");
         }
-    }
-
-    #[test]
-    fn tokens_compare_whole() {
-        assert!(same("abc", "abc"));
-        assert!(!same("abc", "abd"));
-        assert!(!same("abc", "abcd"));
-        assert!(!same("", "a"));
     }
 }

@@ -3,7 +3,8 @@
 //! operator, the robot's recent trail, and whether the agent is busy.
 //!
 //! An approval is asked once and shown to every client; the first answer decides, the
-//! others see it decided. One not answered is refused when its time runs out, when the
+//! others see it decided. Its id is 64 random bits (only a client holding the console's
+//! secret sees it, and none can guess the next one). One not answered is refused when its time runs out, when the
 //! e-stop is engaged or when the run is cancelled: the agent never waits on a page
 //! nobody looks at.
 
@@ -53,6 +54,8 @@ struct Kept {
 }
 
 struct Waiting {
+    /// The order it was asked in.
+    seq: u64,
     /// The call as shown (fenced names redacted).
     shown: ToolCall,
     answer: SyncSender<(bool, String)>,
@@ -64,7 +67,7 @@ pub struct Hub {
     seq: AtomicU64,
     kept: Mutex<Kept>,
     live: broadcast::Sender<Arc<Logged>>,
-    waiting: Mutex<BTreeMap<u64, Waiting>>,
+    waiting: Mutex<BTreeMap<String, Waiting>>,
     next_approval: AtomicU64,
     busy: AtomicBool,
     trail: Mutex<VecDeque<Pose>>,
@@ -180,18 +183,19 @@ impl Hub {
 
     /// The approvals waiting, as shown.
     pub fn waiting(&self) -> Vec<Value> {
-        self.waiting
-            .lock()
-            .expect("approvals")
-            .iter()
-            .map(|(id, w)| approval_json(*id, &w.shown))
+        let waiting = self.waiting.lock().expect("approvals");
+        let mut asked: Vec<(&String, &Waiting)> = waiting.iter().collect();
+        asked.sort_by_key(|(_, w)| w.seq);
+        asked
+            .into_iter()
+            .map(|(id, w)| approval_json(id, &w.shown))
             .collect()
     }
 
     /// An operator's answer to approval `id`; `Err` says why it was not taken.
-    pub fn answer(&self, id: u64, approve: bool) -> Result<(), String> {
+    pub fn answer(&self, id: &str, approve: bool) -> Result<(), String> {
         let mut waiting = self.waiting.lock().expect("approvals");
-        let w = waiting.get_mut(&id).ok_or_else(|| {
+        let w = waiting.get_mut(id).ok_or_else(|| {
             format!("no call is waiting for approval {id}: it was answered, timed out or withdrawn")
         })?;
         let why = if approve {
@@ -210,7 +214,7 @@ impl Hub {
     }
 }
 
-fn approval_json(id: u64, call: &ToolCall) -> Value {
+fn approval_json(id: &str, call: &ToolCall) -> Value {
     json!({"id": id, "name": call.name, "arguments": call.arguments,
            "timeout_s": APPROVAL_WAIT.as_secs()})
 }
@@ -219,17 +223,25 @@ impl Confirm for Hub {
     /// Ask every client about `call` and wait for the first answer (see the module
     /// header for when it is refused without one).
     fn confirm(&self, call: &ToolCall) -> bool {
-        let id = self.next_approval.fetch_add(1, Ordering::SeqCst);
+        let seq = self.next_approval.fetch_add(1, Ordering::SeqCst);
+        let id = match crate::ui::secret::random_hex(8) {
+            Ok(id) => id,
+            Err(e) => {
+                tracing::error!("no approval id could be drawn ({e}): the call is refused");
+                return false;
+            }
+        };
         let mut shown = call.clone();
         if let Some(f) = self.fence.get() {
             f.redact_json(&mut shown.arguments);
         }
         let (tx, rx) = sync_channel(1);
-        let asked = approval_json(id, &shown);
+        let asked = approval_json(&id, &shown);
         // Waiting before it is shown: an answer may come back at once.
         self.waiting.lock().expect("approvals").insert(
-            id,
+            id.clone(),
             Waiting {
+                seq,
                 shown,
                 answer: tx,
                 answered: false,
@@ -287,10 +299,10 @@ mod tests {
     }
 
     /// The first approval of a call that is waiting.
-    fn wait_for_approval(h: &Hub) -> u64 {
+    fn wait_for_approval(h: &Hub) -> String {
         for _ in 0..200 {
             if let Some(a) = h.waiting().first() {
-                return a["id"].as_u64().unwrap();
+                return a["id"].as_str().unwrap().to_string();
             }
             std::thread::sleep(Duration::from_millis(10));
         }
@@ -306,8 +318,8 @@ mod tests {
         };
         let id = wait_for_approval(&h);
         assert_eq!(h.waiting()[0]["arguments"]["distance"], 1.0);
-        h.answer(id, true).unwrap();
-        let second = h.answer(id, false);
+        h.answer(&id, true).unwrap();
+        let second = h.answer(&id, false);
         assert!(asker.join().unwrap());
         assert!(second.is_err(), "a second answer was taken");
         assert!(h.waiting().is_empty());
@@ -331,7 +343,10 @@ mod tests {
         let id = wait_for_approval(&h);
         h.estop.trigger("test");
         assert!(!asker.join().unwrap());
-        assert!(h.answer(id, true).is_err(), "answered after it was refused");
+        assert!(
+            h.answer(&id, true).is_err(),
+            "answered after it was refused"
+        );
         let (kept, _) = h.subscribe(0);
         assert!(kept[1].data.contains("e-stop"), "{}", kept[1].data);
     }

@@ -7,9 +7,13 @@
 //! e-stop's state and the robot's pose. The e-stop button reaches the same e-stop as the
 //! REPL, the ROS topic and the model's `robot_stop`.
 //!
-//! Served on loopback by default. Any other address needs a token: printed at start (or
-//! taken from `FERROSA_CONSOLE_TOKEN`), sent as a bearer token or kept by the browser as a
-//! cookie once the printed address was opened; requests without it are refused.
+//! Served on loopback by default. Every address needs the console's secret, loopback
+//! included (`ui::secret`: any local process can reach loopback, and only the operator
+//! may drive the robot): drawn at start (or taken from `FERROSA_CONSOLE_TOKEN`), kept in
+//! a file only the user can read, sent as a bearer token or kept by the browser as an
+//! HttpOnly cookie once the printed address (its login code works once) was opened;
+//! requests without it are refused. A request that asks to stop engages the e-stop the
+//! moment it arrives, whatever the agent is doing.
 //!
 //! Layout:
 //! - `ears`: speech: recordings transcribed, answers spoken
@@ -37,10 +41,11 @@ use super::agent::{build_with, connect, AgentArgs};
 use crate::agent::language::Language;
 use crate::agent::Agent;
 use crate::estop::EStop;
+use crate::ui::secret::Secret;
 use hub::Hub;
 use pose::View;
 
-/// The environment variable that sets the console's token (else one is drawn at start).
+/// The environment variable that sets the console's secret (else one is drawn at start).
 pub const TOKEN_ENV: &str = "FERROSA_CONSOLE_TOKEN";
 
 #[derive(Debug, Clone)]
@@ -53,10 +58,6 @@ pub struct ServeArgs {
 
 /// `ferrosa serve` (see the module header).
 pub fn run(args: &ServeArgs) -> anyhow::Result<()> {
-    let token = match args.bind.ip().is_loopback() {
-        true => None,
-        false => Some(token()?),
-    };
     let mut agent_args = args.agent.clone();
     if agent_args.trace_dir.is_none() {
         agent_args.trace_dir = crate::dirs::traces_dir();
@@ -90,14 +91,23 @@ pub fn run(args: &ServeArgs) -> anyhow::Result<()> {
             .await
             .with_context(|| format!("binding {}: is another console running there? choose another with --bind", args.bind))?;
         let addr = listener.local_addr()?;
+        let secret = Arc::new(Secret::create(TOKEN_ENV, &format!("console-{}", addr.port()))?);
+        let login = crate::ui::secret::random_hex(16)
+            .context("drawing the console's login code from /dev/urandom")?;
         let ears = ears::Ears::new(args.agent.model.models_dir.clone());
-        let app = http::App::new(hub.clone(), jobs, info, token.clone(), addr, trace, ears);
-        match &token {
-            None => eprintln!("ferrosa serve: console on http://{addr}/"),
-            Some(t) => eprintln!(
-                "ferrosa serve: console on http://{addr}/?token={t} (this address is reachable from other machines: the token is required)"
-            ),
-        }
+        let where_kept = secret.where_kept();
+        let sign_in = http::SignIn {
+            secret,
+            login: login.clone(),
+        };
+        let app = http::App::new(hub.clone(), jobs, info, sign_in, addr, trace, ears);
+        let reach = match addr.ip().is_loopback() {
+            true => "",
+            false => "; this address is reachable from other machines",
+        };
+        eprintln!(
+            "ferrosa serve: console on http://{addr}/?login={login} (open it once to sign in; {where_kept}{reach})"
+        );
         if let (Some(g), Some(v)) = (robot.graph.clone(), view) {
             tokio::spawn(pose::follow(g, hub.clone(), v));
         }
@@ -191,26 +201,4 @@ async fn follow_estop(hub: Arc<Hub>) {
             return;
         }
     }
-}
-
-/// The console's token: `FERROSA_CONSOLE_TOKEN`, else 128 random bits in hex.
-fn token() -> anyhow::Result<String> {
-    if let Some(t) = std::env::var_os(TOKEN_ENV) {
-        let t = t.to_string_lossy().into_owned();
-        anyhow::ensure!(
-            t.len() >= 16
-                && t.bytes()
-                    .all(|b| b.is_ascii_alphanumeric() || b == b'-' || b == b'_'),
-            "{TOKEN_ENV} must be at least 16 characters of letters, digits, '-' or '_'"
-        );
-        return Ok(t);
-    }
-    let mut bytes = [0u8; 16];
-    use std::io::Read;
-    std::fs::File::open("/dev/urandom")
-        .and_then(|mut f| f.read_exact(&mut bytes))
-        .context(
-            "drawing the console's token from /dev/urandom; set FERROSA_CONSOLE_TOKEN instead",
-        )?;
-    Ok(bytes.iter().map(|b| format!("{b:02x}")).collect())
 }

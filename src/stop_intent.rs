@@ -1,0 +1,269 @@
+//! Whether what the operator typed or said asks the robot to stop, read without a model
+//! ("stop", "hold on", "don't move", "kill the motors", "¡para!", "arrête", "halt an",
+//! "fermati", "pare"), so a stop is never queued behind a run, never sent to the model and
+//! never mistaken for a tool to call.
+//!
+//! The ways of saying stop are data: `data/stop/<language>.txt`, one file per language,
+//! built into the binary. A sentence asks to stop when, after filler words ("please",
+//! "hey", "por favor", "bitte"), it opens with one of its language's stop phrases and says
+//! little more: up to eight more words for a plain stop ("stop the robot now"), up to two
+//! and not as a question for a phrase that also means something else ("wait", "para",
+//! "hold on"). A stop phrase that does not open its sentence ("why did it stop?", "don't
+//! stop", "no pares") is not a stop. A request of several sentences stops when any does:
+//! a mistake here brakes a robot that was not asked to, never the other way round.
+//!
+//! Owns the reading only; engaging the e-stop is the caller's (`estop`).
+
+use std::sync::OnceLock;
+
+use crate::lexicon::folded_words;
+
+/// The tables, one per language (their order is not significant: all are read at once,
+/// since the language of a two-word request cannot be told).
+const TABLES: [(&str, &str); 6] = [
+    ("en", include_str!("../data/stop/en.txt")),
+    ("es", include_str!("../data/stop/es.txt")),
+    ("fr", include_str!("../data/stop/fr.txt")),
+    ("de", include_str!("../data/stop/de.txt")),
+    ("it", include_str!("../data/stop/it.txt")),
+    ("pt", include_str!("../data/stop/pt.txt")),
+];
+
+/// Words a plain stop may be followed by ("stop the turtle right now, please").
+const MAX_AFTER_STOP: usize = 8;
+/// Words a stop that also means something else may be followed by ("para el robot").
+const MAX_AFTER_ALONE: usize = 2;
+
+/// One phrase: its words, each whole or (ending in `*`) a prefix.
+#[derive(Debug)]
+struct Phrase(Vec<String>);
+
+impl Phrase {
+    /// How many of `words`' first words it covers, if it opens them; filler words may
+    /// stand between its words ("bleib sofort stehen").
+    fn opens(&self, words: &[String], filler: impl Fn(&str) -> bool) -> Option<usize> {
+        let mut i = 0;
+        for (k, p) in self.0.iter().enumerate() {
+            let matches = |w: &str| match p.strip_suffix('*') {
+                Some(prefix) => w.starts_with(prefix),
+                None => p == w,
+            };
+            while k > 0 && i < words.len() && !matches(&words[i]) && filler(&words[i]) {
+                i += 1;
+            }
+            if !matches(words.get(i)?) {
+                return None;
+            }
+            i += 1;
+        }
+        Some(i)
+    }
+}
+
+#[derive(Debug, Default)]
+struct Table {
+    stop: Vec<Phrase>,
+    alone: Vec<Phrase>,
+    filler: Vec<String>,
+}
+
+/// The tables of every language, read once.
+fn table() -> &'static Table {
+    static TABLE: OnceLock<Table> = OnceLock::new();
+    TABLE.get_or_init(|| {
+        let mut t = Table::default();
+        for (_, text) in TABLES {
+            read_table(text, &mut t);
+        }
+        // Longest first, so "hold on" is tried before a one-word phrase it begins with.
+        t.stop.sort_by_key(|p| std::cmp::Reverse(p.0.len()));
+        t.alone.sort_by_key(|p| std::cmp::Reverse(p.0.len()));
+        t
+    })
+}
+
+/// Add one file's sections to `t`. The files are built in and checked by the tests, so
+/// a line outside a section is skipped rather than reported.
+fn read_table(text: &str, t: &mut Table) {
+    #[derive(Clone, Copy)]
+    enum Section {
+        None,
+        Stop,
+        Alone,
+        Filler,
+    }
+    let mut section = Section::None;
+    for line in text.lines().map(str::trim) {
+        if line.is_empty() || line.starts_with('#') {
+            continue;
+        }
+        match line {
+            "[stop]" => section = Section::Stop,
+            "[alone]" => section = Section::Alone,
+            "[filler]" => section = Section::Filler,
+            _ => {
+                let words: Vec<String> = line.split_whitespace().map(str::to_string).collect();
+                match section {
+                    Section::Stop => t.stop.push(Phrase(words)),
+                    Section::Alone => t.alone.push(Phrase(words)),
+                    Section::Filler => t.filler.extend(words),
+                    Section::None => {}
+                }
+            }
+        }
+    }
+}
+
+/// Whether `request` asks the robot to stop (see the module header).
+pub fn asks_to_stop(request: &str) -> bool {
+    sentences(request).any(|(text, question)| sentence_stops(text, question))
+}
+
+/// `text` cut at sentence and clause marks, each piece with whether it asks a question.
+fn sentences(text: &str) -> impl Iterator<Item = (&str, bool)> {
+    let mut rest = text;
+    std::iter::from_fn(move || loop {
+        if rest.is_empty() {
+            return None;
+        }
+        let end = rest
+            .find(|c: char| ",.;:!?¡¿…\n".contains(c))
+            .unwrap_or(rest.len());
+        let (piece, tail) = rest.split_at(end);
+        let mark = tail.chars().next();
+        let opened_as_question = piece.is_empty() && mark == Some('¿');
+        rest = mark.map_or("", |m| &tail[m.len_utf8()..]);
+        if opened_as_question {
+            // "¿para qué sirve?": the question runs to its closing mark.
+            let close = rest.find('?').unwrap_or(rest.len());
+            let question = &rest[..close];
+            rest = rest.get(close + 1..).unwrap_or("");
+            return Some((question, true));
+        }
+        if piece.trim().is_empty() {
+            continue;
+        }
+        return Some((piece, mark == Some('?')));
+    })
+}
+
+fn sentence_stops(text: &str, question: bool) -> bool {
+    let t = table();
+    let words = folded_words(text);
+    let is_filler = |w: &str| t.filler.iter().any(|f| f == w);
+    let start = words.iter().take_while(|w| is_filler(w)).count();
+    let words = &words[start..];
+    let after = |n: usize| words[n..].iter().filter(|w| !is_filler(w)).count();
+    if let Some(n) = t.stop.iter().find_map(|p| p.opens(words, is_filler)) {
+        return after(n) <= MAX_AFTER_STOP;
+    }
+    if question {
+        return false;
+    }
+    t.alone
+        .iter()
+        .find_map(|p| p.opens(words, is_filler))
+        .is_some_and(|n| after(n) <= MAX_AFTER_ALONE)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_table_has_its_sections_and_no_stray_line() {
+        for (code, text) in TABLES {
+            let mut t = Table::default();
+            read_table(text, &mut t);
+            assert!(
+                !t.stop.is_empty() && !t.alone.is_empty() && !t.filler.is_empty(),
+                "{code}"
+            );
+            let mut in_section = false;
+            for line in text.lines().map(str::trim) {
+                if line.starts_with('[') {
+                    in_section = true;
+                }
+                if !line.is_empty() && !line.starts_with('#') {
+                    assert!(in_section, "{code}: {line:?} is outside a section");
+                    // Entries are written as `folded_words` reads text.
+                    let folded = folded_words(&line.replace('*', "")).join(" ");
+                    assert!(
+                        line.starts_with('[') || folded == line.replace('*', ""),
+                        "{code}: {line:?} is not written folded"
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn plain_stops_in_each_language() {
+        for s in [
+            "Stop!",
+            "please stop the robot right now",
+            "whoa, whoa",
+            "hey robot, kill the motors",
+            "can you halt?",
+            "ok that's enough. freeze",
+            "E-STOP",
+            "Detente ya",
+            "¡quédate quieto!",
+            "no te muevas",
+            "arrêtez tout de suite",
+            "ne bouge plus",
+            "Bleib sofort stehen",
+            "kannst du bitte anhalten",
+            "non muoverti!",
+            "fermati subito",
+            "não se mexa",
+            "fique parado por favor",
+        ] {
+            assert!(asks_to_stop(s), "{s:?}");
+        }
+    }
+
+    #[test]
+    fn words_that_also_mean_something_else_stop_only_alone() {
+        assert!(asks_to_stop("wait!"));
+        assert!(asks_to_stop("para el robot"));
+        assert!(!asks_to_stop(
+            "wait until the battery is full, then go to the door"
+        ));
+        assert!(!asks_to_stop("¿para qué sirve el tópico de la batería?"));
+        assert!(!asks_to_stop(
+            "para mover el robot hacia adelante hay que publicar"
+        ));
+        assert!(!asks_to_stop("hold on to the cup with the gripper"));
+    }
+
+    #[test]
+    fn stop_words_elsewhere_are_not_stops() {
+        for s in [
+            "why did it stop?",
+            "don't stop",
+            "never stop recording",
+            "no pares",
+            "non fermarti",
+            "não pare",
+            "ne t'arrête pas",
+            "is the turtle stopped",
+            "list the topics",
+            "move forward 2 meters",
+            "no",
+            "",
+            "...",
+            "what does the brake topic carry? and the stop service?",
+        ] {
+            assert!(!asks_to_stop(s), "{s:?}");
+        }
+    }
+
+    #[test]
+    fn a_long_request_that_opens_with_stop_is_not_one() {
+        assert!(!asks_to_stop(
+            "stop words are removed from the text before the nodes index it for search"
+        ));
+        assert!(asks_to_stop("stop, then tell me where you are"));
+    }
+}
