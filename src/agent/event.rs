@@ -67,7 +67,7 @@ impl WordStream {
     /// Add a piece; returns the text that can be shown now (possibly empty).
     pub fn push(&mut self, piece: &str) -> String {
         self.pending.push_str(piece);
-        let name_char = |c: char| c.is_alphanumeric() || matches!(c, '_' | '/' | '.' | '~' | '-');
+        let name_char = crate::fence::name_char;
         let cut = self
             .pending
             .char_indices()

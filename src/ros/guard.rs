@@ -20,6 +20,11 @@
 //!   not a message (`pkg/srv/X` would go out as `pkg/msg/X`);
 //! - treats the names under a denied name as denied too (a denied node's own topics,
 //!   services and parameters);
+//! - holds node parameters to the fence by their full names (`/turtlesim/background_r`,
+//!   `fence::parameter_name`), whoever calls a node's `rcl_interfaces` parameter
+//!   services (the parameter tools, `ros_service_call`, a declared tool): a get, set,
+//!   description or type query naming a denied one is refused, a listing leaves denied
+//!   ones out, and a `ParameterEvent` read from a topic loses them;
 //! - remembers every velocity topic it sent motion on (with the last command) and every
 //!   goal that may still run, so the e-stop's brake can zero the one (the last command
 //!   with every Twist at zero: at once, again once every publish that passed the e-stop
@@ -39,7 +44,7 @@ use super::{
     RosError, RosGraph, Sample, Watch,
 };
 use crate::estop::EStop;
-use crate::fence::{canonical, Fence};
+use crate::fence::{canonical, visible, Fence};
 use crate::limits::{Motion, Verdict};
 
 /// Services that only read state, allowed while the e-stop is engaged.
@@ -50,6 +55,129 @@ const READ_ONLY_SERVICES: &[&str] = &[
     "rcl_interfaces/srv/GetParameterTypes",
     "type_description_interfaces/srv/GetTypeDescription",
 ];
+
+/// A node's parameter services (`rcl_interfaces`): the name each is served under, its
+/// type, and where its request names parameters.
+const PARAMETER_SERVICES: &[(&str, &str, NamedBy)] = &[
+    (
+        "list_parameters",
+        "rcl_interfaces/srv/ListParameters",
+        NamedBy::Prefixes,
+    ),
+    (
+        "get_parameters",
+        "rcl_interfaces/srv/GetParameters",
+        NamedBy::Names,
+    ),
+    (
+        "set_parameters",
+        "rcl_interfaces/srv/SetParameters",
+        NamedBy::Parameters,
+    ),
+    (
+        "set_parameters_atomically",
+        "rcl_interfaces/srv/SetParametersAtomically",
+        NamedBy::Parameters,
+    ),
+    (
+        "describe_parameters",
+        "rcl_interfaces/srv/DescribeParameters",
+        NamedBy::Names,
+    ),
+    (
+        "get_parameter_types",
+        "rcl_interfaces/srv/GetParameterTypes",
+        NamedBy::Names,
+    ),
+];
+
+/// Where a parameter service's request names parameters.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum NamedBy {
+    /// `prefixes: string[]` (a listing; its answer is filtered too).
+    Prefixes,
+    /// `names: string[]`.
+    Names,
+    /// `parameters: Parameter[]`, each with a `name`.
+    Parameters,
+}
+
+/// A call of one of a node's parameter services.
+struct ParameterCall {
+    node: String,
+    names: NamedBy,
+}
+
+impl ParameterCall {
+    /// The parameter call `service` of type `ty` (normalised) is, if it is one: known by
+    /// its type, wherever it is served. A service named as a parameter service but
+    /// called with another type is refused: its request would be read by other fields.
+    fn of(service: &str, ty: &str) -> Result<Option<ParameterCall>, RosError> {
+        let (node, which) = service.rsplit_once('/').unwrap_or(("", service));
+        if let Some((_, _, names)) = PARAMETER_SERVICES.iter().find(|(_, t, _)| *t == ty) {
+            return Ok(Some(ParameterCall {
+                node: node.to_string(),
+                names: *names,
+            }));
+        }
+        match PARAMETER_SERVICES.iter().find(|(w, _, _)| *w == which) {
+            Some((_, expected, _)) => Err(RosError::Other(format!(
+                "{service} serves a node's parameters: call it as {expected}"
+            ))),
+            None => Ok(None),
+        }
+    }
+
+    /// The parameter names the request (as encoded) gives.
+    fn requested<'a>(&self, request: &'a Value) -> Vec<&'a str> {
+        let strings = |v: &'a Value| v.as_array().into_iter().flatten().filter_map(Value::as_str);
+        match self.names {
+            NamedBy::Prefixes => strings(&request["prefixes"]).collect(),
+            NamedBy::Names => strings(&request["names"]).collect(),
+            NamedBy::Parameters => request["parameters"]
+                .as_array()
+                .into_iter()
+                .flatten()
+                .filter_map(|p| p["name"].as_str())
+                .collect(),
+        }
+    }
+
+    /// Leave the denied parameters out of a listing's answer.
+    fn filter(&self, fence: &Fence, response: &mut Value) {
+        if self.names != NamedBy::Prefixes {
+            return;
+        }
+        for key in ["names", "prefixes"] {
+            if let Some(items) = response
+                .pointer_mut(&format!("/result/{key}"))
+                .and_then(Value::as_array_mut)
+            {
+                items.retain(|n| {
+                    n.as_str()
+                        .is_some_and(|n| !fence.denies_parameter(&self.node, n))
+                });
+            }
+        }
+    }
+}
+
+/// Leave the denied parameters out of a `rcl_interfaces/msg/ParameterEvent` (any message
+/// with a `node` and lists of parameters), so echoing `/parameter_events` shows none.
+fn hide_parameters(fence: &Fence, message: &mut Value) {
+    let Some(node) = message["node"].as_str().map(str::to_string) else {
+        return;
+    };
+    for key in ["new_parameters", "changed_parameters", "deleted_parameters"] {
+        if let Some(items) = message.get_mut(key).and_then(Value::as_array_mut) {
+            items.retain(|p| {
+                p["name"]
+                    .as_str()
+                    .is_none_or(|n| !fence.denies_parameter(&node, n))
+            });
+        }
+    }
+}
 
 /// What the e-stop's brake needs: where motion went, and goals that may still run.
 #[derive(Default)]
@@ -213,8 +341,13 @@ impl Guarded {
     /// `raw` in canonical form, unless the fence covers it (or a name it lies under: a
     /// denied node's `/arm_driver/cmd`).
     fn name(&self, raw: &str) -> Result<String, RosError> {
-        let name = canonical(raw).map_err(|_| RosError::BadName(raw.trim().to_string()))?;
-        if self.fence.denies(raw) || self.fence.denies(&name) {
+        // Judged before it is checked as a name, so a refusal never repeats it.
+        if self.fence.denies(raw) {
+            return Err(RosError::OffLimits);
+        }
+        let name =
+            canonical(raw).map_err(|_| RosError::BadName(visible(raw).trim().to_string()))?;
+        if self.fence.denies(&name) {
             return Err(RosError::OffLimits);
         }
         Ok(name)
@@ -342,12 +475,26 @@ impl Guarded {
         if !READ_ONLY_SERVICES.contains(&ty.as_str()) {
             self.stopped()?;
         }
+        let parameters = ParameterCall::of(&service, &ty)?;
         self.inner.learn_type(&service, &ty).await?;
         let (request, note) = self.limited(&format!("{ty}_Request"), &request)?;
+        // Parameters are judged by their full names in the request as it will be sent.
+        if let Some(p) = &parameters {
+            let names = p.requested(&request);
+            if names
+                .iter()
+                .any(|n| self.fence.denies_parameter(&p.node, n))
+            {
+                return Err(RosError::OffLimits);
+            }
+        }
         let mut reply = self
             .inner
             .call_service(&service, &ty, request, timeout)
             .await?;
+        if let Some(p) = &parameters {
+            p.filter(&self.fence, &mut reply.response);
+        }
         self.redact(&mut reply.response);
         reply.note = note.or(reply.note);
         Ok(reply)
@@ -442,6 +589,7 @@ impl RosGraph for Guarded {
             let topic = self.name(topic)?;
             let mut samples = self.inner.subscribe(&topic, type_name, max, window).await?;
             for s in &mut samples {
+                hide_parameters(&self.fence, &mut s.message);
                 self.redact(&mut s.message);
             }
             Ok(samples)
@@ -514,6 +662,7 @@ impl RosGraph for Guarded {
             let fence = self.fence.clone();
             self.rt.spawn(async move {
                 while let Some(mut v) = raw.recv().await {
+                    hide_parameters(&fence, &mut v);
                     fence.redact_json(&mut v);
                     if tx.send(v).is_err() {
                         return;
@@ -541,6 +690,103 @@ mod tests {
     use super::*;
     use crate::ros::fake::{FakeGraph, Sent as Published};
     use serde_json::json;
+
+    /// Issue 41: parameters are judged by their full names on every parameter service,
+    /// whoever calls it, and listings and parameter events leave denied ones out.
+    #[test]
+    fn parameters_meet_the_fence_by_their_full_names() {
+        let listing = json!({"result": {"names": ["background_b", "background_r", "background\u{200B}_r"],
+                                        "prefixes": []}});
+        let fake = Arc::new(
+            FakeGraph::new()
+                .with_service("/turtlesim/list_parameters", listing)
+                .with_service("/turtlesim/get_parameters", json!({"values": [{"type": 2, "integer_value": 69}]}))
+                .with_service("/turtlesim/set_parameters", json!({"results": [{"successful": true, "reason": ""}]}))
+                .with_service("/turtlesim/describe_parameters", json!({"descriptors": []}))
+                .with_messages(
+                    "/parameter_events",
+                    vec![json!({"node": "/turtlesim", "new_parameters": [],
+                                "changed_parameters": [{"name": "background_r", "value": {"type": 2}},
+                                                       {"name": "background_b", "value": {"type": 2}}],
+                                "deleted_parameters": []})],
+                ),
+        );
+        let fence = Fence::new(&["^/turtlesim/background_r$".to_string()]).unwrap();
+        let guarded = Guarded::new(
+            fake.clone(),
+            Arc::new(fence),
+            EStop::new(),
+            Motion::default(),
+        );
+        let rt = tokio::runtime::Builder::new_current_thread()
+            .enable_time()
+            .build()
+            .unwrap();
+        let t = Duration::from_secs(1);
+        let call = |service: &str, ty: &str, request: Value| {
+            rt.block_on(guarded.call_service(service, ty, request, t))
+        };
+        let set = |name: &str| json!({"parameters": [{"name": name, "value": {"type": 2, "integer_value": 5}}]});
+        for (service, ty, request) in [
+            (
+                "/turtlesim/get_parameters",
+                "rcl_interfaces/srv/GetParameters",
+                json!({"names": ["background_r"]}),
+            ),
+            (
+                "/turtlesim/get_parameters",
+                "rcl_interfaces/srv/GetParameters",
+                json!({"names": ["background_b", "BACKGROUND_R"]}),
+            ),
+            (
+                "/turtlesim/set_parameters",
+                "rcl_interfaces/srv/SetParameters",
+                set("background_r"),
+            ),
+            (
+                "turtlesim/set_parameters",
+                "rcl_interfaces::srv::dds_::SetParameters_",
+                set("background\u{2060}_r"),
+            ),
+            (
+                "/turtlesim/describe_parameters",
+                "rcl_interfaces/srv/DescribeParameters",
+                json!({"names": ["background_r"]}),
+            ),
+        ] {
+            let r = call(service, ty, request.clone());
+            assert!(
+                matches!(r, Err(RosError::OffLimits)),
+                "{service} {request}: {r:?}"
+            );
+        }
+        // Called as another type, a parameter service is refused rather than misread.
+        let r = call("/turtlesim/set_parameters", "std_srvs/srv/Empty", json!({}));
+        assert!(matches!(r, Err(RosError::Other(_))), "{r:?}");
+        assert!(fake.sent().is_empty(), "{:?}", fake.sent());
+
+        let ok = call(
+            "/turtlesim/set_parameters",
+            "rcl_interfaces/srv/SetParameters",
+            set("background_b"),
+        );
+        assert!(ok.is_ok(), "{ok:?}");
+        let listed = call(
+            "/turtlesim/list_parameters",
+            "rcl_interfaces/srv/ListParameters",
+            json!({}),
+        )
+        .unwrap()
+        .response;
+        assert_eq!(listed["result"]["names"], json!(["background_b"]));
+
+        let events = rt
+            .block_on(guarded.subscribe("/parameter_events", None, 1, t))
+            .unwrap();
+        let changed = &events[0].message["changed_parameters"];
+        assert_eq!(changed.as_array().map(Vec::len), Some(1), "{changed}");
+        assert_eq!(changed[0]["name"], "background_b");
+    }
 
     /// A command that passed the e-stop check before the trigger but went out long after
     /// (a busy node, a wait for a subscriber) must not be the last word: the brake's zero

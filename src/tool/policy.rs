@@ -8,7 +8,9 @@
 //! In order, a call is refused if: the tool is unknown; it actuates while the e-stop is
 //! engaged; it actuates in read-only mode; its arguments do not match the schema; any
 //! string in them names something behind the fence (the operator's deny-list, or a
-//! pattern the model added; it can add, never remove; in any spelling of the name); a
+//! pattern the model added; it can add, never remove; in any spelling of the name, hidden
+//! characters and case aside), or a `node` and a `name` (or `parameter`) argument
+//! together name a denied parameter (`/turtlesim` + `background_r`); a
 //! limit from the policy file is exceeded (a null where a limited number belongs is
 //! refused too); it breaks an `only` rule; or it actuates and the operator does not
 //! confirm. Refusals never quote a deny pattern or a denied name.
@@ -335,7 +337,7 @@ impl Policy {
     fn rule_breach(&self, call: &ToolCall) -> Option<String> {
         let mut strings = Vec::new();
         collect_strings(&call.arguments, &mut strings);
-        if strings.iter().any(|s| self.fence.denies(s)) {
+        if strings.iter().any(|s| self.fence.denies(s)) || self.names_denied_parameter(call) {
             return Some(
                 "that name is off limits (the operator's deny-list); do not try it or anything like it again".into(),
             );
@@ -364,6 +366,17 @@ impl Policy {
             }
         }
         None
+    }
+
+    /// Whether the call names a denied parameter by its node and its name, as the
+    /// parameter tools take them. (The ROS boundary judges every parameter request
+    /// again, whatever tool built it; this refuses before the operator is asked.)
+    fn names_denied_parameter(&self, call: &ToolCall) -> bool {
+        let arg = |k: &str| call.arguments.get(k).and_then(Value::as_str);
+        match (arg("node"), arg("name").or_else(|| arg("parameter"))) {
+            (Some(node), Some(param)) => self.fence.denies_parameter(node, param),
+            _ => false,
+        }
     }
 
     /// Hide what the fence covers in a tool's output: array items that are denied

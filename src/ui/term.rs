@@ -19,42 +19,12 @@ use crate::tool::exec::Outcome;
 use crate::tool::{Confirm, ToolCall};
 
 /// `text` safe to print: escape sequences and control characters (but newlines and
-/// tabs) removed, bidirectional overrides and other invisible format characters dropped.
+/// tabs) removed, bidirectional overrides and every other format character (Unicode
+/// category Cf: zero-width, joiners, BOM, soft hyphen) dropped. It is the fence's
+/// `visible`, the form names were judged in, so a name the fence redacted cannot be
+/// put back together here by removing what split it.
 pub fn clean(text: &str) -> String {
-    let mut out = String::with_capacity(text.len());
-    let mut chars = text.chars().peekable();
-    while let Some(c) = chars.next() {
-        match c {
-            // ESC [ ... final byte: a CSI sequence; ESC ] ... BEL/ST: an OSC sequence.
-            '\u{1b}' => match chars.peek() {
-                Some('[') => {
-                    chars.next();
-                    for d in chars.by_ref() {
-                        if ('@'..='~').contains(&d) {
-                            break;
-                        }
-                    }
-                }
-                Some(']') => {
-                    chars.next();
-                    while let Some(d) = chars.next() {
-                        if d == '\u{7}' || (d == '\u{1b}' && chars.peek() == Some(&'\\')) {
-                            break;
-                        }
-                    }
-                }
-                _ => {}
-            },
-            '\n' | '\t' => out.push(c),
-            c if c.is_control() => {}
-            '\u{200b}'..='\u{200f}'
-            | '\u{202a}'..='\u{202e}'
-            | '\u{2066}'..='\u{2069}'
-            | '\u{feff}' => {}
-            c => out.push(c),
-        }
-    }
-    out
+    crate::fence::visible(text).into_owned()
 }
 
 /// Lines the operator types, read by one thread (see the module header).
@@ -63,8 +33,10 @@ pub struct Input {
 }
 
 impl Input {
-    /// Start reading standard input. `/stop` (and `/estop`) trigger `estop` at once and
-    /// set `cancel`; every line (those too) is also passed on.
+    /// Start reading standard input. `/stop` (and `/estop`), and any line that asks to
+    /// stop in words (`stop_intent`: "stop", "hold on", "¡para!"), trigger `estop` at once
+    /// and set `cancel`, whatever is running or waiting for an answer; every line (those
+    /// too) is also passed on.
     pub fn start(estop: Arc<EStop>, cancel: Arc<std::sync::atomic::AtomicBool>) -> Arc<Input> {
         let (tx, rx): (Sender<String>, Receiver<String>) = std::sync::mpsc::channel();
         std::thread::Builder::new()
@@ -73,8 +45,13 @@ impl Input {
                 let stdin = std::io::stdin();
                 for line in stdin.lock().lines() {
                     let Ok(line) = line else { break };
-                    if matches!(line.trim(), "/stop" | "/estop") {
-                        estop.trigger("the operator (/stop)");
+                    let said = crate::stop_intent::asks_to_stop(&line);
+                    if said || matches!(line.trim(), "/stop" | "/estop") {
+                        let source = match said {
+                            true => "the operator (typed a stop)",
+                            false => "the operator (/stop)",
+                        };
+                        estop.trigger(source);
                         cancel.store(true, std::sync::atomic::Ordering::SeqCst);
                     }
                     if tx.send(line).is_err() {
@@ -148,5 +125,22 @@ mod tests {
         assert_eq!(clean("a\u{1b}]0;title\u{7}b"), "ab");
         assert_eq!(clean("safe\u{202e}txt.exe\u{0}\r\n"), "safetxt.exe\n");
         assert_eq!(clean("Größe 3 m"), "Größe 3 m");
+        assert_eq!(clean("a\u{1b}]8;;x\u{1b}\\b"), "ab");
+    }
+
+    /// Issue 41: a denied name split by a format character is redacted whole, and what
+    /// cleaning prints is what the fence judged.
+    #[test]
+    fn a_split_name_is_redacted_before_it_is_cleaned() {
+        let fence = crate::fence::Fence::new(&["^/turtle1".to_string()]).unwrap();
+        for split in [
+            "/turtle\u{200B}1/cmd_vel",
+            "/turtle\u{AD}1/cmd_vel",
+            "/turtle\u{2060}1/cmd_vel",
+            "/turtle\u{E0020}1/cmd_vel",
+        ] {
+            let shown = clean(&fence.redact(&format!("no topic {split}; try again")));
+            assert_eq!(shown, "no topic [off limits]; try again", "{split:?}");
+        }
     }
 }

@@ -322,8 +322,11 @@ pub(super) fn summary(key: &str, names: &[&str]) -> String {
     text
 }
 
+/// `name` made absolute, as shown (`fence::visible`: a zero-width or other hidden
+/// character a name was written with is no part of it, here as at the fence).
 pub(super) fn absolute(name: &str) -> String {
-    let name = name.trim();
+    let shown = crate::fence::visible(name);
+    let name = shown.trim();
     if name.starts_with('/') {
         name.to_string()
     } else {
