@@ -7,7 +7,12 @@
 //! Text outside any JSON value (an envelope's `<tool_call>` marker) is passed over. It
 //! does not validate: the grammar does that.
 //!
-//! Cost: O(1) per byte pushed; `context` walks the (shallow) frame stack.
+//! Cost: O(1) per byte pushed; `context` walks the frame stack, which is kept shallow:
+//! past `MAX_DEPTH` open brackets only a count is kept (the text may come from a server,
+//! issue 41), and nothing inside them is an argument value this reader reports.
+
+/// Open objects and arrays whose keys and items are followed; deeper ones are counted.
+pub const MAX_DEPTH: usize = 64;
 
 /// What an argument value is, where the turn stands.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -68,6 +73,8 @@ pub struct JsonScan {
     last: u8,
     /// The calls written so far, whole (`{` to `}`), in order.
     calls: Vec<(usize, usize)>,
+    /// Brackets open past `MAX_DEPTH` (inside the last frame of `stack`).
+    deep: usize,
 }
 
 impl JsonScan {
@@ -112,7 +119,7 @@ impl JsonScan {
 
     /// Open objects and arrays.
     pub fn depth(&self) -> usize {
-        self.stack.len()
+        self.stack.len() + self.deep
     }
 
     pub fn in_string(&self) -> bool {
@@ -122,7 +129,7 @@ impl JsonScan {
     /// How much is left open: brackets, plus one for an open string or number. The
     /// closing steer (`decode::close`) drives this to zero.
     pub fn open_count(&self) -> usize {
-        self.stack.len() + usize::from(self.open.is_some())
+        self.depth() + usize::from(self.open.is_some())
     }
 
     /// Where the call being written starts (its `{`), if one is open.
@@ -185,7 +192,12 @@ impl JsonScan {
             self.open = None;
             self.item((start, i));
         }
+        if self.deep > 0 {
+            self.step_deep(i, b);
+            return;
+        }
         match b {
+            b'{' | b'[' if self.stack.len() >= MAX_DEPTH => self.deep = 1,
             b'{' => self.stack.push(Frame::Object {
                 start: i,
                 key: None,
@@ -218,7 +230,25 @@ impl JsonScan {
         }
     }
 
+    /// A byte outside strings and numbers past `MAX_DEPTH`: only brackets count there.
+    fn step_deep(&mut self, i: usize, b: u8) {
+        match b {
+            b'{' | b'[' => self.deep += 1,
+            b'}' | b']' => self.deep -= 1,
+            b'"' => self.open = Some((i + 1, true)),
+            b'-' | b'0'..=b'9' => self.open = Some((i, false)),
+            _ => {}
+        }
+        if !b.is_ascii_whitespace() {
+            self.last = b;
+        }
+    }
+
     fn end_string(&mut self, start: usize, end: usize) {
+        if self.deep > 0 {
+            self.last = b'"';
+            return;
+        }
         let in_arguments = self.in_arguments();
         match self.stack.last_mut() {
             Some(Frame::Object { key, want_key, .. }) if *want_key => {
@@ -238,6 +268,9 @@ impl JsonScan {
 
     /// A scalar value ended at `span`: if it is an array's item, remember it.
     fn item(&mut self, span: (usize, usize)) {
+        if self.deep > 0 {
+            return;
+        }
         if let Some(Frame::Array { items }) = self.stack.last_mut() {
             *items = [items[1], Some(span)];
         }
@@ -245,6 +278,9 @@ impl JsonScan {
 
     /// Is the arguments array being written about to repeat its last item as the next?
     pub fn looping(&self) -> Option<Loop> {
+        if self.deep > 0 {
+            return None;
+        }
         let Some(Frame::Array {
             items: [prev, Some(last)],
         }) = self.stack.last()
@@ -271,7 +307,7 @@ impl JsonScan {
 
     /// What is being written at the end of the text, if it is a value of the arguments.
     pub fn context(&self) -> Option<ValueContext<'_>> {
-        if !self.in_arguments() {
+        if self.deep > 0 || !self.in_arguments() {
             return None;
         }
         let value = match (self.open, self.stack.last()?) {
@@ -445,6 +481,31 @@ mod tests {
         assert_eq!(l(&format!("{call}1, 12")), None);
         assert_eq!(l(&format!("{call}1")), None);
         assert_eq!(l("[\"a\", \"a\""), None, "only arrays inside arguments");
+    }
+
+    #[test]
+    fn nesting_past_the_bound_is_counted_not_followed() {
+        let call = "[{\"name\": \"f\", \"arguments\": {\"xs\": ";
+        let deep = format!("{call}{}", "[".repeat(100_000));
+        let mut s = JsonScan::over(deep.as_bytes());
+        assert_eq!(s.depth(), 3 + 100_000);
+        assert_eq!(s.stack.len(), MAX_DEPTH);
+        assert_eq!(s.context(), None);
+        assert_eq!(s.open_count(), Openness::of(&s).count());
+        // Strings and brackets inside are read as such; closing comes back to the call.
+        s.push(b"\"]]\", 1");
+        assert_eq!(s.depth(), 3 + 100_000);
+        s.push(&b"]".repeat(100_000));
+        s.push(b", \"y\": \"ab");
+        assert_eq!(s.depth(), 3);
+        assert_eq!(
+            cx(&String::from_utf8_lossy(s.text())),
+            Some(("f".into(), "string:ab".into()))
+        );
+        assert_eq!(s.context().map(|c| c.key), Some(&b"y"[..]));
+        s.push(b"\"}}]");
+        assert_eq!(s.depth(), 0);
+        assert_eq!(s.closed_calls().count(), 1);
     }
 
     #[test]

@@ -12,25 +12,41 @@ pub struct Counting;
 
 thread_local! {
     static ALLOCS: Cell<u64> = const { Cell::new(0) };
+    /// The largest single allocation (or reallocation) asked for on this thread.
+    static LARGEST: Cell<usize> = const { Cell::new(0) };
+}
+
+fn note(size: usize) {
+    ALLOCS.with(|c| c.set(c.get() + 1));
+    LARGEST.with(|l| l.set(l.get().max(size)));
 }
 
 // SAFETY: forwards to the system allocator; the counter is a thread-local Cell.
 unsafe impl GlobalAlloc for Counting {
     unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        ALLOCS.with(|c| c.set(c.get() + 1));
+        note(layout.size());
         unsafe { System.alloc(layout) }
     }
     unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
         unsafe { System.dealloc(ptr, layout) }
     }
     unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        ALLOCS.with(|c| c.set(c.get() + 1));
+        note(new_size);
         unsafe { System.realloc(ptr, layout, new_size) }
     }
 }
 
 fn allocations() -> u64 {
     ALLOCS.with(Cell::get)
+}
+
+/// `f`'s result and the largest single allocation it asked for on this thread (what a
+/// parser allocated on a peer's word: bounded-memory property tests).
+pub fn largest_allocation<T>(f: impl FnOnce() -> T) -> (T, usize) {
+    let before = LARGEST.with(|l| l.replace(0));
+    let out = f();
+    let largest = LARGEST.with(|l| l.replace(before.max(l.get())));
+    (out, largest)
 }
 
 #[test]

@@ -4,6 +4,12 @@
 //! (not GGUF, unsupported version, truncated tensor data) and the typed view of the
 //! metadata every other part needs (architecture, context length, tokens, chat template).
 //! It does not read tensor data: runtimes mmap the file themselves.
+//!
+//! A file is input, not trusted (issue 41): every count, string length, array length and
+//! tensor extent it claims is checked against the bytes the file has left before anything
+//! is allocated for it, and sizes are computed with checked arithmetic, so a crafted
+//! header is `Truncated` (it claims more than the file holds) or `Corrupt` (more than any
+//! file could), never an abort or a wrapped size.
 
 use std::collections::BTreeMap;
 use std::fs::File;
@@ -15,6 +21,12 @@ const MAGIC: [u8; 4] = *b"GGUF";
 const MAX_STRING: u64 = 64 << 20;
 /// Longest metadata array accepted (the largest vocabularies are ≈ 260k entries).
 const MAX_ARRAY: u64 = 16 << 20;
+/// Largest alignment accepted for the tensor data (GGUF writes 32).
+const MAX_ALIGNMENT: u64 = 1 << 20;
+/// Fewest bytes a metadata key and value take (an empty key, a type, a one-byte value).
+const MIN_KV: u64 = 8 + 4 + 1;
+/// Fewest bytes a tensor's directory entry takes (an empty name, no dimensions).
+const MIN_TENSOR: u64 = 8 + 4 + 4 + 8;
 
 #[derive(Debug, thiserror::Error)]
 pub enum GgufError {
@@ -24,7 +36,7 @@ pub enum GgufError {
     NotGguf { path: PathBuf, magic: String },
     #[error("{path} is GGUF version {version}; versions 2 and 3 are supported: re-convert it with a current llama.cpp")]
     Version { path: PathBuf, version: u32 },
-    #[error("{path} is truncated: it ends at byte {actual} but its tensors need {expected} bytes; delete it and fetch it again (`ferrosa models fetch`)")]
+    #[error("{path} is truncated: it ends at byte {actual} but what it describes needs {expected} bytes; delete it and fetch it again (`ferrosa models fetch`)")]
     Truncated {
         path: PathBuf,
         expected: u64,
@@ -102,11 +114,15 @@ pub struct TensorInfo {
 }
 
 impl TensorInfo {
-    /// Bytes the tensor occupies, when its type is known.
+    /// Elements of the tensor, `None` when its extents overflow.
+    pub fn elements(&self) -> Option<u64> {
+        self.dims.iter().try_fold(1u64, |n, &d| n.checked_mul(d))
+    }
+
+    /// Bytes the tensor occupies, when its type is known (and its size fits a u64).
     pub fn byte_len(&self) -> Option<u64> {
         let (block, size) = ggml_type_layout(self.ggml_type)?;
-        let elems: u64 = self.dims.iter().product();
-        Some(elems / block * size)
+        (self.elements()? / block).checked_mul(size)
     }
 }
 
@@ -164,6 +180,8 @@ pub struct Gguf {
 struct Cursor<R> {
     inner: R,
     pos: u64,
+    /// The file's length: what is left bounds every count read.
+    len: u64,
 }
 
 impl<R: Read> Cursor<R> {
@@ -179,6 +197,10 @@ impl<R: Read> Cursor<R> {
     fn u64(&mut self) -> io::Result<u64> {
         self.bytes::<8>().map(u64::from_le_bytes)
     }
+    /// Bytes of the file after the cursor.
+    fn left(&self) -> u64 {
+        self.len.saturating_sub(self.pos)
+    }
 }
 
 impl Gguf {
@@ -193,6 +215,7 @@ impl Gguf {
         let mut cur = Cursor {
             inner: BufReader::with_capacity(1 << 16, file),
             pos: 0,
+            len: file_size,
         };
         let corrupt = |what: String| GgufError::Corrupt {
             path: path.to_path_buf(),
@@ -240,6 +263,15 @@ impl Gguf {
                 "header claims {n_tensors} tensors and {n_kv} metadata keys"
             )));
         }
+        // Within those bounds neither product overflows.
+        let need = n_kv * MIN_KV + n_tensors * MIN_TENSOR;
+        if need > cur.left() {
+            return Err(GgufError::Truncated {
+                path: path.to_path_buf(),
+                expected: cur.pos + need,
+                actual: file_size,
+            });
+        }
 
         let mut metadata = BTreeMap::new();
         for _ in 0..n_kv {
@@ -263,12 +295,19 @@ impl Gguf {
             }
             let ggml_type = cur.u32().map_err(|e| eof(e, cur.pos))?;
             let offset = cur.u64().map_err(|e| eof(e, cur.pos))?;
-            tensors.push(TensorInfo {
+            let tensor = TensorInfo {
                 name,
                 dims,
                 ggml_type,
                 offset,
-            });
+            };
+            if tensor.elements().is_none() {
+                return Err(corrupt(format!(
+                    "tensor {} has dimensions {:?}, more elements than can be",
+                    tensor.name, tensor.dims
+                )));
+            }
+            tensors.push(tensor);
         }
 
         let alignment = metadata
@@ -276,12 +315,24 @@ impl Gguf {
             .and_then(MetaValue::as_u64)
             .filter(|a| *a > 0)
             .unwrap_or(32);
+        if alignment > MAX_ALIGNMENT {
+            return Err(corrupt(format!("an alignment of {alignment} bytes")));
+        }
         let data_offset = cur.pos.div_ceil(alignment) * alignment;
-        let expected = tensors
-            .iter()
-            .filter_map(|t| t.byte_len().map(|len| data_offset + t.offset + len))
-            .max()
-            .unwrap_or(data_offset);
+        let mut expected = data_offset;
+        for t in &tensors {
+            let Some(len) = t.byte_len() else { continue };
+            let end = data_offset
+                .checked_add(t.offset)
+                .and_then(|start| start.checked_add(len))
+                .ok_or_else(|| {
+                    corrupt(format!(
+                        "tensor {} at offset {} of {len} bytes ends past any file",
+                        t.name, t.offset
+                    ))
+                })?;
+            expected = expected.max(end);
+        }
         if expected > file_size {
             return Err(GgufError::Truncated {
                 path: path.to_path_buf(),
@@ -323,7 +374,8 @@ impl Gguf {
     }
 
     /// Bytes of an f16 K and V cache for `n_ctx` positions on every layer (the most a
-    /// runtime keeps; sliding-window layers may keep less).
+    /// runtime keeps; sliding-window layers may keep less). `None` when the metadata is
+    /// missing or its product overflows.
     pub fn kv_cache_bytes(&self, n_ctx: usize) -> Option<u64> {
         let layers = self.arch_u64("block_count")?;
         let heads = self.arch_u64("attention.head_count")?;
@@ -331,7 +383,9 @@ impl Gguf {
         let head = self.arch_u64("embedding_length")? / heads.max(1);
         let k = self.arch_u64("attention.key_length").unwrap_or(head);
         let v = self.arch_u64("attention.value_length").unwrap_or(head);
-        Some(n_ctx as u64 * layers * kv_heads * (k + v) * 2)
+        [layers, kv_heads, k.checked_add(v)?, 2]
+            .into_iter()
+            .try_fold(n_ctx as u64, u64::checked_mul)
     }
 
     pub fn context_length(&self) -> Option<u64> {
@@ -357,18 +411,20 @@ impl Gguf {
             .collect()
     }
 
-    /// Total parameter count, from the tensor directory.
+    /// Total parameter count, from the tensor directory (extents checked by `open`).
     pub fn n_params(&self) -> u64 {
         self.tensors
             .iter()
-            .map(|t| t.dims.iter().product::<u64>())
-            .sum()
+            .map(|t| t.elements().unwrap_or(u64::MAX))
+            .fold(0, u64::saturating_add)
     }
 }
 
 enum ReadError {
     Io(io::Error),
     Corrupt(String),
+    /// What was claimed needs this many bytes past the cursor, more than the file has.
+    Short(u64),
 }
 
 impl From<io::Error> for ReadError {
@@ -392,6 +448,11 @@ fn map_read<R>(e: ReadError, cur: &Cursor<R>, path: &Path, file_size: u64) -> Gg
             path: path.to_path_buf(),
             what,
         },
+        ReadError::Short(need) => GgufError::Truncated {
+            path: path.to_path_buf(),
+            expected: cur.pos.saturating_add(need),
+            actual: file_size,
+        },
     }
 }
 
@@ -402,12 +463,28 @@ fn read_string<R: Read>(cur: &mut Cursor<R>) -> Result<String, ReadError> {
             "a metadata string claims {len} bytes"
         )));
     }
+    if len > cur.left() {
+        return Err(ReadError::Short(len));
+    }
     let mut buf = vec![0u8; len as usize];
     cur.inner.read_exact(&mut buf)?;
     cur.pos += len;
     // Token texts may hold invalid UTF-8 in old conversions; keep them readable, not fatal.
     Ok(String::from_utf8(buf)
         .unwrap_or_else(|e| String::from_utf8_lossy(e.as_bytes()).into_owned()))
+}
+
+/// Fewest bytes a metadata value of type `ty` takes in the file (an unknown type is
+/// refused when read).
+fn min_value_len(ty: u32) -> u64 {
+    match ty {
+        0 | 1 | 7 => 1,
+        2 | 3 => 2,
+        4..=6 => 4,
+        8 | 10..=12 => 8,
+        9 => 12,
+        _ => 1,
+    }
 }
 
 fn read_value<R: Read>(cur: &mut Cursor<R>, ty: u32, depth: u32) -> Result<MetaValue, ReadError> {
@@ -431,6 +508,11 @@ fn read_value<R: Read>(cur: &mut Cursor<R>, ty: u32, depth: u32) -> Result<MetaV
                 return Err(ReadError::Corrupt(format!(
                     "a metadata array claims {len} items"
                 )));
+            }
+            // Within that bound the product does not overflow.
+            let need = len * min_value_len(item_ty);
+            if need > cur.left() {
+                return Err(ReadError::Short(need));
             }
             let mut items = Vec::with_capacity(len as usize);
             for _ in 0..len {
@@ -537,6 +619,68 @@ pub(crate) mod tests {
         assert!(matches!(Gguf::open(&p), Err(GgufError::NotGguf { .. })));
     }
 
+    /// GGUF bytes: the header, `body` as written.
+    fn header(n_tensors: u64, n_kv: u64, body: &[u8]) -> Vec<u8> {
+        let mut b = b"GGUF".to_vec();
+        b.extend_from_slice(&3u32.to_le_bytes());
+        b.extend_from_slice(&n_tensors.to_le_bytes());
+        b.extend_from_slice(&n_kv.to_le_bytes());
+        b.extend_from_slice(body);
+        b
+    }
+
+    fn open_bytes(bytes: &[u8]) -> Result<Gguf, GgufError> {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("t.gguf");
+        std::fs::write(&p, bytes).unwrap();
+        Gguf::open(&p)
+    }
+
+    #[test]
+    fn claims_past_the_files_end_are_corrupt_before_allocating() {
+        let key = |b: &mut Vec<u8>| {
+            b.extend_from_slice(&1u64.to_le_bytes());
+            b.push(b'k');
+        };
+        // A string of 60 MiB, arrays of 16M items nested three deep, in a few bytes.
+        let mut s = Vec::new();
+        key(&mut s);
+        s.extend_from_slice(&8u32.to_le_bytes());
+        s.extend_from_slice(&(60u64 << 20).to_le_bytes());
+        let mut a = Vec::new();
+        key(&mut a);
+        a.extend_from_slice(&9u32.to_le_bytes());
+        for item in [9u32, 9, 0] {
+            a.extend_from_slice(&item.to_le_bytes());
+            a.extend_from_slice(&(16u64 << 20).to_le_bytes());
+        }
+        for (what, bytes) in [
+            ("a string", header(0, 1, &s)),
+            ("arrays", header(0, 1, &a)),
+            ("a million keys", header(0, 1 << 20, &[])),
+            ("a million tensors", header(1 << 20, 0, &[])),
+        ] {
+            let e = open_bytes(&bytes).unwrap_err();
+            assert!(matches!(e, GgufError::Truncated { .. }), "{what}: {e}");
+        }
+        // Extents whose product overflows, and an offset past any file.
+        let tensor = |dims: &[u64], offset: u64| {
+            let mut b = Vec::new();
+            key(&mut b);
+            b.extend_from_slice(&(dims.len() as u32).to_le_bytes());
+            for d in dims {
+                b.extend_from_slice(&d.to_le_bytes());
+            }
+            b.extend_from_slice(&0u32.to_le_bytes());
+            b.extend_from_slice(&offset.to_le_bytes());
+            header(1, 0, &b)
+        };
+        let e = open_bytes(&tensor(&[1 << 20; 4], 0)).unwrap_err();
+        assert!(matches!(e, GgufError::Corrupt { .. }), "{e}");
+        let e = open_bytes(&tensor(&[4], u64::MAX - 2)).unwrap_err();
+        assert!(matches!(e, GgufError::Corrupt { .. }), "{e}");
+    }
+
     #[test]
     fn absurd_lengths_are_corrupt_not_oom() {
         let dir = tempfile::tempdir().unwrap();
@@ -547,6 +691,8 @@ pub(crate) mod tests {
         b.extend_from_slice(&0u64.to_le_bytes());
         b.extend_from_slice(&1u64.to_le_bytes());
         b.extend_from_slice(&u64::MAX.to_le_bytes());
+        // Bytes for a key and a value after it: the length itself is what is absurd.
+        b.extend_from_slice(&[0; 8]);
         std::fs::write(&p, &b).unwrap();
         assert!(matches!(Gguf::open(&p), Err(GgufError::Corrupt { .. })));
     }

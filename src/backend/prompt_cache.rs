@@ -15,6 +15,9 @@
 //! - Anything wrong with a file (truncated, corrupted, foreign, another key, refused by
 //!   the runtime) is a miss: logged, the file removed, never an error or a wrong
 //!   answer. The payload's hash is checked before the runtime reads a byte of it.
+//! - A file is input, not trusted (issue 41): every length its header claims is checked
+//!   against the file's real length and the directory's bound before anything is
+//!   allocated for it, so a crafted header cannot abort a start (nor every start after).
 //! - Entries are written on a thread of their own, to a temporary file renamed into
 //!   place; the directory is bounded in bytes, the least recently used going first.
 
@@ -22,7 +25,7 @@ use std::fs;
 use std::io::Read;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
-use std::sync::{Arc, Mutex};
+use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 use std::thread::JoinHandle;
 use std::time::SystemTime;
 
@@ -40,6 +43,31 @@ pub const MIN_GAIN: usize = 64;
 pub const DEFAULT_MAX_BYTES: u64 = 512 << 20;
 /// Headers larger than this are not ours.
 const MAX_HEADER: u32 = 4 << 20;
+/// Bytes before the header: `MAGIC` and the header's length.
+const PREAMBLE: u64 = MAGIC.len() as u64 + 4;
+
+/// Why an entry file cannot be used: each is a miss (logged, the file removed).
+#[derive(Debug, thiserror::Error)]
+enum Unusable {
+    #[error("cannot read it: {0}")]
+    Io(#[from] std::io::Error),
+    #[error("not a prompt cache entry")]
+    NotOurs,
+    #[error("its header claims {claimed} bytes, the file holds {holds} after the preamble")]
+    Header { claimed: u32, holds: u64 },
+    #[error("unreadable header: {0}")]
+    Json(#[from] serde_json::Error),
+    #[error("its header claims a payload of {claimed} bytes, the file holds {holds}")]
+    Payload { claimed: u64, holds: u64 },
+    #[error("a payload of {claimed} bytes is more than the cache keeps ({bound} bytes)")]
+    TooLarge { claimed: u64, bound: u64 },
+    #[error("made under another key")]
+    OtherKey,
+    #[error("its tokens changed since it was listed")]
+    TokensChanged,
+    #[error("its payload does not match its sha256")]
+    Hash,
+}
 
 /// An entry's header, as written after `MAGIC` and its length.
 #[derive(Serialize, Deserialize)]
@@ -73,6 +101,12 @@ struct Shared {
     key: String,
     max_bytes: u64,
     entries: Mutex<Vec<Entry>>,
+}
+
+/// `m` locked, even if a thread panicked holding it: what it guards (a list changed in
+/// single steps, handles to join) is whole at every step.
+fn locked<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(PoisonError::into_inner)
 }
 
 /// The cache of one model under one runtime's settings (see the module header).
@@ -109,7 +143,7 @@ impl PromptCache {
             return None;
         }
         let key = format!("model sha256 {model_sha256}; {runtime}");
-        let entries = read_index(dir, &key);
+        let entries = read_index(dir, &key, max_bytes);
         Some(PromptCache {
             shared: Arc::new(Shared {
                 dir: dir.to_path_buf(),
@@ -129,10 +163,7 @@ impl PromptCache {
 
     /// The entries of this key, as the token counts they hold.
     pub fn entries(&self) -> Vec<(PathBuf, usize)> {
-        self.shared
-            .entries
-            .lock()
-            .expect("prompt cache lock")
+        locked(&self.shared.entries)
             .iter()
             .map(|e| (e.path.clone(), e.tokens.len()))
             .collect()
@@ -149,7 +180,7 @@ impl PromptCache {
             n => n / batch * batch,
         };
         let best = {
-            let entries = self.shared.entries.lock().expect("prompt cache lock");
+            let entries = locked(&self.shared.entries);
             entries
                 .iter()
                 .map(|e| (usable(&e.tokens), e))
@@ -160,10 +191,11 @@ impl PromptCache {
         let Some((usable, entry)) = best else {
             return Restored::Miss;
         };
-        let payload = match read_entry(&entry.path, &self.shared.key, &entry.tokens) {
+        let shared = &self.shared;
+        let payload = match read_entry(&entry.path, &shared.key, &entry.tokens, shared.max_bytes) {
             Ok(p) => p,
             Err(why) => {
-                self.drop_entry(&entry.path, &why);
+                self.drop_entry(&entry.path, &why.to_string());
                 return Restored::Miss;
             }
         };
@@ -185,7 +217,7 @@ impl PromptCache {
     /// exactly these): the snapshot is taken here, hashed and written on a thread.
     pub fn store(&self, backend: &dyn Backend, tokens: &[TokenId]) {
         {
-            let entries = self.shared.entries.lock().expect("prompt cache lock");
+            let entries = locked(&self.shared.entries);
             if entries.iter().any(|e| e.tokens == tokens) {
                 return;
             }
@@ -204,7 +236,7 @@ impl PromptCache {
             .name("prompt-cache".into())
             .spawn(move || shared.write(tokens, &payload));
         match write {
-            Ok(handle) => self.writes.lock().expect("prompt cache lock").push(handle),
+            Ok(handle) => locked(&self.writes).push(handle),
             Err(e) => tracing::warn!(target: "ferrosa::prompt_cache", "cannot write: {e}"),
         }
     }
@@ -220,7 +252,7 @@ impl PromptCache {
 
     /// Wait until every entry stored so far is on disk.
     pub fn flush(&self) {
-        let writes = std::mem::take(&mut *self.writes.lock().expect("prompt cache lock"));
+        let writes = std::mem::take(&mut *locked(&self.writes));
         for w in writes {
             let _ = w.join();
         }
@@ -230,11 +262,7 @@ impl PromptCache {
         tracing::warn!(target: "ferrosa::prompt_cache", path = %path.display(),
             "prompt cache entry unusable, removed (a miss): {why}");
         let _ = fs::remove_file(path);
-        self.shared
-            .entries
-            .lock()
-            .expect("prompt cache lock")
-            .retain(|e| e.path != path);
+        locked(&self.shared.entries).retain(|e| e.path != path);
     }
 }
 
@@ -276,7 +304,7 @@ impl Shared {
         tracing::debug!(target: "ferrosa::prompt_cache", tokens = tokens.len(),
             path = %path.display(), "stored");
         {
-            let mut entries = self.entries.lock().expect("prompt cache lock");
+            let mut entries = locked(&self.entries);
             entries.retain(|e| e.path != path);
             entries.push(Entry { path, tokens });
         }
@@ -313,10 +341,7 @@ impl Shared {
             }
             if fs::remove_file(&path).is_ok() {
                 total -= len;
-                self.entries
-                    .lock()
-                    .expect("prompt cache lock")
-                    .retain(|e| e.path != path);
+                locked(&self.entries).retain(|e| e.path != path);
             }
         }
     }
@@ -341,29 +366,46 @@ fn hex(bytes: &[u8]) -> String {
     bytes.iter().map(|b| format!("{b:02x}")).collect()
 }
 
-/// The header of the entry file at `path`, and the file open after it.
-fn read_header(path: &Path) -> Result<(Header, fs::File), String> {
-    let mut f = fs::File::open(path).map_err(|e| e.to_string())?;
-    let mut start = [0u8; 12];
-    f.read_exact(&mut start)
-        .map_err(|_| "shorter than a header".to_string())?;
-    if &start[..8] != MAGIC {
-        return Err("not a prompt cache entry".into());
+/// The header of the entry file at `path`, the file open after it, and how many bytes
+/// the file holds after the header. The header's length is checked against the file's
+/// before it is read.
+fn read_header(path: &Path) -> Result<(Header, fs::File, u64), Unusable> {
+    let mut f = fs::File::open(path)?;
+    let len = f.metadata()?.len();
+    let mut start = [0u8; PREAMBLE as usize];
+    f.read_exact(&mut start).map_err(|_| Unusable::NotOurs)?;
+    if &start[..MAGIC.len()] != MAGIC {
+        return Err(Unusable::NotOurs);
     }
-    let len = u32::from_le_bytes(start[8..].try_into().expect("4 bytes"));
-    if len > MAX_HEADER {
-        return Err(format!("a header of {len} bytes"));
+    let mut claimed = [0u8; 4];
+    claimed.copy_from_slice(&start[MAGIC.len()..]);
+    let claimed = u32::from_le_bytes(claimed);
+    let holds = len.saturating_sub(PREAMBLE);
+    if claimed > MAX_HEADER || u64::from(claimed) > holds {
+        return Err(Unusable::Header { claimed, holds });
     }
-    let mut header = vec![0u8; len as usize];
-    f.read_exact(&mut header)
-        .map_err(|_| "truncated in its header".to_string())?;
-    let header: Header =
-        serde_json::from_slice(&header).map_err(|e| format!("unreadable header: {e}"))?;
-    Ok((header, f))
+    let mut header = vec![0u8; claimed as usize];
+    f.read_exact(&mut header)?;
+    let header: Header = serde_json::from_slice(&header)?;
+    Ok((header, f, holds - u64::from(claimed)))
 }
 
-/// The entries of `key` in `dir` (files of other keys are left alone).
-fn read_index(dir: &Path, key: &str) -> Vec<Entry> {
+/// The payload `header` claims fits what the file holds after it, exactly, and the
+/// directory's bound.
+fn check_payload(header: &Header, holds: u64, bound: u64) -> Result<(), Unusable> {
+    let claimed = header.payload_len;
+    if claimed != holds {
+        return Err(Unusable::Payload { claimed, holds });
+    }
+    if claimed > bound {
+        return Err(Unusable::TooLarge { claimed, bound });
+    }
+    Ok(())
+}
+
+/// The entries of `key` in `dir` (files of other keys are left alone; files of this
+/// key whose sizes do not add up are removed).
+fn read_index(dir: &Path, key: &str, bound: u64) -> Vec<Entry> {
     let Ok(files) = fs::read_dir(dir) else {
         return Vec::new();
     };
@@ -372,36 +414,46 @@ fn read_index(dir: &Path, key: &str) -> Vec<Entry> {
         .map(|e| e.path())
         .filter(|p| p.extension().is_some_and(|x| x == "kv"))
         .filter_map(|path| match read_header(&path) {
-            Ok((h, _)) if h.key == key => Some(Entry {
-                path,
-                tokens: h.tokens,
-            }),
+            Ok((h, _, holds)) if h.key == key => match check_payload(&h, holds, bound) {
+                Ok(()) => Some(Entry {
+                    path,
+                    tokens: h.tokens,
+                }),
+                Err(why) => {
+                    tracing::warn!(target: "ferrosa::prompt_cache", path = %path.display(),
+                        "prompt cache entry unusable, removed: {why}");
+                    let _ = fs::remove_file(&path);
+                    None
+                }
+            },
             _ => None,
         })
         .collect()
 }
 
-/// The payload of the entry at `path`, checked: its key, its tokens, its length and
-/// its hash. Any difference is the reason it is unusable.
-fn read_entry(path: &Path, key: &str, tokens: &[TokenId]) -> Result<Vec<u8>, String> {
-    let (header, mut f) = read_header(path)?;
+/// The payload of the entry at `path`, checked: its key, its tokens, its length (against
+/// the file's, before a byte of it is read) and its hash. Any difference is the reason
+/// it is unusable.
+fn read_entry(path: &Path, key: &str, tokens: &[TokenId], bound: u64) -> Result<Vec<u8>, Unusable> {
+    let (header, f, holds) = read_header(path)?;
     if header.key != key {
-        return Err("made under another key".into());
+        return Err(Unusable::OtherKey);
     }
     if header.tokens != tokens {
-        return Err("its tokens changed since it was listed".into());
+        return Err(Unusable::TokensChanged);
     }
-    let mut payload = Vec::with_capacity(header.payload_len as usize);
-    f.read_to_end(&mut payload).map_err(|e| e.to_string())?;
-    if payload.len() as u64 != header.payload_len {
-        return Err(format!(
-            "truncated: {} bytes of payload, not {}",
-            payload.len(),
-            header.payload_len
-        ));
+    check_payload(&header, holds, bound)?;
+    // Checked above: the length is what the file holds, within the bound.
+    let mut payload = Vec::with_capacity(holds as usize);
+    f.take(holds).read_to_end(&mut payload)?;
+    if payload.len() as u64 != holds {
+        return Err(Unusable::Payload {
+            claimed: header.payload_len,
+            holds: payload.len() as u64,
+        });
     }
     if hex(&Sha256::digest(&payload)) != header.payload_sha256 {
-        return Err("its payload does not match its sha256".into());
+        return Err(Unusable::Hash);
     }
     Ok(payload)
 }
@@ -569,6 +621,51 @@ mod tests {
             let s = String::from_utf8_lossy(b).replacen("model sha256 m;", "model sha256 x;", 1);
             *b = s.into_bytes();
         });
+    }
+
+    /// `path`'s entry with its header's `payload_len` replaced by `claim`.
+    fn claim_payload(path: &Path, claim: u64) {
+        let bytes = fs::read(path).unwrap();
+        let len = u32::from_le_bytes(bytes[8..12].try_into().unwrap()) as usize;
+        let mut header: serde_json::Value = serde_json::from_slice(&bytes[12..12 + len]).unwrap();
+        header["payload_len"] = serde_json::json!(claim);
+        let h = serde_json::to_vec(&header).unwrap();
+        let mut out = MAGIC.to_vec();
+        out.extend_from_slice(&(h.len() as u32).to_le_bytes());
+        out.extend_from_slice(&h);
+        out.extend_from_slice(&bytes[12 + len..]);
+        fs::write(path, out).unwrap();
+    }
+
+    #[test]
+    fn a_header_claiming_more_than_the_file_holds_is_a_miss_before_any_allocation() {
+        for claim in [1u64 << 50, u64::MAX, 801, 799] {
+            // Listed at start: the file is removed there.
+            let dir = tempfile::tempdir().unwrap();
+            let path = stored(dir.path(), &prefix(200));
+            claim_payload(&path, claim);
+            let (cache, mut rt) = fresh(dir.path());
+            assert!(cache.entries().is_empty(), "claim {claim}");
+            assert!(!path.exists(), "claim {claim}: removed at start");
+            assert!(matches!(
+                cache.restore(&mut rt, &prefix(200), 1),
+                Restored::Miss
+            ));
+            // Changed after the start listed it: a miss when read, and removed.
+            let path = stored(dir.path(), &prefix(200));
+            let (cache, mut rt) = fresh(dir.path());
+            claim_payload(&path, claim);
+            let got = cache.restore(&mut rt, &prefix(200), 1);
+            assert!(matches!(got, Restored::Miss), "claim {claim}: {got:?}");
+            assert!(rt.cached.is_empty());
+            assert!(!path.exists());
+        }
+        // More than the directory keeps, though the file holds it: a miss.
+        let dir = tempfile::tempdir().unwrap();
+        stored(dir.path(), &prefix(200));
+        let rt = Recorder::new("k");
+        let small = PromptCache::open(dir.path(), "m", &rt, 100).unwrap();
+        assert!(small.entries().is_empty());
     }
 
     #[test]

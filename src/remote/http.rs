@@ -1,6 +1,10 @@
 //! The remote engine's HTTP client: JSON requests to one server over HTTP/1.1 (hyper),
 //! each answer read whole or as server-sent events, every wait bounded by a time-out.
 //!
+//! A server is input, not trusted (issue 41): a whole answer is bounded in bytes, a
+//! streamed one line by line and event by event (`Events`), so a server that never ends
+//! a line or an event is cut off with a reason instead of growing memory.
+//!
 //! Plain `http://` only: a server across a network is reached through a TLS proxy or a
 //! tunnel. One connection per request (a turn makes one or two), on a runtime of the
 //! client's own so the synchronous agent loop can call it.
@@ -29,6 +33,18 @@ pub struct Client {
 
 /// Longest line of a streamed answer taken.
 pub const MAX_LINE: usize = 1 << 20;
+
+/// Largest event of a streamed answer taken (its data lines together).
+pub const MAX_EVENT: usize = 2 << 20;
+
+/// Why a stream of server-sent events was cut off.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+pub enum StreamLimit {
+    #[error("a line of the stream runs past {} KiB without ending", MAX_LINE >> 10)]
+    Line,
+    #[error("an event of the stream runs past {} KiB without the blank line that ends it", MAX_EVENT >> 10)]
+    Event,
+}
 
 /// Largest whole answer read (`read_all`).
 const MAX_BODY: usize = 16 << 20;
@@ -197,10 +213,13 @@ impl Client {
         })
     }
 
-    /// The whole body of `resp` (at most 16 MiB).
+    /// The whole body of `resp` (at most 16 MiB), arrived within the time-out once it has
+    /// started: a server that trickles it a byte at a time, each piece within the
+    /// time-out, is cut off too.
     pub fn read_all(&self, resp: Response) -> Result<Vec<u8>, RemoteError> {
         let mut out = Vec::new();
         let mut r = resp;
+        let start = std::time::Instant::now();
         while let Some(chunk) = self.next_chunk(&mut r)? {
             out.extend_from_slice(&chunk);
             if out.len() > MAX_BODY {
@@ -208,6 +227,14 @@ impl Client {
                 return Err(RemoteError::BadAnswer {
                     path: self.url(),
                     reason: "the answer runs past 16 MiB".into(),
+                });
+            }
+            if start.elapsed() > self.timeout {
+                self.close(r);
+                return Err(RemoteError::Timeout {
+                    url: self.url(),
+                    after: self.timeout,
+                    waiting: "the rest of an answer that comes a little at a time",
                 });
             }
         }
@@ -311,50 +338,78 @@ pub fn preview(bytes: &[u8]) -> String {
     }
 }
 
-/// Server-sent events, cut from a body's pieces: each event's `data` lines joined.
+/// Server-sent events, cut from a body's pieces: each event's `data` lines joined. A
+/// line is held until it ends, at most `MAX_LINE` bytes; an event until its blank line,
+/// at most `MAX_EVENT` bytes. The work is linear in the bytes, whatever the pieces.
 #[derive(Default)]
 pub struct Events {
     pending: Vec<u8>,
     data: Vec<String>,
+    /// Bytes of `data`, with a line end each.
+    size: usize,
 }
 
 impl Events {
     /// Feed a piece; returns the events it completed.
-    pub fn push(&mut self, chunk: &[u8]) -> Vec<String> {
-        self.pending.extend_from_slice(chunk);
+    pub fn push(&mut self, chunk: &[u8]) -> Result<Vec<String>, StreamLimit> {
         let mut out = Vec::new();
-        while let Some(nl) = self.pending.iter().position(|&b| b == b'\n') {
-            let line: Vec<u8> = self.pending.drain(..=nl).collect();
-            let line = String::from_utf8_lossy(&line);
-            let line = line.trim_end_matches(['\n', '\r']);
-            if line.is_empty() {
-                if !self.data.is_empty() {
-                    out.push(self.data.join("\n"));
-                    self.data.clear();
-                }
-            } else if let Some(d) = line.strip_prefix("data:") {
-                self.data.push(d.strip_prefix(' ').unwrap_or(d).to_string());
-            } else if let Some(d) = line.strip_prefix("error:") {
-                // llama-server sends a failure mid-stream as an `error:` line.
-                self.data.push(format!("{{\"error\": {}}}", d.trim()));
+        let mut rest = chunk;
+        while let Some(nl) = rest.iter().position(|&b| b == b'\n') {
+            let (line, after) = rest.split_at(nl + 1);
+            rest = after;
+            if self.pending.len() + line.len() > MAX_LINE + 2 {
+                return Err(StreamLimit::Line);
             }
+            let mut whole = std::mem::take(&mut self.pending);
+            whole.extend_from_slice(line);
+            self.line(&whole, &mut out)?;
+            whole.clear();
+            self.pending = whole;
         }
-        out
+        if self.pending.len() + rest.len() > MAX_LINE {
+            return Err(StreamLimit::Line);
+        }
+        self.pending.extend_from_slice(rest);
+        Ok(out)
     }
 
-    /// Bytes of a line not yet ended.
-    pub fn pending_len(&self) -> usize {
-        self.pending.len()
+    /// One whole line (with its end).
+    fn line(&mut self, raw: &[u8], out: &mut Vec<String>) -> Result<(), StreamLimit> {
+        let line = String::from_utf8_lossy(raw);
+        let line = line.trim_end_matches(['\n', '\r']);
+        if line.is_empty() {
+            if !self.data.is_empty() {
+                out.push(self.data.join("\n"));
+                self.data.clear();
+                self.size = 0;
+            }
+        } else if let Some(d) = line.strip_prefix("data:") {
+            self.add(d.strip_prefix(' ').unwrap_or(d).to_string())?;
+        } else if let Some(d) = line.strip_prefix("error:") {
+            // llama-server sends a failure mid-stream as an `error:` line.
+            self.add(format!("{{\"error\": {}}}", d.trim()))?;
+        }
+        Ok(())
+    }
+
+    fn add(&mut self, data: String) -> Result<(), StreamLimit> {
+        self.size += data.len() + 1;
+        if self.size > MAX_EVENT {
+            return Err(StreamLimit::Event);
+        }
+        self.data.push(data);
+        Ok(())
     }
 
     /// What is left when the body ends (an event with no blank line after it).
-    pub fn finish(&mut self) -> Option<String> {
+    pub fn finish(&mut self) -> Result<Option<String>, StreamLimit> {
         let tail = String::from_utf8_lossy(&self.pending).trim().to_string();
-        if let Some(d) = tail.strip_prefix("data:") {
-            self.data.push(d.trim_start().to_string());
-        }
         self.pending.clear();
-        (!self.data.is_empty()).then(|| std::mem::take(&mut self.data).join("\n"))
+        if let Some(d) = tail.strip_prefix("data:") {
+            self.add(d.trim_start().to_string())?;
+        }
+        self.size = 0;
+        Ok((!self.data.is_empty()).then(|| std::mem::take(&mut self.data).join("\n")))
     }
 }
 
@@ -391,9 +446,9 @@ mod tests {
             let mut ev = Events::default();
             let mut got = Vec::new();
             for piece in body.chunks(cut) {
-                got.extend(ev.push(piece));
+                got.extend(ev.push(piece).unwrap());
             }
-            got.extend(ev.finish());
+            got.extend(ev.finish().unwrap());
             assert_eq!(
                 got,
                 [
@@ -405,6 +460,42 @@ mod tests {
                 "pieces of {cut}"
             );
         }
+    }
+
+    #[test]
+    fn a_line_or_an_event_that_never_ends_is_cut_off() {
+        let mut ev = Events::default();
+        let piece = vec![b'x'; 64 << 10];
+        let mut fed = 0;
+        let e = loop {
+            match ev.push(&piece) {
+                Ok(got) => assert!(got.is_empty()),
+                Err(e) => break e,
+            }
+            fed += piece.len();
+            assert!(fed <= MAX_LINE, "still taking a line of {fed} bytes");
+        };
+        assert_eq!(e, StreamLimit::Line);
+        // Lines that end, in an event that does not.
+        let mut ev = Events::default();
+        let line = b"data: {\"choices\": []}\n".repeat(1000);
+        let mut fed = 0;
+        let e = loop {
+            match ev.push(&line) {
+                Ok(got) => assert!(got.is_empty()),
+                Err(e) => break e,
+            }
+            fed += line.len();
+            // Each line's `data: ` prefix and end are not the event's.
+            assert!(fed <= 2 * MAX_EVENT, "still taking an event of {fed} bytes");
+        };
+        assert_eq!(e, StreamLimit::Event);
+        // Keep-alive comments are lines of no event: taken without end.
+        let mut ev = Events::default();
+        for _ in 0..200 {
+            assert!(ev.push(&b": ping\n".repeat(10_000)).unwrap().is_empty());
+        }
+        assert_eq!(ev.push(b"data: 1\n\n").unwrap(), ["1"]);
     }
 
     #[test]

@@ -327,59 +327,11 @@ impl Remote {
                 message: http::server_message(&bytes),
             });
         }
-        let mut c = Completion {
-            text: String::new(),
-            finish: None,
-            generated: None,
-            first_piece: None,
-            cached: None,
-            wall: Duration::ZERO,
-            server: None,
-        };
-        let mut events = Events::default();
-        // Bounds on what a server may send: text for the token limit (at a generous 128
-        // bytes a token), a line of 1 MiB, and a time-out between pieces of new text
-        // (keep-alive comments and empty pieces do not count).
-        let max_bytes = max_tokens.saturating_mul(128).saturating_add(4096);
-        let mut progress = (Instant::now(), 0);
-        'read: loop {
-            let chunk = self.client.next_chunk(&mut resp)?;
-            let batch = match &chunk {
-                Some(bytes) => events.push(bytes),
-                None => events.finish().into_iter().collect(),
-            };
-            if events.pending_len() > http::MAX_LINE {
-                return Err(RemoteError::BadAnswer {
-                    path: PATH.into(),
-                    reason: "a line of the stream runs past 1 MiB".into(),
-                });
-            }
-            for event in batch {
-                if event.trim() == "[DONE]" {
-                    break 'read;
-                }
-                if let Some(piece) = read_event(&event, &mut c, start, max_bytes)? {
-                    if on_text(&piece).is_break() {
-                        c.finish = Some(Finish::Stopped);
-                        break 'read;
-                    }
-                }
-            }
-            if chunk.is_none() {
-                break;
-            }
-            if c.text.len() > progress.1 {
-                progress = (Instant::now(), c.text.len());
-            } else if progress.0.elapsed() > self.client.timeout {
-                return Err(RemoteError::Timeout {
-                    url: self.client.url(),
-                    after: self.client.timeout,
-                    waiting: "new text (the stream goes on without any)",
-                });
-            }
-        }
-        // Closing the connection at once: a server stops a completion its client left.
+        let c = self.read_stream(&mut resp, start, max_tokens, on_text);
+        // Closing the connection at once, however the reading ended: a server stops a
+        // completion its client left.
         self.client.close(resp);
+        let mut c = c?;
         c.wall = start.elapsed();
         if c.finish.is_none() {
             return Err(RemoteError::BadAnswer {
@@ -391,6 +343,66 @@ impl Remote {
             });
         }
         Ok(c)
+    }
+
+    /// A completion's streamed answer, read up to its end, its `[DONE]` or `on_text`'s
+    /// break, within bounds on what a server may send: text for the token limit (at a
+    /// generous 128 bytes a token), a line and an event (`http::Events`), and a time-out
+    /// between pieces of new text (keep-alive comments and empty pieces do not count).
+    fn read_stream(
+        &self,
+        resp: &mut http::Response,
+        start: Instant,
+        max_tokens: usize,
+        on_text: &mut dyn FnMut(&str) -> ControlFlow<()>,
+    ) -> Result<Completion, RemoteError> {
+        const PATH: &str = "/v1/completions";
+        let mut c = Completion {
+            text: String::new(),
+            finish: None,
+            generated: None,
+            first_piece: None,
+            cached: None,
+            wall: Duration::ZERO,
+            server: None,
+        };
+        let mut events = Events::default();
+        let max_bytes = max_tokens.saturating_mul(128).saturating_add(4096);
+        let mut progress = (Instant::now(), 0);
+        loop {
+            let chunk = self.client.next_chunk(resp)?;
+            let batch = match &chunk {
+                Some(bytes) => events.push(bytes),
+                None => events.finish().map(|e| e.into_iter().collect()),
+            };
+            let batch = batch.map_err(|limit| RemoteError::BadAnswer {
+                path: PATH.into(),
+                reason: limit.to_string(),
+            })?;
+            for event in batch {
+                if event.trim() == "[DONE]" {
+                    return Ok(c);
+                }
+                if let Some(piece) = read_event(&event, &mut c, start, max_bytes)? {
+                    if on_text(&piece).is_break() {
+                        c.finish = Some(Finish::Stopped);
+                        return Ok(c);
+                    }
+                }
+            }
+            if chunk.is_none() {
+                return Ok(c);
+            }
+            if c.text.len() > progress.1 {
+                progress = (Instant::now(), c.text.len());
+            } else if progress.0.elapsed() > self.client.timeout {
+                return Err(RemoteError::Timeout {
+                    url: self.client.url(),
+                    after: self.client.timeout,
+                    waiting: "new text (the stream goes on without any)",
+                });
+            }
+        }
     }
 
     /// Run one turn on the server (see the module header).

@@ -13,6 +13,12 @@
 //! JSON uses the definition's field names. Encoding fills absent fields with their
 //! declared default or zero, and refuses unknown fields, wrong types and out-of-range
 //! numbers with the field's path, so the model can correct a call.
+//!
+//! Payloads come from peers, and so may definitions (ROS 1): decoding checks every count
+//! against the bytes left before allocating, bounds nesting (`MAX_DEPTH`), and bounds the
+//! items that take no bytes at all (an empty message in ROS 1), so what a payload decodes
+//! to stays within a small multiple of its size (issue 41). Shapes built from definitions
+//! alone (defaults, templates) are bounded in values (`MAX_SHAPE_VALUES`).
 
 use serde_json::{json, Map, Number, Value};
 
@@ -74,6 +80,8 @@ struct Writer {
     wire: Wire,
     /// Offsets of alignment padding (other stacks leave garbage there; tests skip them).
     pads: Vec<usize>,
+    /// Values the defaults of absent fields may still build (`MAX_SHAPE_VALUES`).
+    shape_budget: usize,
 }
 
 impl Writer {
@@ -128,6 +136,7 @@ fn encode_traced(
         origin,
         wire,
         pads: Vec::new(),
+        shape_budget: MAX_SHAPE_VALUES,
     };
     encode_message(ifaces, &def, value, "", 0, &mut w)?;
     Ok((w.buf, w.pads))
@@ -180,7 +189,7 @@ fn encode_message(
         let v = match given {
             Some(v) => v,
             None => {
-                default = field_default(ifaces, field)?;
+                default = field_default(ifaces, field, &mut w.shape_budget)?;
                 &default
             }
         };
@@ -374,6 +383,21 @@ fn encode_primitive(p: Primitive, v: &Value, path: &str, w: &mut Writer) -> Resu
 /// may define one) would otherwise recurse without end.
 pub const MAX_DEPTH: usize = 32;
 
+/// Most items of no bytes (elements of an empty message, in ROS 1) one payload decodes
+/// to: every other item takes at least one byte of the payload.
+pub const MAX_EMPTY_ITEMS: usize = 1 << 16;
+
+/// Most values a shape built from definitions alone (a default, a template) holds:
+/// nested fixed arrays multiply.
+pub const MAX_SHAPE_VALUES: usize = 1 << 20;
+
+fn too_large(path: &str) -> CodecError {
+    value_err(
+        path,
+        format!("its definition builds more than {MAX_SHAPE_VALUES} values (nested fixed arrays?)"),
+    )
+}
+
 fn too_deep(path: &str, depth: usize) -> Result<(), CodecError> {
     if depth > MAX_DEPTH {
         return Err(value_err(
@@ -384,13 +408,27 @@ fn too_deep(path: &str, depth: usize) -> Result<(), CodecError> {
     Ok(())
 }
 
-/// The value an absent field takes: its declared default, else zero / empty.
-fn field_default(ifaces: &Interfaces, field: &Field) -> Result<Value, CodecError> {
-    field_default_at(ifaces, field, 0)
+/// The value an absent field takes: its declared default, else zero / empty, within
+/// `budget` values (what is left of `MAX_SHAPE_VALUES` for the message being encoded).
+fn field_default(
+    ifaces: &Interfaces,
+    field: &Field,
+    budget: &mut usize,
+) -> Result<Value, CodecError> {
+    field_default_at(ifaces, field, 0, budget)
 }
 
-fn field_default_at(ifaces: &Interfaces, field: &Field, depth: usize) -> Result<Value, CodecError> {
+/// `budget`: values still allowed in the shape being built.
+fn field_default_at(
+    ifaces: &Interfaces,
+    field: &Field,
+    depth: usize,
+    budget: &mut usize,
+) -> Result<Value, CodecError> {
     too_deep(&field.name, depth)?;
+    *budget = budget
+        .checked_sub(1)
+        .ok_or_else(|| too_large(&field.name))?;
     if let Some(text) = &field.default {
         let text = text.trim();
         if let Ok(v) = serde_json::from_str::<Value>(text) {
@@ -404,33 +442,66 @@ fn field_default_at(ifaces: &Interfaces, field: &Field, depth: usize) -> Result<
     }
     Ok(match field.shape {
         Shape::Sequence { .. } => Value::Array(Vec::new()),
-        Shape::Array(n) => Value::Array(vec![elem_zero(ifaces, &field.base, depth)?; n]),
-        Shape::Single => elem_zero(ifaces, &field.base, depth)?,
+        Shape::Array(n) => {
+            let one = elem_zero(ifaces, &field.base, depth, budget)?;
+            // The copies cost what the first did (counted as it was built).
+            let each = count_values(&one);
+            *budget = n
+                .saturating_sub(1)
+                .checked_mul(each)
+                .and_then(|more| budget.checked_sub(more))
+                .ok_or_else(|| too_large(&field.name))?;
+            Value::Array(vec![one; n])
+        }
+        Shape::Single => elem_zero(ifaces, &field.base, depth, budget)?,
     })
 }
 
-fn elem_zero(ifaces: &Interfaces, base: &BaseType, depth: usize) -> Result<Value, CodecError> {
+/// Values in `v`, itself included.
+fn count_values(v: &Value) -> usize {
+    match v {
+        Value::Array(items) => 1 + items.iter().map(count_values).sum::<usize>(),
+        Value::Object(m) => 1 + m.values().map(count_values).sum::<usize>(),
+        _ => 1,
+    }
+}
+
+fn elem_zero(
+    ifaces: &Interfaces,
+    base: &BaseType,
+    depth: usize,
+    budget: &mut usize,
+) -> Result<Value, CodecError> {
     Ok(match base {
         BaseType::Primitive(Primitive::Bool) => Value::Bool(false),
         BaseType::Primitive(Primitive::String) => Value::String(String::new()),
         BaseType::Primitive(Primitive::F32 | Primitive::F64) => Value::from(0.0),
         BaseType::Primitive(_) => Value::from(0),
-        BaseType::Message(name) => template_at(ifaces, name, depth + 1)?,
+        BaseType::Message(name) => template_at(ifaces, name, depth + 1, budget)?,
     })
 }
 
 /// A complete message of `type_name` with every field at its default: what the model
 /// is shown as the shape to fill in.
 pub fn template(ifaces: &Interfaces, type_name: &str) -> Result<Value, CodecError> {
-    template_at(ifaces, type_name, 0)
+    let mut budget = MAX_SHAPE_VALUES;
+    template_at(ifaces, type_name, 0, &mut budget)
 }
 
-fn template_at(ifaces: &Interfaces, type_name: &str, depth: usize) -> Result<Value, CodecError> {
+fn template_at(
+    ifaces: &Interfaces,
+    type_name: &str,
+    depth: usize,
+    budget: &mut usize,
+) -> Result<Value, CodecError> {
     too_deep(type_name, depth)?;
     let def = ifaces.message(type_name)?;
     let mut out = Map::new();
     for field in &def.fields {
-        out.insert(field.name.clone(), field_default_at(ifaces, field, depth)?);
+        out.insert(
+            field.name.clone(),
+            field_default_at(ifaces, field, depth, budget)?,
+        );
     }
     Ok(Value::Object(out))
 }
@@ -439,15 +510,26 @@ fn template_at(ifaces: &Interfaces, type_name: &str, depth: usize) -> Result<Val
 /// optional (an absent field is its default), no other key, integers within their width,
 /// fixed arrays of their length. What a grammar holds a message argument to.
 pub fn schema(ifaces: &Interfaces, type_name: &str) -> Result<Value, CodecError> {
-    schema_at(ifaces, type_name, 0)
+    let mut budget = MAX_SHAPE_VALUES;
+    schema_at(ifaces, type_name, 0, &mut budget)
 }
 
-fn schema_at(ifaces: &Interfaces, type_name: &str, depth: usize) -> Result<Value, CodecError> {
+/// `budget`: fields still allowed in the schema being built (message fields of message
+/// types multiply).
+fn schema_at(
+    ifaces: &Interfaces,
+    type_name: &str,
+    depth: usize,
+    budget: &mut usize,
+) -> Result<Value, CodecError> {
     too_deep(type_name, depth)?;
     let def = ifaces.message(type_name)?;
     let mut properties = Map::new();
     for field in &def.fields {
-        let one = elem_schema(ifaces, &field.base, depth)?;
+        *budget = budget
+            .checked_sub(1)
+            .ok_or_else(|| too_large(&field.name))?;
+        let one = elem_schema(ifaces, &field.base, depth, budget)?;
         let s = match field.shape {
             Shape::Single => one,
             Shape::Array(n) => json!({"type": "array", "items": one, "minItems": n, "maxItems": n}),
@@ -461,7 +543,12 @@ fn schema_at(ifaces: &Interfaces, type_name: &str, depth: usize) -> Result<Value
     Ok(json!({"type": "object", "properties": properties, "additionalProperties": false}))
 }
 
-fn elem_schema(ifaces: &Interfaces, base: &BaseType, depth: usize) -> Result<Value, CodecError> {
+fn elem_schema(
+    ifaces: &Interfaces,
+    base: &BaseType,
+    depth: usize,
+    budget: &mut usize,
+) -> Result<Value, CodecError> {
     let int = |min: i64, max: i64| json!({"type": "integer", "minimum": min, "maximum": max});
     Ok(match base {
         BaseType::Primitive(p) => match p {
@@ -476,7 +563,7 @@ fn elem_schema(ifaces: &Interfaces, base: &BaseType, depth: usize) -> Result<Val
             Primitive::U32 => int(0, u32::MAX.into()),
             Primitive::I64 | Primitive::U64 => json!({"type": "integer"}),
         },
-        BaseType::Message(name) => schema_at(ifaces, name, depth + 1)?,
+        BaseType::Message(name) => schema_at(ifaces, name, depth + 1, budget)?,
     })
 }
 
@@ -487,6 +574,8 @@ struct Reader<'a> {
     pos: usize,
     origin: usize,
     wire: Wire,
+    /// Items of no bytes still allowed (`MAX_EMPTY_ITEMS`).
+    empty_left: usize,
 }
 
 impl<'a> Reader<'a> {
@@ -557,11 +646,34 @@ fn decode_wire(
         pos: 0,
         origin,
         wire,
+        empty_left: MAX_EMPTY_ITEMS,
     };
     decode_message(ifaces, &def, "", 0, &mut r)
 }
 
+/// A message, counted against `MAX_EMPTY_ITEMS` when it took no bytes (fields of empty
+/// messages multiply as arrays of them do).
 fn decode_message(
+    ifaces: &Interfaces,
+    def: &MessageDef,
+    path: &str,
+    depth: usize,
+    r: &mut Reader,
+) -> Result<Value, CodecError> {
+    let before = r.pos;
+    let v = decode_fields(ifaces, def, path, depth, r)?;
+    if r.pos == before {
+        r.empty_left = r.empty_left.checked_sub(1).ok_or_else(|| {
+            value_err(
+                path,
+                format!("more than {MAX_EMPTY_ITEMS} items of no bytes: a payload cannot hold that many"),
+            )
+        })?;
+    }
+    Ok(v)
+}
+
+fn decode_fields(
     ifaces: &Interfaces,
     def: &MessageDef,
     path: &str,
@@ -816,6 +928,43 @@ mod tests {
             n += 1;
         }
         assert!(n >= 19, "{n} fixtures");
+    }
+
+    #[test]
+    fn items_of_no_bytes_and_shapes_of_nested_arrays_are_bounded() {
+        let ifaces = Interfaces::of(&[
+            ("peer/msg/Nothing", ""),
+            ("peer/msg/Row", "peer/Nothing[4000] cells\n"),
+            ("peer/msg/Grid", "peer/Row[4000] rows\n"),
+            ("peer/msg/Small", "peer/Nothing[100] cells\n"),
+        ])
+        .unwrap();
+        let err = decode_ros1(&ifaces, "peer/Grid", &[0; 4000]).unwrap_err();
+        assert!(err.to_string().contains("items of no bytes"), "{err}");
+        let err = template(&ifaces, "peer/Grid").unwrap_err();
+        assert!(err.to_string().contains("more than"), "{err}");
+        // Within the bounds, as before.
+        let small = decode_ros1(&ifaces, "peer/Small", &[0; 100]).unwrap();
+        assert_eq!(small["cells"].as_array().unwrap().len(), 100);
+        assert_eq!(template(&ifaces, "peer/Small").unwrap(), small);
+        // Encoding fills an absent field with its default: bounded the same way.
+        let err = encode_ros1(&ifaces, "peer/Grid", &json!({})).unwrap_err();
+        assert!(err.to_string().contains("more than"), "{err}");
+        // Fields of message types, ten to a level, six levels: a million fields from a
+        // few lines of definitions, whatever is built from them.
+        let mut defs = vec![("peer/msg/L0".to_string(), String::new())];
+        for level in 1..=6 {
+            let fields: String = (0..10)
+                .map(|i| format!("peer/L{} f{i}\n", level - 1))
+                .collect();
+            defs.push((format!("peer/msg/L{level}"), fields));
+        }
+        let defs: Vec<(&str, &str)> = defs.iter().map(|(n, t)| (n.as_str(), t.as_str())).collect();
+        let ifaces = Interfaces::of(&defs).unwrap();
+        assert!(schema(&ifaces, "peer/L6").is_err());
+        assert!(template(&ifaces, "peer/L6").is_err());
+        assert!(decode_ros1(&ifaces, "peer/L6", &[]).is_err());
+        assert!(schema(&ifaces, "peer/L3").is_ok());
     }
 
     #[test]

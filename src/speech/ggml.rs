@@ -8,6 +8,10 @@
 //! vocabulary (i32 count, then per token a u32 length and its bytes); then tensors to
 //! the end (i32 n_dims, i32 name length, i32 type (0 f32, 1 f16), n_dims i32 extents
 //! innermost first, the name, the data).
+//!
+//! Every count and size the file gives is checked against the bytes left before it is
+//! used or allocated for: a file that claims more than it holds is cut short, never an
+//! abort.
 
 use std::collections::HashMap;
 
@@ -23,6 +27,8 @@ pub enum GgmlError {
     Type { name: String, kind: i32 },
     #[error("tensor {0} has no counterpart in the model this reads")]
     Unknown(String),
+    #[error("the model file is corrupt at byte {at}: {what}; fetch it again (`ferrosa models fetch whisper-base-en --force`)")]
+    Corrupt { at: usize, what: &'static str },
     #[error(transparent)]
     Candle(#[from] candle_core::Error),
 }
@@ -77,6 +83,16 @@ impl Reader<'_> {
         let at = self.at;
         usize::try_from(self.i32()?).map_err(|_| GgmlError::Truncated(at))
     }
+
+    /// Bytes not read yet.
+    fn left(&self) -> usize {
+        self.b.len() - self.at
+    }
+
+    /// `a * b` bytes, or the file is cut short (no size that large fits in it).
+    fn size(&self, a: usize, b: usize) -> Result<usize, GgmlError> {
+        a.checked_mul(b).ok_or(GgmlError::Truncated(self.at))
+    }
 }
 
 /// Read a whisper.cpp model file's bytes.
@@ -103,12 +119,17 @@ pub fn read(bytes: &[u8]) -> Result<GgmlWhisper, GgmlError> {
         n_mels: h[9],
     };
     let (n_mel, n_fft) = (r.count()?, r.count()?);
+    let filter_bytes = r.size(r.size(n_mel, n_fft)?, 4)?;
     let filters = r
-        .take(n_mel * n_fft * 4)?
+        .take(filter_bytes)?
         .chunks_exact(4)
         .map(|c| f32::from_le_bytes(c.try_into().expect("4 bytes")))
         .collect();
     let n = r.count()?;
+    // Each token takes at least its 4-byte length.
+    if n > r.left() / 4 {
+        return Err(GgmlError::Truncated(r.at));
+    }
     let mut vocab = Vec::with_capacity(n);
     for _ in 0..n {
         let len = r.count()?;
@@ -116,7 +137,14 @@ pub fn read(bytes: &[u8]) -> Result<GgmlWhisper, GgmlError> {
     }
     let mut tensors = HashMap::new();
     while r.at < bytes.len() {
+        let at = r.at;
         let (n_dims, name_len, kind) = (r.count()?, r.count()?, r.i32()?);
+        if n_dims > 4 {
+            return Err(GgmlError::Corrupt {
+                at,
+                what: "a tensor of more than 4 dimensions",
+            });
+        }
         let mut dims = (0..n_dims)
             .map(|_| r.count())
             .collect::<Result<Vec<_>, _>>()?;
@@ -127,8 +155,11 @@ pub fn read(bytes: &[u8]) -> Result<GgmlWhisper, GgmlError> {
             _ => return Err(GgmlError::Type { name, kind }),
         };
         dims.reverse();
-        let count: usize = dims.iter().product();
-        let data = r.take(count * width)?;
+        let count = dims.iter().try_fold(1usize, |n, &d| n.checked_mul(d));
+        let bytes = count
+            .and_then(|c| c.checked_mul(width))
+            .ok_or(GgmlError::Truncated(r.at))?;
+        let data = r.take(bytes)?;
         let t = Tensor::from_raw_buffer(data, dtype, &dims, &Device::Cpu)?.to_dtype(DType::F32)?;
         let hf = hf_name(&name).ok_or_else(|| GgmlError::Unknown(name.clone()))?;
         // The converter keeps conv biases as (n, 1).
@@ -242,5 +273,34 @@ mod tests {
         let mut cut = b"lmgg".to_vec();
         cut.extend_from_slice(&5i32.to_le_bytes());
         assert!(matches!(read(&cut), Err(GgmlError::Truncated(8))));
+    }
+
+    /// A header of eleven `h`s, then `rest` (little-endian i32s).
+    fn file(h: i32, rest: &[i32]) -> Vec<u8> {
+        let mut b = b"lmgg".to_vec();
+        for v in std::iter::repeat_n(h, 11).chain(rest.iter().copied()) {
+            b.extend_from_slice(&v.to_le_bytes());
+        }
+        b
+    }
+
+    #[test]
+    fn counts_claiming_more_than_the_file_holds_are_refused_before_allocating() {
+        // Filters of i32::MAX × i32::MAX floats.
+        let e = read(&file(1, &[i32::MAX, i32::MAX])).err().unwrap();
+        assert!(matches!(e, GgmlError::Truncated(_)), "{e}");
+        // 2^31 - 1 tokens in a file of 60 bytes.
+        let e = read(&file(1, &[0, 0, i32::MAX])).err().unwrap();
+        assert!(matches!(e, GgmlError::Truncated(_)), "{e}");
+        // A tensor of a billion dimensions, and one whose extents overflow.
+        let e = read(&file(1, &[0, 0, 0, 1_000_000_000, 1, 0]))
+            .err()
+            .unwrap();
+        assert!(matches!(e, GgmlError::Corrupt { .. }), "{e}");
+        let big = i32::MAX;
+        let e = read(&file(1, &[0, 0, 0, 4, 1, 0, big, big, big, big, 0]))
+            .err()
+            .unwrap();
+        assert!(matches!(e, GgmlError::Truncated(_)), "{e}");
     }
 }

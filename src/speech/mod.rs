@@ -5,6 +5,7 @@
 //! - `wav`: WAV files in and out, resampling
 //! - `ggml`: whisper.cpp's model file, read into candle tensors
 //! - `whisper`: speech to text (needs the `candle` feature)
+//! - `recogniser`: one Whisper shared by many requests, never left poisoned by one
 //! - `voice`: text to speech with espeak-ng and Piper
 //! - `wer`: word error rate, for measuring the recogniser
 //!
@@ -12,6 +13,8 @@
 
 #[cfg(feature = "candle")]
 pub mod ggml;
+#[cfg(feature = "candle")]
+pub mod recogniser;
 pub mod voice;
 pub mod wav;
 pub mod wer;

@@ -2,8 +2,18 @@
 //! number of channels, read as mono samples in [-1, 1]; written as 16-bit mono PCM.
 //! Resampling to the recogniser's rate is a windowed-sinc filter, low-passed below the
 //! lower Nyquist frequency.
+//!
+//! A recording is input from whoever reaches the console (issue 41): every header field
+//! is checked before it is used (a rate within `RATES`, at least one channel, an encoding
+//! named above), chunk sizes never reach past the bytes there are, and samples are
+//! finite; resampling takes any `Audio` without panicking.
+
+use std::ops::RangeInclusive;
 
 use std::f64::consts::PI;
+
+/// Sample rates read, in Hz: below, no speech is left; above, no recorder writes.
+pub const RATES: RangeInclusive<u32> = 1_000..=768_000;
 
 #[derive(Debug, thiserror::Error)]
 pub enum WavError {
@@ -15,6 +25,10 @@ pub enum WavError {
     Encoding { format: u16, bits: u16 },
     #[error("the WAV file holds no samples")]
     Empty,
+    #[error("the WAV file's sample rate is {0} Hz, outside {lo}–{hi} Hz: resample it, e.g. `ffmpeg -i in.wav -ar 16000 out.wav`", lo = RATES.start(), hi = RATES.end())]
+    Rate(u32),
+    #[error("the WAV file says it has 0 channels; record mono or stereo")]
+    NoChannels,
 }
 
 /// Mono audio: samples in [-1, 1] at `rate` Hz.
@@ -50,6 +64,7 @@ pub fn read(bytes: &[u8]) -> Result<Audio, WavError> {
         let id = &bytes[at..at + 4];
         let size = u32_at(bytes, at + 4) as usize;
         let body = at + 8;
+        // Within the bytes there are, whatever the size says (below `bytes.len()`).
         // A streamed WAV may say "as long as it goes" (0 or 0xFFFFFFFF) for its data.
         let end = body.saturating_add(size).min(bytes.len());
         match id {
@@ -58,7 +73,7 @@ pub fn read(bytes: &[u8]) -> Result<Audio, WavError> {
                     return Err(WavError::Truncated("format chunk"));
                 }
                 let mut format = u16_at(bytes, body);
-                let channels = u16_at(bytes, body + 2).max(1);
+                let channels = u16_at(bytes, body + 2);
                 let rate = u32_at(bytes, body + 4);
                 let bits = u16_at(bytes, body + 14);
                 // WAVE_FORMAT_EXTENSIBLE: the real format is the sub-format's first two bytes.
@@ -73,10 +88,16 @@ pub fn read(bytes: &[u8]) -> Result<Audio, WavError> {
             }
             _ => {}
         }
-        at = body.saturating_add(size + (size & 1));
+        at = body.saturating_add(size).saturating_add(size & 1);
     }
     let (format, channels, rate, bits) = fmt.ok_or(WavError::Truncated("no format chunk"))?;
     let data = data.ok_or(WavError::Truncated("no data chunk"))?;
+    if channels == 0 {
+        return Err(WavError::NoChannels);
+    }
+    if !RATES.contains(&rate) {
+        return Err(WavError::Rate(rate));
+    }
     let width = usize::from(bits / 8);
     let sample = |b: &[u8]| -> Option<f32> {
         Some(match (format, bits) {
@@ -96,8 +117,18 @@ pub fn read(bytes: &[u8]) -> Result<Audio, WavError> {
     let samples: Vec<f32> = data
         .chunks_exact(frame)
         .map(|f| {
-            let sum: f32 = f.chunks_exact(width).filter_map(sample).sum();
-            (sum / f32::from(channels)).clamp(-1.0, 1.0)
+            // A float recording may hold NaN or infinities: silence, not poison.
+            let sum: f32 = f
+                .chunks_exact(width)
+                .filter_map(sample)
+                .filter(|v| v.is_finite())
+                .sum();
+            let v = (sum / f32::from(channels)).clamp(-1.0, 1.0);
+            if v.is_finite() {
+                v
+            } else {
+                0.0
+            }
         })
         .collect();
     if samples.is_empty() {
@@ -111,17 +142,18 @@ pub fn write(audio: &Audio) -> Vec<u8> {
     let data_len = audio.samples.len() * 2;
     let mut out = Vec::with_capacity(44 + data_len);
     out.extend_from_slice(b"RIFF");
-    out.extend_from_slice(&(36 + data_len as u32).to_le_bytes());
+    let data_len32 = u32::try_from(data_len).unwrap_or(u32::MAX);
+    out.extend_from_slice(&data_len32.saturating_add(36).to_le_bytes());
     out.extend_from_slice(b"WAVEfmt ");
     out.extend_from_slice(&16u32.to_le_bytes());
     out.extend_from_slice(&1u16.to_le_bytes());
     out.extend_from_slice(&1u16.to_le_bytes());
     out.extend_from_slice(&audio.rate.to_le_bytes());
-    out.extend_from_slice(&(audio.rate * 2).to_le_bytes());
+    out.extend_from_slice(&audio.rate.saturating_mul(2).to_le_bytes());
     out.extend_from_slice(&2u16.to_le_bytes());
     out.extend_from_slice(&16u16.to_le_bytes());
     out.extend_from_slice(b"data");
-    out.extend_from_slice(&(data_len as u32).to_le_bytes());
+    out.extend_from_slice(&data_len32.to_le_bytes());
     for s in &audio.samples {
         let v = (s.clamp(-1.0, 1.0) * 32767.0).round() as i16;
         out.extend_from_slice(&v.to_le_bytes());
@@ -132,12 +164,18 @@ pub fn write(audio: &Audio) -> Vec<u8> {
 /// Taps on each side of the sinc filter.
 const TAPS: i64 = 24;
 
-/// `audio` at `rate` Hz.
+/// `audio` at `rate` Hz (no samples when either rate is 0: there is no such audio).
 pub fn resample(audio: &Audio, rate: u32) -> Audio {
     if audio.rate == rate || audio.samples.is_empty() {
         return Audio {
             rate,
             samples: audio.samples.clone(),
+        };
+    }
+    if audio.rate == 0 || rate == 0 {
+        return Audio {
+            rate,
+            samples: Vec::new(),
         };
     }
     let ratio = f64::from(audio.rate) / f64::from(rate);
@@ -218,6 +256,51 @@ mod tests {
             read(&odd),
             Err(WavError::Encoding { bits: 12, .. })
         ));
+    }
+
+    #[test]
+    fn crafted_headers_are_refused_with_the_field_they_got_wrong() {
+        let good = write(&tone(16000, 440.0, 0.01));
+        let with = |at: usize, v: &[u8]| {
+            let mut b = good.clone();
+            b[at..at + v.len()].copy_from_slice(v);
+            read(&b)
+        };
+        assert!(matches!(
+            with(24, &0u32.to_le_bytes()),
+            Err(WavError::Rate(0))
+        ));
+        assert!(matches!(
+            with(24, &u32::MAX.to_le_bytes()),
+            Err(WavError::Rate(u32::MAX))
+        ));
+        assert!(matches!(with(22, &[0, 0]), Err(WavError::NoChannels)));
+        assert!(matches!(
+            with(34, &[0, 0]),
+            Err(WavError::Encoding { bits: 0, .. })
+        ));
+        // A data chunk claiming 4 GiB: what is there is read.
+        let b = with(40, &u32::MAX.to_le_bytes()).unwrap();
+        assert_eq!(b.samples.len(), 160);
+        // Float NaN and infinity are silence.
+        let mut f = write(&Audio {
+            rate: 8000,
+            samples: vec![0.0; 2],
+        });
+        f[20] = 3;
+        f[34] = 32;
+        f.truncate(44);
+        f[40..44].copy_from_slice(&8u32.to_le_bytes());
+        f.extend_from_slice(&f32::NAN.to_le_bytes());
+        f.extend_from_slice(&f32::INFINITY.to_le_bytes());
+        assert_eq!(read(&f).unwrap().samples, vec![0.0, 0.0]);
+        // Resampling takes any audio.
+        let zero = Audio {
+            rate: 0,
+            samples: vec![0.5; 10],
+        };
+        assert!(resample(&zero, 16000).samples.is_empty());
+        assert!(resample(&tone(16000, 440.0, 0.01), 0).samples.is_empty());
     }
 
     #[test]

@@ -16,7 +16,7 @@ use candle_nn::VarBuilder;
 use candle_transformers::models::whisper::{self as m, audio, model::Whisper as Model};
 
 use super::ggml::{self, GgmlError};
-use super::wav::{resample, Audio};
+use super::wav::{resample, Audio, RATES};
 
 #[derive(Debug, thiserror::Error)]
 pub enum WhisperError {
@@ -31,6 +31,20 @@ pub enum WhisperError {
     Candle(#[from] candle_core::Error),
     #[error("the recording is {0:.1} s long; requests up to 30 s are transcribed (split longer recordings)")]
     TooLong(f64),
+    #[error("the recording's sample rate is {0} Hz, outside {lo}–{hi} Hz: resample it", lo = RATES.start(), hi = RATES.end())]
+    Rate(u32),
+    #[error("the recording holds no samples")]
+    Empty,
+}
+
+impl WhisperError {
+    /// Whether the recording, not the model or the machine, is at fault.
+    pub fn is_input(&self) -> bool {
+        matches!(
+            self,
+            WhisperError::TooLong(_) | WhisperError::Rate(_) | WhisperError::Empty
+        )
+    }
 }
 
 /// Tokens with a meaning of their own, where the file's vocabulary puts them.
@@ -130,11 +144,20 @@ impl Whisper {
         })
     }
 
-    /// The words spoken in `audio`.
+    /// The words spoken in `audio`, which is checked first (any `Audio` may come here,
+    /// not only what `wav::read` let through).
     pub fn transcribe(&mut self, audio: &Audio) -> Result<Transcript, WhisperError> {
+        if !RATES.contains(&audio.rate) {
+            return Err(WhisperError::Rate(audio.rate));
+        }
+        if audio.samples.is_empty() {
+            return Err(WhisperError::Empty);
+        }
         if audio.seconds() > m::CHUNK_LENGTH as f64 {
             return Err(WhisperError::TooLong(audio.seconds()));
         }
+        // A transcription that failed half-way may have left its cache behind.
+        self.model.reset_kv_cache();
         let t = Instant::now();
         let pcm = resample(audio, m::SAMPLE_RATE as u32);
         let cfg = &self.model.config;

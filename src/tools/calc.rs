@@ -35,8 +35,13 @@ impl Tool for CalcEval {
     }
 
     async fn call(&self, args: EvalArgs, _: &ToolContext) -> Result<Value, ToolError> {
-        let value = expr::eval(&args.expression)
-            .map_err(|e| ToolError::InvalidArguments(format!("{e}; write e.g. \"(3 + 5) / 2\"")))?;
+        let value = expr::eval(&args.expression).map_err(|e| match e {
+            expr::ExprError::Invalid(_) => {
+                ToolError::InvalidArguments(format!("{e}; write e.g. \"(3 + 5) / 2\""))
+            }
+            // Too long or too deep: the message says what to do.
+            e => ToolError::InvalidArguments(e.to_string()),
+        })?;
         Ok(json!({"expression": args.expression, "result": value}))
     }
 }

@@ -1,5 +1,9 @@
 //! The console's speech: recordings from the page transcribed with Whisper (loaded at the
 //! first one, kept after), answers read aloud with espeak-ng.
+//!
+//! A recording is whatever a client sends: `speech::recogniser` checks it and keeps one
+//! bad recording (a crafted header, a panic in the model) from breaking speech for the
+//! requests after it.
 
 use std::path::PathBuf;
 
@@ -16,43 +20,38 @@ pub enum SpeechFailure {
 }
 
 pub struct Ears {
-    models_dir: PathBuf,
     #[cfg(feature = "candle")]
-    whisper: std::sync::Mutex<Option<crate::speech::whisper::Whisper>>,
+    recogniser: crate::speech::recogniser::Recogniser,
 }
 
 impl Ears {
     pub fn new(models_dir: PathBuf) -> Ears {
+        #[cfg(not(feature = "candle"))]
+        let _ = models_dir;
         Ears {
-            models_dir,
             #[cfg(feature = "candle")]
-            whisper: std::sync::Mutex::new(None),
+            recogniser: crate::speech::recogniser::Recogniser::new(move || {
+                super::super::speech::load_whisper(&models_dir, None).map_err(|e| format!("{e:#}"))
+            }),
         }
     }
 
     /// The words in a WAV recording, with the time it took.
     pub fn transcribe(&self, bytes: &[u8]) -> Result<Value, SpeechFailure> {
-        let audio = wav::read(bytes).map_err(|e| SpeechFailure::Input(e.to_string()))?;
         #[cfg(feature = "candle")]
         {
-            let mut slot = self.whisper.lock().expect("whisper lock");
-            if slot.is_none() {
-                let w = super::super::speech::load_whisper(&self.models_dir, None)
-                    .map_err(|e| SpeechFailure::Unavailable(format!("{e:#}")))?;
-                *slot = Some(w);
-            }
-            let whisper = slot.as_mut().expect("loaded above");
-            let t = whisper.transcribe(&audio).map_err(|e| match e {
-                crate::speech::whisper::WhisperError::TooLong(_) => {
+            let t = self.recogniser.transcribe_wav(bytes).map_err(|e| {
+                if e.is_input() {
                     SpeechFailure::Input(e.to_string())
+                } else {
+                    SpeechFailure::Unavailable(e.to_string())
                 }
-                e => SpeechFailure::Unavailable(e.to_string()),
             })?;
             Ok(serde_json::json!({"text": t.text, "audio_s": t.audio_s, "ms": t.total_ms()}))
         }
         #[cfg(not(feature = "candle"))]
         {
-            let _ = (&self.models_dir, audio);
+            wav::read(bytes).map_err(|e| SpeechFailure::Input(e.to_string()))?;
             Err(SpeechFailure::Unavailable(
                 "this ferrosa was built without the candle feature, which runs Whisper".into(),
             ))
