@@ -3,6 +3,7 @@
 //! files of it by path.
 
 pub mod bytext;
+pub mod faults;
 pub mod llama_server;
 pub mod netns;
 pub mod scripted;
