@@ -7,7 +7,10 @@
 //!
 //! - every message carrying a `geometry_msgs/Twist` (`Twist`, `TwistStamped`, and any
 //!   type nesting one): the norm of `linear` at most `linear_max` m/s, of `angular` at
-//!   most `angular_max` rad/s;
+//!   most `angular_max` rad/s; a velocity type ferrosa ships (`VELOCITY_TYPES`) must
+//!   hold its Twist where its shipped definition puts it, under the shipped field
+//!   names, or it is refused: a peer's definition with renamed fields cannot carry a
+//!   speed past the limits;
 //! - `turtlesim/srv/TeleportRelative`: `linear` at most `teleport_max` m, `angular` at
 //!   most π; `TeleportAbsolute`: finite coordinates inside `workspace` when one is set;
 //! - parameters set through `rcl_interfaces/srv/SetParameters` whose names match a rule's
@@ -20,6 +23,21 @@
 
 use serde::Deserialize;
 use serde_json::Value;
+
+/// The velocity types ferrosa ships, and where each holds its Twist by its shipped
+/// definition (field names; `*` for every element of an array).
+pub const VELOCITY_TYPES: [(&str, &[&str]); 7] = [
+    ("geometry_msgs/msg/Twist", &[]),
+    ("geometry_msgs/msg/TwistStamped", &["twist"]),
+    ("geometry_msgs/msg/TwistWithCovariance", &["twist"]),
+    (
+        "geometry_msgs/msg/TwistWithCovarianceStamped",
+        &["twist", "twist"],
+    ),
+    ("geometry_msgs/msg/VelocityStamped", &["velocity"]),
+    ("nav_msgs/msg/Odometry", &["twist", "twist"]),
+    ("sensor_msgs/msg/MultiDOFJointState", &["twist", "*"]),
+];
 
 /// What to do with a value over its limit.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Default)]
@@ -100,6 +118,14 @@ impl Motion {
     pub fn check(&self, type_name: &str, message: &Value) -> Verdict {
         if let Some(path) = non_finite(message, String::new()) {
             return Verdict::Refused(format!("{path} is not a finite number"));
+        }
+        if let Some((_, path)) = VELOCITY_TYPES.iter().find(|(t, _)| *t == type_name) {
+            if !twist_at(message, path) {
+                return Verdict::Refused(format!(
+                    "this {type_name} does not hold its Twist as ferrosa's definition does (at /{}, `linear` and `angular`); a velocity type is read by its shipped definition only",
+                    path.join("/")
+                ));
+            }
         }
         let mut out = message.clone();
         let mut changes = Vec::new();
@@ -294,6 +320,19 @@ fn zero_twists(v: &mut Value) {
     }
 }
 
+/// Whether `v` holds a Twist (`linear` and `angular` vectors) at `path`.
+fn twist_at(v: &Value, path: &[&str]) -> bool {
+    match path.split_first() {
+        None => v
+            .as_object()
+            .is_some_and(|m| is_vector(m.get("linear")) && is_vector(m.get("angular"))),
+        Some((&"*", rest)) => v
+            .as_array()
+            .is_some_and(|items| items.iter().all(|x| twist_at(x, rest))),
+        Some((key, rest)) => v.get(*key).is_some_and(|x| twist_at(x, rest)),
+    }
+}
+
 fn is_vector(v: Option<&Value>) -> bool {
     v.and_then(Value::as_object).is_some_and(|m| {
         ["x", "y", "z"]
@@ -414,6 +453,33 @@ mod tests {
             block.check("x/msg/Y", &stamped),
             Verdict::Refused(_)
         ));
+    }
+
+    #[test]
+    fn a_shipped_velocity_type_is_read_by_its_shipped_field_names_only() {
+        let m = Motion::default();
+        // A Twist as a peer might redefine it (`lin`, `ang`): the same bytes, 5 m/s.
+        let renamed =
+            json!({"lin": {"x": 5.0, "y": 0.0, "z": 0.0}, "ang": {"x": 0.0, "y": 0.0, "z": 0.0}});
+        for ty in ["geometry_msgs/msg/Twist", "geometry_msgs/msg/TwistStamped"] {
+            assert!(
+                matches!(m.check(ty, &renamed), Verdict::Refused(w) if w.contains("shipped")),
+                "{ty}"
+            );
+        }
+        let stamped =
+            json!({"header": {}, "twist": {"twist": twist(5.0, 0.0, 0.0), "covariance": []}});
+        assert!(matches!(
+            m.check("geometry_msgs/msg/TwistWithCovarianceStamped", &stamped),
+            Verdict::Clamped(..)
+        ));
+        let joints = json!({"twist": [twist(0.1, 0.0, 0.0), renamed]});
+        assert!(matches!(
+            m.check("sensor_msgs/msg/MultiDOFJointState", &joints),
+            Verdict::Refused(_)
+        ));
+        // A type ferrosa does not ship is bounded wherever a Twist shows in it.
+        assert_eq!(m.check("field_msgs/msg/Fast", &renamed), Verdict::Within);
     }
 
     #[test]

@@ -8,6 +8,12 @@
 //! Definitions not in the bundle are read from an installed ROS (`AMENT_PREFIX_PATH`,
 //! `share/<pkg>/<kind>/<Name>.<kind>`) on first use, or added by the ROS 2 graph from a
 //! peer's `~/get_type_description` answer (`Interfaces::add`).
+//!
+//! A definition may come from a peer (ROS 1 connection headers, ROS 2 type
+//! descriptions), so every parse is bounded before it allocates: bytes of text, fields
+//! per message, fixed array sizes; and a set of definitions is measured (`check_extent`)
+//! before it is used: nesting depth, values per message, and no type that contains
+//! itself. Errors, never a crash or an unbounded allocation.
 
 use std::collections::BTreeMap;
 use std::path::PathBuf;
@@ -41,7 +47,30 @@ pub enum MsgError {
         line: usize,
         reason: String,
     },
+    #[error("{type_name}: {reason}; a definition past ferrosa's bounds is refused (check the peer that sent it)")]
+    TooLarge { type_name: String, reason: String },
+    #[error("{type_name} contains itself ({path}); a recursive definition has no end and is refused (check the peer that sent it)")]
+    Recursive { type_name: String, path: String },
 }
+
+/// Most bytes of definition text parsed at once (a whole ROS 1 `message_definition`
+/// with every nested type; MoveIt's largest are tens of KB).
+pub const MAX_DEFINITION_BYTES: usize = 1 << 20;
+
+/// Most fields and constants one message may declare.
+pub const MAX_FIELDS: usize = 1024;
+
+/// Most levels of message inside message (ROS types nest about ten deep at most).
+pub const MAX_DEPTH: usize = 32;
+
+/// Most types one definition may bring with it (a ROS 1 `message_definition`'s sections,
+/// a ROS 2 description's referenced types).
+pub const MAX_TYPES: usize = 256;
+
+/// The most values (scalars and strings, every fixed array counted in full, a sequence
+/// as one element) one message type may hold: a peer's type must not make a template
+/// or an encoding allocate without bound.
+pub const MAX_LEAVES: u64 = 1 << 20;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Primitive {
@@ -225,9 +254,21 @@ fn parse_shape(token: &str) -> Result<(&str, Shape), String> {
     Ok((&token[..open], shape))
 }
 
-/// Parse one message body (no `---`). `name` is the full type name.
+/// Parse one message body (no `---`). `name` is the full type name. Bounded: at most
+/// `MAX_DEFINITION_BYTES` of text and `MAX_FIELDS` fields and constants, checked before
+/// anything is kept.
 pub fn parse_message(name: &str, body: &str) -> Result<MessageDef, MsgError> {
     let package = name.split('/').next().unwrap_or_default();
+    let too_large = |reason: String| MsgError::TooLarge {
+        type_name: name.to_string(),
+        reason,
+    };
+    if body.len() > MAX_DEFINITION_BYTES {
+        return Err(too_large(format!(
+            "{} bytes of definition, more than {MAX_DEFINITION_BYTES}",
+            body.len()
+        )));
+    }
     let mut def = MessageDef {
         name: name.to_string(),
         fields: Vec::new(),
@@ -250,6 +291,11 @@ pub fn parse_message(name: &str, body: &str) -> Result<MessageDef, MsgError> {
             .split_once(char::is_whitespace)
             .ok_or_else(|| err(format!("expected `TYPE NAME`, found {line:?}")))?;
         let rest = rest.trim();
+        if def.fields.len() + def.constants.len() >= MAX_FIELDS {
+            return Err(too_large(format!(
+                "more than {MAX_FIELDS} fields and constants"
+            )));
+        }
         // A constant: NAME=VALUE (spaces allowed around '=') and an upper-case name.
         if let Some((cname, value)) = rest.split_once('=') {
             let cname = cname.trim();
@@ -291,6 +337,93 @@ fn strip_comment(line: &str) -> &str {
         }
     }
     line
+}
+
+/// What `check_extent` found of a type: how deep its nesting goes below it (1 for a
+/// message of primitives) and how many values it holds.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Extent {
+    pub depth: usize,
+    pub leaves: u64,
+}
+
+/// Measure `name` as the definitions `lookup` gives make it: nesting at most
+/// `MAX_DEPTH` deep, at most `MAX_LEAVES` values, no type containing itself. A name
+/// `lookup` lacks counts as one value (a type known already, and bounded). The walk
+/// recurses at most `MAX_DEPTH` levels and visits each type once.
+pub fn check_extent(
+    name: &str,
+    lookup: &dyn Fn(&str) -> Option<Arc<MessageDef>>,
+) -> Result<Extent, MsgError> {
+    let mut memo = BTreeMap::new();
+    let mut path = Vec::new();
+    extent_at(name, lookup, &mut path, &mut memo)
+}
+
+fn extent_at(
+    name: &str,
+    lookup: &dyn Fn(&str) -> Option<Arc<MessageDef>>,
+    path: &mut Vec<String>,
+    memo: &mut BTreeMap<String, Extent>,
+) -> Result<Extent, MsgError> {
+    let root = path.first().cloned().unwrap_or_else(|| name.to_string());
+    if path.iter().any(|p| p == name) {
+        let mut cycle = path.clone();
+        cycle.push(name.to_string());
+        return Err(MsgError::Recursive {
+            type_name: root,
+            path: cycle.join(" > "),
+        });
+    }
+    let too_large = |reason: String| MsgError::TooLarge {
+        type_name: root.clone(),
+        reason,
+    };
+    if let Some(e) = memo.get(name) {
+        if path.len() + e.depth > MAX_DEPTH {
+            return Err(too_large(format!("nested more than {MAX_DEPTH} deep")));
+        }
+        return Ok(*e);
+    }
+    if path.len() >= MAX_DEPTH {
+        return Err(too_large(format!("nested more than {MAX_DEPTH} deep")));
+    }
+    let Some(def) = lookup(name) else {
+        return Ok(Extent {
+            depth: 0,
+            leaves: 1,
+        });
+    };
+    path.push(name.to_string());
+    let mut depth = 0;
+    let mut leaves: u64 = 0;
+    let over = || format!("more than {MAX_LEAVES} values in one message");
+    for f in &def.fields {
+        let one = match &f.base {
+            BaseType::Message(m) => {
+                let e = extent_at(m, lookup, path, memo)?;
+                depth = depth.max(e.depth);
+                e.leaves
+            }
+            BaseType::Primitive(_) => 1,
+        };
+        let count = match f.shape {
+            Shape::Array(n) => n as u64,
+            Shape::Single | Shape::Sequence { .. } => 1,
+        };
+        leaves = one
+            .checked_mul(count)
+            .and_then(|n| leaves.checked_add(n))
+            .filter(|n| *n <= MAX_LEAVES)
+            .ok_or_else(|| too_large(over()))?;
+    }
+    path.pop();
+    let e = Extent {
+        depth: depth + 1,
+        leaves: leaves.max(1),
+    };
+    memo.insert(name.to_string(), e);
+    Ok(e)
 }
 
 /// Split a `.srv` or `.action` file into its parts and name them.
@@ -395,8 +528,9 @@ impl Interfaces {
     }
 
     /// Add definitions learnt from a peer (built by `typedesc` from a verified
-    /// description). A name already known, shipped or installed, is never replaced:
-    /// a peer cannot redefine `geometry_msgs/msg/Twist`. Returns how many were new.
+    /// description, or by `ros1::wire::learn` from a definition checked by its md5sum).
+    /// A name already known, shipped, installed or learnt before, is never replaced: a
+    /// peer cannot redefine `geometry_msgs/msg/Twist`. Returns how many were new.
     pub fn learn(&self, defs: Vec<MessageDef>) -> usize {
         let mut known = self.inner.write().expect("interfaces lock");
         let mut added = 0;
@@ -495,6 +629,15 @@ impl Interfaces {
 impl Known {
     fn add(&mut self, name: &str, text: &str) -> Result<(), MsgError> {
         let name = normalize_type(name);
+        if text.len() > MAX_DEFINITION_BYTES {
+            return Err(MsgError::TooLarge {
+                type_name: name,
+                reason: format!(
+                    "{} bytes of definition, more than {MAX_DEFINITION_BYTES}",
+                    text.len()
+                ),
+            });
+        }
         for (part, body) in split_parts(&name, text) {
             let def = parse_message(&part, &body)?;
             self.messages.insert(part, Arc::new(def));
@@ -567,6 +710,61 @@ mod tests {
         assert_eq!(def.fields[3].base, BaseType::Message("p/msg/Point".into()));
         assert_eq!(def.fields[4].string_max, Some(8));
         assert_eq!(def.fields[5].default.as_deref(), Some("1.5"));
+    }
+
+    #[test]
+    fn definitions_past_the_bounds_are_errors_not_crashes() {
+        let huge = "int32 a\n".repeat(MAX_DEFINITION_BYTES / 8 + 1);
+        assert!(matches!(
+            parse_message("p/msg/T", &huge),
+            Err(MsgError::TooLarge { .. })
+        ));
+        let wide: String = (0..=MAX_FIELDS).map(|i| format!("int32 f{i}\n")).collect();
+        assert!(matches!(
+            parse_message("p/msg/T", &wide),
+            Err(MsgError::TooLarge { .. })
+        ));
+        assert!(parse_message("p/msg/T", "int32[4000000000] a\n").is_err());
+        let table = |defs: &[(&str, &str)]| {
+            let t: BTreeMap<String, Arc<MessageDef>> = defs
+                .iter()
+                .map(|(n, b)| (n.to_string(), Arc::new(parse_message(n, b).unwrap())))
+                .collect();
+            move |n: &str| t.get(n).cloned()
+        };
+        let looped = table(&[("p/msg/A", "B b\n"), ("p/msg/B", "A[] a\n")]);
+        assert!(matches!(
+            check_extent("p/msg/A", &looped),
+            Err(MsgError::Recursive { .. })
+        ));
+        // A chain one past the bound, and a binary tree of 2^24 values from 24 types.
+        let chain: Vec<(String, String)> = (0..=MAX_DEPTH)
+            .map(|k| (format!("p/msg/C{k}"), format!("C{} next\n", k + 1)))
+            .collect();
+        let pairs: Vec<(&str, &str)> = chain
+            .iter()
+            .map(|(a, b)| (a.as_str(), b.as_str()))
+            .collect();
+        assert!(matches!(
+            check_extent("p/msg/C0", &table(&pairs)),
+            Err(MsgError::TooLarge { .. })
+        ));
+        let tree: Vec<(String, String)> = (1..=24)
+            .map(|k| (format!("p/msg/T{k}"), format!("T{0} l\nT{0} r\n", k - 1)))
+            .chain([("p/msg/T0".to_string(), "int8 v\n".to_string())])
+            .collect();
+        let pairs: Vec<(&str, &str)> = tree.iter().map(|(a, b)| (a.as_str(), b.as_str())).collect();
+        assert!(matches!(
+            check_extent("p/msg/T24", &table(&pairs)),
+            Err(MsgError::TooLarge { .. })
+        ));
+        assert_eq!(
+            check_extent("p/msg/T10", &table(&pairs)).unwrap(),
+            Extent {
+                depth: 11,
+                leaves: 1024
+            }
+        );
     }
 
     #[test]

@@ -3,12 +3,20 @@
 //! hash the node announced in discovery, and the definitions used are built from that
 //! same structured description (what was hashed), not from the free text beside it.
 //! Field types ROS defines but ferrosa cannot encode (wstring, long double, wchar) make
-//! the type unusable, as does a fixed array beyond `msg::MAX_FIXED_ARRAY`.
+//! the type unusable, as does a fixed array beyond `msg::MAX_FIXED_ARRAY`, and a
+//! description past `msg`'s bounds (types, fields, nesting depth, values; a type that
+//! contains itself).
+
+use std::sync::Arc;
 
 use serde_json::Value;
 use sha2::{Digest, Sha256};
 
-use super::msg::{normalize_type, BaseType, Field, MessageDef, Primitive, Shape, MAX_FIXED_ARRAY};
+pub use super::msg::MAX_LEAVES;
+use super::msg::{
+    check_extent, normalize_type, BaseType, Field, MessageDef, MsgError, Primitive, Shape,
+    MAX_FIELDS, MAX_FIXED_ARRAY, MAX_TYPES,
+};
 
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum TypeDescError {
@@ -26,14 +34,9 @@ pub enum TypeDescError {
         field: String,
         reason: String,
     },
-    #[error("{0} is too large to use: more than {MAX_LEAVES} values in one message, or it contains itself")]
-    TooLarge(String),
+    #[error("{0} is too large to use: {1}")]
+    TooLarge(String, String),
 }
-
-/// The most values (scalars and strings, every fixed array counted in full, a sequence
-/// as one element) one learnt message may hold: a peer's type must not make a template
-/// or an encoding allocate without bound.
-pub const MAX_LEAVES: u64 = 1 << 20;
 
 /// The RIHS01 hash of a `type_description_interfaces/msg/TypeDescription` (as JSON): a
 /// SHA-256 of its fields without default values, written as Python's `json.dumps` writes
@@ -120,58 +123,33 @@ pub fn verified_definitions(
             announced: announced.to_string(),
         });
     }
-    let mut defs = vec![definition(main)?];
-    for r in description["referenced_type_descriptions"]
+    let refs = description["referenced_type_descriptions"]
         .as_array()
-        .into_iter()
-        .flatten()
-    {
+        .map_or(&[][..], Vec::as_slice);
+    if refs.len() >= MAX_TYPES {
+        return Err(TypeDescError::TooLarge(
+            name,
+            format!("more than {MAX_TYPES} types in one description"),
+        ));
+    }
+    let mut defs = vec![definition(main)?];
+    for r in refs {
         defs.push(definition(r)?);
     }
-    let mut sizes = std::collections::BTreeMap::new();
-    leaves(&defs, &defs[0].name, &mut Vec::new(), &mut sizes)
-        .filter(|n| *n <= MAX_LEAVES)
-        .ok_or_else(|| TypeDescError::TooLarge(defs[0].name.clone()))?;
+    // A shipped type nested in a learnt one counts as one value: it is bounded already.
+    let table: std::collections::BTreeMap<String, Arc<MessageDef>> = defs
+        .iter()
+        .map(|d| (d.name.clone(), Arc::new(d.clone())))
+        .collect();
+    check_extent(&defs[0].name, &|n: &str| table.get(n).cloned()).map_err(|e| {
+        let why = match e {
+            MsgError::Recursive { path, .. } => format!("it contains itself ({path})"),
+            MsgError::TooLarge { reason, .. } => reason,
+            other => other.to_string(),
+        };
+        TypeDescError::TooLarge(defs[0].name.clone(), why)
+    })?;
     Ok(defs)
-}
-
-/// How many values a message of type `name` holds (see `MAX_LEAVES`), from `defs`;
-/// `None` past the budget, for a type that contains itself, or one `defs` lacks (a
-/// shipped type nested in a learnt one counts as one value: it is bounded already).
-fn leaves(
-    defs: &[MessageDef],
-    name: &str,
-    path: &mut Vec<String>,
-    memo: &mut std::collections::BTreeMap<String, u64>,
-) -> Option<u64> {
-    if let Some(n) = memo.get(name) {
-        return Some(*n);
-    }
-    if path.iter().any(|p| p == name) {
-        return None;
-    }
-    let Some(def) = defs.iter().find(|d| d.name == name) else {
-        return Some(1);
-    };
-    path.push(name.to_string());
-    let mut total: u64 = 0;
-    for f in &def.fields {
-        let one = match &f.base {
-            BaseType::Message(m) => leaves(defs, m, path, memo)?,
-            BaseType::Primitive(_) => 1,
-        };
-        let count = match f.shape {
-            Shape::Array(n) => n as u64,
-            Shape::Single | Shape::Sequence { .. } => 1,
-        };
-        total = total.checked_add(one.checked_mul(count)?)?;
-        if total > MAX_LEAVES {
-            return None;
-        }
-    }
-    path.pop();
-    memo.insert(name.to_string(), total.max(1));
-    Some(total.max(1))
 }
 
 /// The message definition one individual description gives.
@@ -180,7 +158,14 @@ fn definition(d: &Value) -> Result<MessageDef, TypeDescError> {
     let malformed = || TypeDescError::Malformed(type_name.clone());
     let mut fields = Vec::new();
     let mut text = String::new();
-    for f in d["fields"].as_array().ok_or_else(malformed)? {
+    let all = d["fields"].as_array().ok_or_else(malformed)?;
+    if all.len() > MAX_FIELDS {
+        return Err(TypeDescError::TooLarge(
+            type_name,
+            format!("more than {MAX_FIELDS} fields"),
+        ));
+    }
+    for f in all {
         let name = f["name"].as_str().ok_or_else(malformed)?.to_string();
         let t = &f["type"];
         let unsupported = |reason: &str| TypeDescError::Unsupported {
@@ -321,7 +306,7 @@ mod tests {
         let hash = rihs01(&d).unwrap();
         assert!(matches!(
             verified_definitions(&d, &hash),
-            Err(TypeDescError::TooLarge(_))
+            Err(TypeDescError::TooLarge(..))
         ));
         // A binary tree of types: 2^31 leaves from 31 small definitions.
         let level = |k: usize| {
@@ -334,7 +319,7 @@ mod tests {
         let hash = rihs01(&d).unwrap();
         assert!(matches!(
             verified_definitions(&d, &hash),
-            Err(TypeDescError::TooLarge(_))
+            Err(TypeDescError::TooLarge(..))
         ));
         // A type that contains itself.
         let d = json!({"type_description": {"type_name": "evil/msg/Loop", "fields": [field("next", 1, 0, "evil/msg/Loop")]},
@@ -342,7 +327,21 @@ mod tests {
         let hash = rihs01(&d).unwrap();
         assert!(matches!(
             verified_definitions(&d, &hash),
-            Err(TypeDescError::TooLarge(_))
+            Err(TypeDescError::TooLarge(..))
+        ));
+        // A chain of 10,000 types, each nesting the next: refused, not a deep walk.
+        let link = |k: usize| json!({"type_name": format!("evil/msg/L{k}"), "fields": [field("n", 1, 0, &format!("evil/msg/L{}", k + 1))]});
+        let d = json!({"type_description": link(0), "referenced_type_descriptions": (1..10_000).map(link).collect::<Vec<_>>()});
+        let hash = rihs01(&d).unwrap();
+        assert!(matches!(
+            verified_definitions(&d, &hash),
+            Err(TypeDescError::TooLarge(..))
+        ));
+        let d = json!({"type_description": link(0), "referenced_type_descriptions": (1..40).map(link).collect::<Vec<_>>()});
+        let hash = rihs01(&d).unwrap();
+        assert!(matches!(
+            verified_definitions(&d, &hash),
+            Err(TypeDescError::TooLarge(_, why)) if why.contains("deep")
         ));
         let mut w = description();
         w["type_description"]["fields"][0]["type"]["type_id"] = json!(18);

@@ -1,7 +1,13 @@
 //! ROS 1 (Noetic and Debian's ROS 1) behind the same `RosGraph` as ROS 2, so the tools,
 //! the policy and the prompts are the same: a client of our own over XML-RPC (the master
-//! and node APIs) and TCPROS, with no generated code: types come from their peers'
-//! connection headers (checked by md5sum) or from the bundle, translated.
+//! and node APIs) and TCPROS, with no generated code: types come from the bundle,
+//! translated, or from their peers' connection headers (checked by md5sum, bounded).
+//!
+//! ROS 1 has no authentication: every peer is input to check, never to obey. A peer
+//! cannot redefine a type ferrosa ships or has learnt (its connection is refused and
+//! reported), nor change what a watched topic is read as: `watch` (the e-stop's
+//! `/ferrosa/estop` as `std_msgs/Bool`) takes only publishers of the type asked for,
+//! whatever type the master was told.
 //!
 //! What ROS 1 does differently is met here: parameters live on the parameter server
 //! (offered as each node's ROS 2 parameter services, `master`), `/rosout` carries
@@ -16,7 +22,8 @@
 //! - `xmlrpc`: the documents and the HTTP exchange
 //! - `master`: the master's API and the parameter server
 //! - `wire`: TCPROS headers and frames, md5sums, definitions
-//! - `node`: our node's API server, publications and subscriptions
+//! - `node`: our node's API server, publications and services; `node::subscription`
+//!   its subscriptions
 
 pub mod bridge;
 mod master;
@@ -389,7 +396,8 @@ async fn open_rosrpc(
         .map_err(|e| e.to_string())?;
     let header = tokio::time::timeout(PEER_LIMIT, wire::read_header(&mut stream))
         .await
-        .map_err(|_| format!("{uri} sent no connection header"))??;
+        .map_err(|_| format!("{uri} sent no connection header"))?
+        .map_err(|e| e.to_string())?;
     Ok((stream, header))
 }
 
@@ -402,7 +410,7 @@ async fn call(
 ) -> Result<Value, RosError> {
     let uri = node.master.lookup_service(&service).await?;
     node.ensure_definition(&ty)?;
-    let md5 = wire::service_md5sum(&node.wire, &ty).map_err(RosError::Other)?;
+    let md5 = wire::service_md5sum(&node.wire, &ty).map_err(|e| other_error(&ty, e))?;
     let failed = |e: String| RosError::Other(format!("{service}: {e}"));
     let body = cdr::encode_ros1(&node.wire, &format!("{ty}_Request"), &request).map_err(|e| {
         RosError::Encode {
@@ -440,6 +448,10 @@ async fn call(
         type_name: ty,
         reason: e.to_string(),
     })
+}
+
+fn other_error(what: &str, e: impl std::fmt::Display) -> RosError {
+    RosError::Other(format!("{what}: {e}"))
 }
 
 /// A `rosgraph_msgs/Log` as `rcl_interfaces/msg/Log` (levels 1/2/4/8/16 as 10..50).
@@ -482,6 +494,28 @@ impl Reading {
                 Err(RosError::Other(format!("{topic} carries {t}, not {a}")))
             }
             _ => Ok(Reading::AsIs),
+        }
+    }
+
+    /// How a watch reads `topic` when `asked` is the type it must carry: the type
+    /// asked is fixed, whatever the master was told (ROS 1's log read as ROS 2's).
+    fn fixed(asked: &str, topic_type: Option<&str>, topic: &str) -> Reading {
+        let asked = normalize_type(asked);
+        match Reading::of(topic_type, Some(&asked), topic) {
+            Ok(r) => r,
+            Err(e) => {
+                tracing::warn!(target: "ferrosa::ros1", "{e}, as the master says; it is read as {asked} only, from publishers of {asked}");
+                Reading::AsIs
+            }
+        }
+    }
+
+    /// The type a subscription reads for this reading of `asked` (ROS 1's log for ROS
+    /// 2's).
+    fn wire_type(self, asked: &str) -> String {
+        match self {
+            Reading::AsIs => normalize_type(asked),
+            Reading::LogAsRos2 => "rosgraph_msgs/msg/Log".to_string(),
         }
     }
 
@@ -540,7 +574,10 @@ impl RosGraph for Ros1Graph {
         let g = self.snapshot().unwrap_or_default();
         let actual = g.topic_type(topic);
         let reading = Reading::of(actual.as_deref(), type_name, topic);
-        let hint = actual.clone().or(type_name.map(str::to_string));
+        let hint = match (&reading, type_name) {
+            (Ok(r), Some(asked)) => Some(r.wire_type(asked)),
+            _ => actual.clone(),
+        };
         let (node, topic) = (self.node.clone(), topic.to_string());
         let run = self.on_rt(async move {
             let reading = reading?;
@@ -674,14 +711,13 @@ impl RosGraph for Ros1Graph {
         type_name: &'a str,
     ) -> BoxFuture<'a, Result<super::Watch, RosError>> {
         let g = self.snapshot().unwrap_or_default();
-        let reading = Reading::of(g.topic_type(topic).as_deref(), Some(type_name), topic);
+        let reading = Reading::fixed(type_name, g.topic_type(topic).as_deref(), topic);
         let (node, topic, ty) = (
             self.node.clone(),
             topic.to_string(),
-            normalize_type(type_name),
+            reading.wire_type(type_name),
         );
         Box::pin(self.on_rt(async move {
-            let reading = reading?;
             let mut listener = node.listen(&topic, Some(&ty)).await?;
             let (tx, rx) = tokio::sync::mpsc::unbounded_channel();
             tokio::spawn(async move {

@@ -1,11 +1,22 @@
 //! ferrosa's own ROS 1 node: the XML-RPC API other nodes and the master call on it
 //! (`requestTopic`, `publisherUpdate`, `getPid`, …), the TCPROS server its topics'
-//! subscribers connect to, its publications and its subscriptions.
+//! subscribers connect to, its publications and services; its subscriptions are in
+//! `subscription`.
 //!
-//! A publication's definition is the one its subscribers send when theirs differs from
-//! ours and hashes to its md5sum (ferrosa's bundle has ROS 2's definitions; where ROS 1's
-//! differ, a `std_msgs/Header` for one, the peer's wins). A subscription takes whatever
-//! its publishers send (md5sum `*`) and learns the type from their connection header.
+//! Types: a type ferrosa ships (the bundle, translated to ROS 1) or has learnt is never
+//! redefined by a peer: a publisher or subscriber whose md5sum differs is refused for
+//! that connection and reported (`tracing::warn`). A type ferrosa does not know is
+//! learnt from the first peer whose definition hashes to the md5sum it sends
+//! (`wire::learn`, bounded). A subscription asked for with a type (the e-stop's
+//! `std_msgs/Bool`) reads only publishers of exactly that type, whatever the master or
+//! any other node says the topic carries; one without a type reads any publisher whose
+//! type checks out. A `publisherUpdate` (which any local process can send) only adds
+//! publishers: a reader ends when its publisher closes the connection.
+//!
+//! Every socket has a time limit: the API server's requests (`PEER_LIMIT`), connection
+//! headers (`PEER_LIMIT`), frames once their length has come (`wire::FRAME_LIMIT`), a
+//! service client's next request (`SERVICE_IDLE`), and each frame written to a
+//! subscriber (`PEER_LIMIT`: one that stops reading is dropped).
 
 use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -15,16 +26,22 @@ use std::time::Duration;
 use serde_json::Value;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpListener, TcpStream};
-use tokio::task::JoinHandle;
 
+use self::subscription::{SubKey, Subscription, MAX_PUBLISHERS};
 use super::master::Master;
 use super::wire::{self, ros1_type};
 use super::xmlrpc::{self, XValue};
 use crate::ros::msg::{normalize_type, BaseType, Interfaces, Shape};
 use crate::ros::{cdr, RosError};
 
+mod subscription;
+
 /// How long a peer has to answer a connection or a call.
 pub const PEER_LIMIT: Duration = Duration::from_secs(3);
+
+/// How long a persistent service client may wait between requests (others send theirs
+/// within `PEER_LIMIT`).
+pub const SERVICE_IDLE: Duration = Duration::from_secs(600);
 
 pub struct Node {
     this: Weak<Node>,
@@ -40,7 +57,7 @@ pub struct Node {
     services: Mutex<BTreeMap<String, Arc<Served>>>,
     /// Parameters this node set, deleted when it leaves.
     params: Mutex<Vec<String>>,
-    subscriptions: Mutex<BTreeMap<String, Subscription>>,
+    subscriptions: Mutex<BTreeMap<SubKey, Subscription>>,
     next_listener: AtomicU64,
     /// Types the graph's refresh has tried to learn (once each).
     tried: Mutex<std::collections::BTreeSet<String>>,
@@ -62,32 +79,16 @@ struct Served {
     handler: Handler,
 }
 
-struct Subscription {
-    type_name: Option<String>,
-    listeners: Vec<(u64, tokio::sync::mpsc::UnboundedSender<Value>)>,
-    readers: BTreeMap<String, JoinHandle<()>>,
-}
-
-/// A listener on a topic; dropping it ends its share of the subscription.
-pub struct Listener {
-    node: Arc<Node>,
-    topic: String,
-    id: u64,
-    pub rx: tokio::sync::mpsc::UnboundedReceiver<Value>,
-}
-
-impl Drop for Listener {
-    fn drop(&mut self) {
-        let node = self.node.clone();
-        let (topic, id) = (self.topic.clone(), self.id);
-        self.node
-            .rt
-            .spawn(async move { node.unlisten(&topic, id).await });
-    }
-}
-
 fn other(what: &str, e: impl std::fmt::Display) -> RosError {
     RosError::Other(format!("{what}: {e}"))
+}
+
+/// Report a peer refused (the operator reads warnings; the peer gets the reason) and
+/// give the reason back.
+fn refused(topic: &str, peer: &str, why: impl std::fmt::Display) -> String {
+    let why = format!("{topic}: refused {peer}: {why}");
+    tracing::warn!(target: "ferrosa::ros1", "{why}");
+    why
 }
 
 impl Node {
@@ -141,13 +142,21 @@ impl Node {
     // ------------------------------------------------------------ the node's API
 
     async fn serve_api(&self, mut stream: TcpStream) {
-        let answer = match xmlrpc::read_http(&mut stream).await {
-            Ok((_, body)) => match xmlrpc::parse_call(&body) {
+        let read = xmlrpc::read_http(&mut stream, xmlrpc::MAX_REQUEST);
+        let answer = match tokio::time::timeout(PEER_LIMIT, read).await {
+            Ok(Ok((_, body))) => match xmlrpc::parse_call(&body) {
                 Ok((method, params)) => self.dispatch(&method, &params).await,
-                Err(e) => reply(-1, &e, XValue::Int(0)),
+                Err(e) => {
+                    tracing::debug!("XML-RPC request: {e}");
+                    reply(-1, &e.to_string(), XValue::Int(0))
+                }
             },
-            Err(e) => {
+            Ok(Err(e)) => {
                 tracing::debug!("XML-RPC request: {e}");
+                return;
+            }
+            Err(_) => {
+                tracing::debug!("XML-RPC request: none within {PEER_LIMIT:?}");
                 return;
             }
         };
@@ -156,7 +165,7 @@ impl Node {
             "HTTP/1.0 200 OK\r\nContent-Type: text/xml\r\nContent-Length: {}\r\n\r\n{doc}",
             doc.len()
         );
-        let _ = stream.write_all(http.as_bytes()).await;
+        let _ = tokio::time::timeout(PEER_LIMIT, stream.write_all(http.as_bytes())).await;
     }
 
     async fn dispatch(&self, method: &str, params: &[XValue]) -> XValue {
@@ -179,9 +188,9 @@ impl Node {
                         .collect()
                 } else {
                     let subs = self.subscriptions.lock().expect("subscriptions");
-                    subs.iter()
-                        .map(|(t, s)| {
-                            let ty = s.type_name.as_deref().map_or("*".into(), ros1_type);
+                    subs.keys()
+                        .map(|(t, ty)| {
+                            let ty = ty.as_deref().map_or("*".into(), ros1_type);
                             XValue::Array(vec![XValue::str(t), XValue::str(&ty)])
                         })
                         .collect()
@@ -210,14 +219,28 @@ impl Node {
                 }
             }
             "publisherUpdate" => {
+                // Any local process can send this: it only adds publishers to read
+                // (each checked by its type), never drops one.
                 let uris: Vec<String> = params
                     .get(2)
                     .map(XValue::as_array)
                     .unwrap_or_default()
                     .iter()
-                    .filter_map(|u| u.as_str().map(str::to_string))
+                    .filter_map(|u| u.as_str().filter(|u| u.starts_with("http://")))
+                    .take(MAX_PUBLISHERS)
+                    .map(str::to_string)
                     .collect();
-                self.connect_publishers(arg(1), &uris, true);
+                let keys: Vec<SubKey> = self
+                    .subscriptions
+                    .lock()
+                    .expect("subscriptions")
+                    .keys()
+                    .filter(|(t, _)| t == arg(1))
+                    .cloned()
+                    .collect();
+                for key in keys {
+                    self.connect_publishers(&key, &uris);
+                }
                 reply(1, "", XValue::Int(0))
             }
             other => reply(-1, &format!("no method {other}"), XValue::Int(0)),
@@ -233,7 +256,7 @@ impl Node {
         type_name: &str,
     ) -> Result<Arc<Publication>, RosError> {
         let ty = normalize_type(type_name);
-        if !valid_type(&ty) {
+        if !wire::valid_type(&ty) {
             return Err(RosError::Encode {
                 type_name: type_name.to_string(),
                 reason: "not a message type (package/Name)".into(),
@@ -291,7 +314,8 @@ impl Node {
         stream.set_nodelay(true).map_err(|e| e.to_string())?;
         let header = tokio::time::timeout(PEER_LIMIT, wire::read_header(&mut stream))
             .await
-            .map_err(|_| "no connection header")??;
+            .map_err(|_| "no connection header".to_string())?
+            .map_err(|e| e.to_string())?;
         if header.contains_key("service") {
             self.serve_client(stream, &header).await
         } else {
@@ -320,36 +344,38 @@ impl Node {
         };
         let ty = &publication.type_name;
         let theirs = header.get("md5sum").map(String::as_str).unwrap_or("*");
-        // Ours may be missing: a type neither bundled nor yet seen is learnt from the
-        // first subscriber that sends it.
-        let mut ours = wire::md5sum(&self.wire, ty).ok();
-        if theirs != "*" && Some(theirs) != ours.as_deref() {
-            // Their definition of the same type, if it hashes to what they sent.
-            let same_type = header.get("type").is_some_and(|t| normalize_type(t) == *ty);
-            let text = header.get("message_definition").filter(|t| !t.is_empty());
-            match (same_type, text) {
-                (true, Some(text)) => {
-                    wire::learn(&self.wire, ty, text, theirs)?;
-                    ours = Some(theirs.to_string());
+        let peer = format!("the subscriber {}", caller(header));
+        let checked = if theirs == "*" {
+            // `rostopic echo` and the like take any type: ours, if we know it.
+            wire::md5sum(&self.wire, ty).map_err(|_| {
+                format!("no definition of {ty} is known yet (the subscriber sent none)")
+            })
+        } else {
+            let asked = header.get("type").map(|t| normalize_type(t));
+            match asked {
+                Some(t) if t != *ty && t != "*" => {
+                    Err(format!("it wants {t}, {topic} is published here as {ty}"))
                 }
                 _ => {
-                    let why = format!("{topic}: the subscriber wants {:?} with md5sum {theirs}, this publisher has {ty} with {ours:?}", header.get("type"));
-                    let _ = stream
-                        .write_all(&wire::encode_header(&[("error", &why)]))
-                        .await;
-                    return Err(why);
+                    let text = header.get("message_definition").map_or("", String::as_str);
+                    let ours = |n: &str| self.ensure_definition(n).is_ok();
+                    wire::learn(&self.wire, ty, text, theirs, &ours)
+                        .map(|()| theirs.to_string())
+                        .map_err(|e| e.to_string())
                 }
             }
-        }
-        let Some(ours) = ours else {
-            let why =
-                format!("{topic}: no definition of {ty} is known yet (the subscriber sent none)");
-            let _ = stream
-                .write_all(&wire::encode_header(&[("error", &why)]))
-                .await;
-            return Err(why);
         };
-        let definition = wire::full_text(&self.wire, ty)?;
+        let ours = match checked {
+            Ok(md5) => md5,
+            Err(e) => {
+                let why = refused(&topic, &peer, e);
+                let _ = stream
+                    .write_all(&wire::encode_header(&[("error", &why)]))
+                    .await;
+                return Err(why);
+            }
+        };
+        let definition = wire::full_text(&self.wire, ty).map_err(|e| e.to_string())?;
         let ros1 = ros1_type(ty);
         let caller = self.master.caller_id.clone();
         let answer = wire::encode_header(&[
@@ -397,6 +423,10 @@ impl Node {
         }
         if self.wire.has(&ty) {
             return Ok(());
+        }
+        if ty == "std_msgs/msg/Header" {
+            // ROS 1's (with `seq`), not the bundle's ROS 2 one.
+            return self.wire.add(&ty, wire::HEADER).map_err(|e| other(&ty, e));
         }
         let text = self.translate(&ty)?;
         self.wire.add(&ty, &text).map_err(|e| other(&ty, e))
@@ -447,7 +477,7 @@ impl Node {
     ) -> Result<(), RosError> {
         let ty = normalize_type(type_name);
         self.ensure_definition(&ty)?;
-        let md5 = wire::service_md5sum(&self.wire, &ty).map_err(RosError::Other)?;
+        let md5 = wire::service_md5sum(&self.wire, &ty).map_err(|e| other(&ty, e))?;
         self.services.lock().expect("services").insert(
             service.to_string(),
             Arc::new(Served {
@@ -495,22 +525,24 @@ impl Node {
             .get(&service)
             .cloned();
         let theirs = header.get("md5sum").map(String::as_str).unwrap_or("*");
-        let refusal = match &served {
-            None => Some(format!("{service} is not served here")),
-            Some(s) if theirs != "*" && theirs != s.md5 => Some(format!(
-                "request from {:?}: md5sums do not match: [{theirs}] vs. [{}]",
-                header.get("callerid"),
-                s.md5
+        let served = match served {
+            None => Err(format!("{service} is not served here")),
+            Some(s) if theirs != "*" && theirs != s.md5 => Err(refused(
+                &service,
+                &format!("the client {}", caller(header)),
+                format!("md5sums do not match: [{theirs}] vs. [{}]", s.md5),
             )),
-            Some(_) => None,
+            Some(s) => Ok(s),
         };
-        if let Some(why) = refusal {
-            let _ = stream
-                .write_all(&wire::encode_header(&[("error", &why)]))
-                .await;
-            return Err(why);
-        }
-        let served = served.expect("checked above");
+        let served = match served {
+            Ok(s) => s,
+            Err(why) => {
+                let _ = stream
+                    .write_all(&wire::encode_header(&[("error", &why)]))
+                    .await;
+                return Err(why);
+            }
+        };
         let ros1 = ros1_type(&served.type_name);
         let caller = self.master.caller_id.clone();
         let answer = wire::encode_header(&[
@@ -526,7 +558,11 @@ impl Node {
         }
         let ty = &served.type_name;
         // One request per connection unless the client keeps it (`persistent`).
-        while let Ok(frame) = wire::read_frame(&mut stream).await {
+        let idle = match header.get("persistent").map(String::as_str) {
+            Some("1") => SERVICE_IDLE,
+            _ => PEER_LIMIT,
+        };
+        while let Ok(Ok(frame)) = tokio::time::timeout(idle, wire::read_frame(&mut stream)).await {
             let outcome = match cdr::decode_ros1(&self.wire, &format!("{ty}_Request"), &frame) {
                 Ok(request) => (served.handler)(request).await.and_then(|response| {
                     cdr::encode_ros1(&self.wire, &format!("{ty}_Response"), &response)
@@ -546,116 +582,6 @@ impl Node {
         Ok(())
     }
 
-    // ------------------------------------------------------------ subscribing
-
-    /// Listen to `topic` (registering with the master on the first listener).
-    pub async fn listen(
-        self: &Arc<Self>,
-        topic: &str,
-        type_name: Option<&str>,
-    ) -> Result<Listener, RosError> {
-        let (tx, rx) = tokio::sync::mpsc::unbounded_channel();
-        let id = self.next_listener.fetch_add(1, Ordering::Relaxed);
-        let first = {
-            let mut subs = self.subscriptions.lock().expect("subscriptions");
-            let entry = subs
-                .entry(topic.to_string())
-                .or_insert_with(|| Subscription {
-                    type_name: type_name.map(normalize_type),
-                    listeners: Vec::new(),
-                    readers: BTreeMap::new(),
-                });
-            entry.listeners.push((id, tx));
-            entry.listeners.len() == 1 && entry.readers.is_empty()
-        };
-        let listener = Listener {
-            node: self.clone(),
-            topic: topic.to_string(),
-            id,
-            rx,
-        };
-        if first {
-            let ty = type_name.map_or("*".to_string(), ros1_type);
-            let publishers = self
-                .master
-                .call(
-                    "registerSubscriber",
-                    &[
-                        XValue::str(topic),
-                        XValue::str(&ty),
-                        XValue::str(&self.api_uri),
-                    ],
-                )
-                .await?;
-            let uris: Vec<String> = publishers
-                .as_array()
-                .iter()
-                .filter_map(|u| u.as_str().map(str::to_string))
-                .collect();
-            self.connect_publishers(topic, &uris, false);
-        }
-        Ok(listener)
-    }
-
-    async fn unlisten(self: &Arc<Self>, topic: &str, id: u64) {
-        let ended = {
-            let mut subs = self.subscriptions.lock().expect("subscriptions");
-            let Some(sub) = subs.get_mut(topic) else {
-                return;
-            };
-            sub.listeners.retain(|(i, _)| *i != id);
-            if sub.listeners.is_empty() {
-                for r in sub.readers.values() {
-                    r.abort();
-                }
-                subs.remove(topic);
-                true
-            } else {
-                false
-            }
-        };
-        if ended {
-            let _ = self
-                .master
-                .call(
-                    "unregisterSubscriber",
-                    &[XValue::str(topic), XValue::str(&self.api_uri)],
-                )
-                .await;
-        }
-    }
-
-    /// Read from each publisher in `uris` not yet read from; with `exact`, stop reading
-    /// from those no longer listed.
-    fn connect_publishers(&self, topic: &str, uris: &[String], exact: bool) {
-        let Some(me) = self.me() else { return };
-        let mut subs = self.subscriptions.lock().expect("subscriptions");
-        let Some(sub) = subs.get_mut(topic) else {
-            return;
-        };
-        if exact {
-            sub.readers.retain(|uri, r| {
-                let keep = uris.contains(uri);
-                if !keep {
-                    r.abort();
-                }
-                keep
-            });
-        }
-        for uri in uris {
-            if uri == &self.api_uri || sub.readers.contains_key(uri) {
-                continue;
-            }
-            let (me, topic, uri2) = (me.clone(), topic.to_string(), uri.clone());
-            let task = self.rt.spawn(async move {
-                if let Err(e) = me.read_publisher(&topic, &uri2).await {
-                    tracing::debug!("{topic} from {uri2}: {e}");
-                }
-            });
-            sub.readers.insert(uri.clone(), task);
-        }
-    }
-
     /// Whether `ty` is tried for the first time (and now marked tried).
     pub fn tried(&self, ty: &str) -> bool {
         self.tried.lock().expect("tried").insert(ty.to_string())
@@ -663,77 +589,6 @@ impl Node {
 
     fn me(&self) -> Option<Arc<Node>> {
         self.this.upgrade()
-    }
-
-    /// Connect to the publisher of `topic` whose API is `uri`: the stream after the
-    /// headers, and the type it sends (its definition learnt).
-    async fn open_publisher(&self, topic: &str, uri: &str) -> Result<(TcpStream, String), String> {
-        let protocols = XValue::Array(vec![XValue::Array(vec![XValue::str("TCPROS")])]);
-        let params = [
-            XValue::str(&self.master.caller_id),
-            XValue::str(topic),
-            protocols,
-        ];
-        let answer = xmlrpc::call(uri, "requestTopic", &params, PEER_LIMIT).await?;
-        let endpoint = match answer.as_array() {
-            [code, _, endpoint] if code.as_int() == Some(1) => endpoint.clone(),
-            _ => return Err(format!("requestTopic answered {answer:?}")),
-        };
-        let (host, port) = match endpoint.as_array() {
-            [_, host, port] => (
-                host.as_str().unwrap_or_default().to_string(),
-                port.as_int().unwrap_or_default(),
-            ),
-            _ => return Err(format!("requestTopic offered {endpoint:?}")),
-        };
-        let port = u16::try_from(port).map_err(|_| format!("a port {port}"))?;
-        let mut stream =
-            tokio::time::timeout(PEER_LIMIT, TcpStream::connect((host.as_str(), port)))
-                .await
-                .map_err(|_| "connecting timed out".to_string())?
-                .map_err(|e| e.to_string())?;
-        stream.set_nodelay(true).map_err(|e| e.to_string())?;
-        let caller = self.master.caller_id.clone();
-        let hello = wire::encode_header(&[
-            ("callerid", &caller),
-            ("topic", topic),
-            ("md5sum", "*"),
-            ("type", "*"),
-            ("tcp_nodelay", "1"),
-        ]);
-        stream.write_all(&hello).await.map_err(|e| e.to_string())?;
-        let header = tokio::time::timeout(PEER_LIMIT, wire::read_header(&mut stream))
-            .await
-            .map_err(|_| "no connection header".to_string())??;
-        if let Some(e) = header.get("error") {
-            return Err(e.clone());
-        }
-        let ty = normalize_type(header.get("type").map(String::as_str).unwrap_or_default());
-        let md5 = header.get("md5sum").cloned().unwrap_or_default();
-        if wire::md5sum(&self.wire, &ty).ok().as_deref() != Some(md5.as_str()) {
-            let text = header
-                .get("message_definition")
-                .cloned()
-                .unwrap_or_default();
-            wire::learn(&self.wire, &ty, &text, &md5)?;
-        }
-        Ok((stream, ty))
-    }
-
-    async fn read_publisher(self: Arc<Self>, topic: &str, uri: &str) -> Result<(), String> {
-        let (mut stream, ty) = self.open_publisher(topic, uri).await?;
-        loop {
-            let frame = wire::read_frame(&mut stream)
-                .await
-                .map_err(|e| e.to_string())?;
-            let message = cdr::decode_ros1(&self.wire, &ty, &frame).map_err(|e| e.to_string())?;
-            let mut subs = self.subscriptions.lock().expect("subscriptions");
-            let Some(sub) = subs.get_mut(topic) else {
-                return Ok(());
-            };
-            sub.listeners
-                .retain(|(_, tx)| tx.send(message.clone()).is_ok());
-        }
     }
 
     /// Make `type_name` (used on `topic`) known: from the bundle, else from a
@@ -759,7 +614,7 @@ impl Node {
                 Ok(XValue::Str(uri)) => uri,
                 _ => continue,
             };
-            match self.open_publisher(topic, &uri).await {
+            match self.open_publisher(topic, &uri, Some(&ty)).await {
                 Ok(_) if self.wire.has(&ty) => return Ok(()),
                 Ok((_, other)) => why = format!("{topic} carries {other}, not {ty}"),
                 Err(e) => why = e,
@@ -812,13 +667,14 @@ impl Node {
             .keys()
             .cloned()
             .collect();
-        let subs: Vec<String> = self
+        let mut subs: Vec<String> = self
             .subscriptions
             .lock()
             .expect("subscriptions")
             .keys()
-            .cloned()
+            .map(|(t, _)| t.clone())
             .collect();
+        subs.dedup();
         for t in pubs {
             let _ = self
                 .master
@@ -850,12 +706,18 @@ impl Publication {
             }
         })?;
         let mut conns = self.connections.lock().await;
-        let mut kept = Vec::new();
-        for (id, mut c) in conns.drain(..) {
-            if wire::write_frame(&mut c, &bytes).await.is_ok() {
-                kept.push((id, c));
-            }
-        }
+        // To every subscriber at once, each within `PEER_LIMIT`: one that stops reading
+        // is dropped, and cannot hold up the others (the brake's zero among them).
+        let bytes = &bytes;
+        let writes = conns.drain(..).map(|(id, mut c)| async move {
+            let sent = tokio::time::timeout(PEER_LIMIT, wire::write_frame(&mut c, bytes)).await;
+            matches!(sent, Ok(Ok(()))).then_some((id, c))
+        });
+        let kept: Vec<_> = futures::future::join_all(writes)
+            .await
+            .into_iter()
+            .flatten()
+            .collect();
         let n = kept.len();
         *conns = kept;
         Ok(n)
@@ -866,14 +728,16 @@ impl Publication {
     }
 }
 
-/// `pkg/msg/Name` with ROS names' letters only.
-fn valid_type(ty: &str) -> bool {
-    let parts: Vec<&str> = ty.split('/').collect();
-    parts.len() == 3
-        && parts.iter().all(|p| {
-            p.chars().next().is_some_and(|c| c.is_ascii_alphabetic())
-                && p.chars().all(|c| c.is_ascii_alphanumeric() || c == '_')
-        })
+/// Who a connection header says it is from, for messages.
+fn caller(header: &BTreeMap<String, String>) -> String {
+    header
+        .get("callerid")
+        .map_or_else(|| "(no callerid)".to_string(), |c| short(c))
+}
+
+/// At most 80 characters of what a peer sent, for messages.
+fn short(s: &str) -> String {
+    s.chars().take(80).collect()
 }
 
 fn reply(code: i64, status: &str, value: XValue) -> XValue {
