@@ -22,8 +22,7 @@
 //! - `xmlrpc`: the documents and the HTTP exchange
 //! - `master`: the master's API and the parameter server
 //! - `wire`: TCPROS headers and frames, md5sums, definitions
-//! - `node`: our node's API server, publications and services; `node::subscription`
-//!   its subscriptions
+//! - `node`: our node's API server, publications, services and subscriptions
 
 pub mod bridge;
 mod master;
