@@ -6,11 +6,16 @@
 //! The ways of saying stop are data: `data/stop/<language>.txt`, one file per language,
 //! built into the binary. A sentence asks to stop when, after filler words ("please",
 //! "hey", "por favor", "bitte"), it opens with one of its language's stop phrases and says
-//! little more: up to eight more words for a plain stop ("stop the robot now"), up to two
-//! and not as a question for a phrase that also means something else ("wait", "para",
-//! "hold on"). A stop phrase that does not open its sentence ("why did it stop?", "don't
-//! stop", "no pares") is not a stop. A request of several sentences stops when any does:
-//! a mistake here brakes a robot that was not asked to, never the other way round.
+//! little more: up to ten more words for a plain stop ("stop the robot now"; the stop
+//! said again does not count), up to two for a phrase that also means something else
+//! ("wait", "para", "hold on"). A plain stop also stops when it closes a short sentence
+//! that does not negate it and is no question ("I said stop", "turtle, halt", not "why
+//! did it stop"). A question stops only when
+//! it asks politely ("can you stop?"), never "why did it stop?" or "brake status?".
+//! Phrases a language uses for something else ("para adelante": forward) are listed as
+//! never stops. A stop phrase elsewhere ("don't stop", "no pares") is not a stop. A
+//! request of several sentences stops when any does: a mistake here brakes a robot that
+//! was not asked to, never the other way round.
 //!
 //! Owns the reading only; engaging the e-stop is the caller's (`estop`).
 
@@ -30,9 +35,18 @@ const TABLES: [(&str, &str); 6] = [
 ];
 
 /// Words a plain stop may be followed by ("stop the turtle right now, please").
-const MAX_AFTER_STOP: usize = 8;
+const MAX_AFTER_STOP: usize = 10;
 /// Words a stop that also means something else may be followed by ("para el robot").
 const MAX_AFTER_ALONE: usize = 2;
+/// Words a plain stop that closes its sentence may follow ("I said stop").
+const MAX_BEFORE_STOP: usize = 4;
+
+/// Words that negate the stop that follows them ("don't stop", "nicht stoppen",
+/// "ne t'arrête pas"): "t" is what "don't" leaves once split at the apostrophe.
+const NEGATIONS: &[&str] = &[
+    "don", "dont", "t", "not", "never", "nicht", "nie", "non", "nao", "ne", "pas", "jamais",
+    "nunca", "mai", "kein", "keine",
+];
 
 /// One phrase: its words, each whole or (ending in `*`) a prefix.
 #[derive(Debug)]
@@ -64,6 +78,8 @@ impl Phrase {
 struct Table {
     stop: Vec<Phrase>,
     alone: Vec<Phrase>,
+    never: Vec<Phrase>,
+    question: Vec<String>,
     filler: Vec<String>,
 }
 
@@ -78,6 +94,7 @@ fn table() -> &'static Table {
         // Longest first, so "hold on" is tried before a one-word phrase it begins with.
         t.stop.sort_by_key(|p| std::cmp::Reverse(p.0.len()));
         t.alone.sort_by_key(|p| std::cmp::Reverse(p.0.len()));
+        t.never.sort_by_key(|p| std::cmp::Reverse(p.0.len()));
         t
     })
 }
@@ -90,6 +107,8 @@ fn read_table(text: &str, t: &mut Table) {
         None,
         Stop,
         Alone,
+        Never,
+        Question,
         Filler,
     }
     let mut section = Section::None;
@@ -100,12 +119,16 @@ fn read_table(text: &str, t: &mut Table) {
         match line {
             "[stop]" => section = Section::Stop,
             "[alone]" => section = Section::Alone,
+            "[never]" => section = Section::Never,
+            "[question]" => section = Section::Question,
             "[filler]" => section = Section::Filler,
             _ => {
                 let words: Vec<String> = line.split_whitespace().map(str::to_string).collect();
                 match section {
                     Section::Stop => t.stop.push(Phrase(words)),
                     Section::Alone => t.alone.push(Phrase(words)),
+                    Section::Never => t.never.push(Phrase(words)),
+                    Section::Question => t.question.extend(words),
                     Section::Filler => t.filler.extend(words),
                     Section::None => {}
                 }
@@ -152,18 +175,50 @@ fn sentence_stops(text: &str, question: bool) -> bool {
     let words = folded_words(text);
     let is_filler = |w: &str| t.filler.iter().any(|f| f == w);
     let start = words.iter().take_while(|w| is_filler(w)).count();
+    let polite = start > 0;
     let words = &words[start..];
-    let after = |n: usize| words[n..].iter().filter(|w| !is_filler(w)).count();
+    if t.never.iter().any(|p| p.opens(words, is_filler).is_some()) {
+        return false;
+    }
+    // The stop said again ("stop, stop, stop") is no more words.
+    let is_stop = |w: &str| {
+        t.stop
+            .iter()
+            .any(|p| p.0.len() == 1 && p.opens(&[w.to_string()], |_| false).is_some())
+    };
+    let after = |n: usize| {
+        words[n..]
+            .iter()
+            .filter(|w| !is_filler(w) && !is_stop(w))
+            .count()
+    };
     if let Some(n) = t.stop.iter().find_map(|p| p.opens(words, is_filler)) {
-        return after(n) <= MAX_AFTER_STOP;
+        return (!question || polite) && after(n) <= MAX_AFTER_STOP;
     }
     if question {
         return false;
     }
-    t.alone
-        .iter()
-        .find_map(|p| p.opens(words, is_filler))
-        .is_some_and(|n| after(n) <= MAX_AFTER_ALONE)
+    if let Some(n) = t.alone.iter().find_map(|p| p.opens(words, is_filler)) {
+        return after(n) <= MAX_AFTER_ALONE;
+    }
+    closes_with_stop(t, words, &is_filler)
+}
+
+/// A plain stop closing a short sentence that does not negate it ("I said stop",
+/// "turtle, halt", "no no no stop").
+fn closes_with_stop(t: &Table, words: &[String], is_filler: &impl Fn(&str) -> bool) -> bool {
+    let words: Vec<String> = words.iter().filter(|w| !is_filler(w)).cloned().collect();
+    if words.first().is_some_and(|w| t.question.contains(w)) {
+        return false;
+    }
+    (1..words.len()).any(|i| {
+        let tail = &words[i..];
+        i <= MAX_BEFORE_STOP
+            && !NEGATIONS.contains(&words[i - 1].as_str())
+            && t.stop
+                .iter()
+                .any(|p| p.opens(tail, |_| false) == Some(tail.len()))
+    })
 }
 
 #[cfg(test)]
@@ -254,6 +309,36 @@ mod tests {
             "",
             "...",
             "what does the brake topic carry? and the stop service?",
+        ] {
+            assert!(!asks_to_stop(s), "{s:?}");
+        }
+    }
+
+    #[test]
+    fn stops_said_again_late_or_politely() {
+        for s in [
+            "I said stop",
+            "turtle, stop",
+            "no no no stop",
+            "stop stop stop stop stop stop stop stop stop stop",
+            "Stoppen Sie den Roboter!",
+            "Roboter anhalten!",
+            "can you stop?",
+            "Hold!",
+            "¡Páralo!",
+            "não se mova",
+        ] {
+            assert!(asks_to_stop(s), "{s:?}");
+        }
+        for s in [
+            "Brake status?",
+            "Emergency exits on the map?",
+            "Para adelante dos metros",
+            "para a esquerda",
+            "Chega mais perto da parede",
+            "Basta andare avanti di un metro",
+            "the turtle did not stop",
+            "why did it stop",
         ] {
             assert!(!asks_to_stop(s), "{s:?}");
         }

@@ -283,7 +283,11 @@ pub fn run(args: &McpArgs) -> anyhow::Result<()> {
                 running.waiting().await?;
                 Ok(())
             }
-            Some(addr) => serve_http(server, addr).await,
+            // Ctrl-C or TERM end it with the secret's file removed (dropped here).
+            Some(addr) => tokio::select! {
+                served = serve_http(server, addr) => served,
+                _ = super::term::interrupted() => Ok(()),
+            },
         }
     });
     rt.shutdown_timeout(Duration::from_secs(2));

@@ -33,8 +33,9 @@ pub struct Input {
 }
 
 impl Input {
-    /// Start reading standard input. `/stop` (and `/estop`), and any line that asks to
-    /// stop in words (`stop_intent`: "stop", "hold on", "¡para!"), trigger `estop` at once
+    /// Start reading standard input. `/stop` (and `/estop`), and any line that is not a
+    /// command and asks to stop in words (`agent::asks_to_stop`: "stop", "hold on",
+    /// "¡para!"), trigger `estop` at once
     /// and set `cancel`, whatever is running or waiting for an answer; every line (those
     /// too) is also passed on.
     pub fn start(estop: Arc<EStop>, cancel: Arc<std::sync::atomic::AtomicBool>) -> Arc<Input> {
@@ -45,7 +46,10 @@ impl Input {
                 let stdin = std::io::stdin();
                 for line in stdin.lock().lines() {
                     let Ok(line) = line else { break };
-                    let said = crate::stop_intent::asks_to_stop(&line);
+                    // A command (`/call NAME {json}`, `/reset`) is not read as words: its
+                    // JSON may hold any ("wait_s").
+                    let command = line.trim_start().starts_with('/');
+                    let said = !command && crate::agent::asks_to_stop(&line);
                     if said || matches!(line.trim(), "/stop" | "/estop") {
                         let source = match said {
                             true => "the operator (typed a stop)",
@@ -68,6 +72,22 @@ impl Input {
     /// The next line; `None` at the end of input.
     pub fn next_line(&self) -> Option<String> {
         self.lines.lock().expect("input lock").recv().ok()
+    }
+}
+
+/// Resolves at Ctrl-C, or at the TERM a service manager sends (what ends a server).
+pub async fn interrupted() {
+    use tokio::signal::unix::{signal, SignalKind};
+    match signal(SignalKind::terminate()) {
+        Ok(mut term) => {
+            tokio::select! {
+                _ = tokio::signal::ctrl_c() => {}
+                _ = term.recv() => {}
+            }
+        }
+        Err(_) => {
+            let _ = tokio::signal::ctrl_c().await;
+        }
     }
 }
 

@@ -4,8 +4,9 @@
 //! - On loopback, the `Host` must be a loopback name: a page elsewhere cannot reach the
 //!   console through a name it rebinds to 127.0.0.1.
 //! - Every request carries the console's secret (`ui::secret`), on every address,
-//!   loopback included: as `Authorization: Bearer`, or in the HttpOnly cookie the browser
-//!   got by opening the printed address (its login code works once) or `/?token=…`.
+//!   loopback included: as `Authorization: Bearer`, or the HttpOnly cookie of a session
+//!   the browser started by opening the printed address (its login code works once) or
+//!   `/?token=…` (the cookie holds the session, never the secret).
 //! - A POST must send JSON (a recording to transcribe: WAV) and, when the browser names
 //!   its origin, come from the console's own page: another site's form cannot approve a
 //!   call or ask for a move.
@@ -45,6 +46,9 @@ use crate::ui::secret::{bearer, Secret};
 
 /// The longest request the console takes, in characters.
 const MAX_REQUEST_CHARS: usize = 2000;
+/// Browser sessions kept at once (each a sign-in with the secret or the login code);
+/// past it the oldest is signed out.
+const MAX_SESSIONS: usize = 64;
 /// The largest recording taken (30 s of 48 kHz stereo 32-bit is 11.5 MB).
 const MAX_RECORDING: usize = 12 << 20;
 
@@ -62,10 +66,12 @@ pub struct App {
     secret: Arc<Secret>,
     /// The printed address's login code, until it is used.
     login: Arc<Mutex<Option<String>>>,
+    /// The sessions signed in (their cookies), newest last.
+    sessions: Arc<Mutex<Vec<String>>>,
     loopback: bool,
     trace: Option<Arc<PathBuf>>,
     next_run: Arc<AtomicU64>,
-    /// The token's cookie, named for the port (cookies are not kept apart by port).
+    /// The session cookie's name, for the port (cookies are not kept apart by port).
     cookie: Arc<str>,
     ears: Arc<Ears>,
 }
@@ -99,6 +105,7 @@ impl App {
             info: Arc::new(info),
             secret: sign_in.secret,
             login: Arc::new(Mutex::new(Some(sign_in.login))),
+            sessions: Arc::new(Mutex::new(Vec::new())),
             loopback: bind.ip().is_loopback(),
             trace: trace.map(Arc::new),
             next_run: Arc::new(AtomicU64::new(1)),
@@ -122,22 +129,25 @@ impl App {
         })
     }
 
-    /// `None` when `req` holds the secret (header or cookie); otherwise the answer: a
-    /// redirect that keeps the secret as a cookie when the address carries the login
-    /// code (once) or the token, else 401 saying how to get in.
+    /// `None` when `req` holds the secret (bearer) or a session's cookie; otherwise the
+    /// answer: a redirect that starts a session (an HttpOnly cookie) when a GET's address
+    /// carries the login code (once) or the token, else 401 saying how to get in.
     fn authenticate(&self, req: &Request) -> Option<Response> {
         let headers = req.headers();
-        let cookie = headers
-            .get_all(header::COOKIE)
-            .iter()
-            .filter_map(|h| h.to_str().ok())
-            .flat_map(|h| h.split(';'))
-            .filter_map(|c| c.trim().strip_prefix(&*self.cookie)?.strip_prefix('='));
-        if bearer(headers)
-            .into_iter()
-            .chain(cookie)
-            .any(|t| self.secret.matches(t))
-        {
+        if bearer(headers).is_some_and(|t| self.secret.matches(t)) {
+            return None;
+        }
+        let signed_in = {
+            let sessions = self.sessions.lock().unwrap_or_else(|p| p.into_inner());
+            headers
+                .get_all(header::COOKIE)
+                .iter()
+                .filter_map(|h| h.to_str().ok())
+                .flat_map(|h| h.split(';'))
+                .filter_map(|c| c.trim().strip_prefix(&*self.cookie)?.strip_prefix('='))
+                .any(|c| sessions.iter().any(|s| crate::ui::secret::same(s, c)))
+        };
+        if signed_in {
             return None;
         }
         let query = req.uri().query().unwrap_or_default();
@@ -146,32 +156,53 @@ impl App {
                 .split('&')
                 .find_map(|kv| kv.strip_prefix(key)?.strip_prefix('='))
         };
-        let by_token = given("token").is_some_and(|t| self.secret.matches(t));
-        // The login code is spent by its first use, right or wrong page.
-        let by_login = given("login").is_some_and(|code| {
-            let mut login = self.login.lock().unwrap_or_else(|p| p.into_inner());
-            let ok = login
-                .as_deref()
-                .is_some_and(|l| crate::ui::secret::same(l, code));
-            if ok {
-                *login = None;
+        let get = req.method() == Method::GET;
+        let by_token = get && given("token").is_some_and(|t| self.secret.matches(t));
+        // The login code is spent by its first use (a GET: a prefetch's HEAD does not).
+        let by_login = get
+            && given("login").is_some_and(|code| {
+                let mut login = self.login.lock().unwrap_or_else(|p| p.into_inner());
+                let ok = login
+                    .as_deref()
+                    .is_some_and(|l| crate::ui::secret::same(l, code));
+                if ok {
+                    *login = None;
+                }
+                ok
+            });
+        if by_token || by_login {
+            // A session of its own in the cookie, not the secret: browsers send a host's
+            // cookies to every port of it, and another local server must not learn the
+            // secret from them. The address bar loses the code.
+            let session = match crate::ui::secret::random_hex(16) {
+                Ok(s) => s,
+                Err(e) => {
+                    return Some(
+                        fail(
+                            StatusCode::INTERNAL_SERVER_ERROR,
+                            format!(
+                                "no session could be drawn ({e}); send Authorization: Bearer TOKEN"
+                            ),
+                        )
+                        .into_response(),
+                    )
+                }
+            };
+            {
+                let mut sessions = self.sessions.lock().unwrap_or_else(|p| p.into_inner());
+                if sessions.len() >= MAX_SESSIONS {
+                    sessions.remove(0);
+                }
+                sessions.push(session.clone());
             }
-            ok
-        });
-        if req.method() == Method::GET && (by_token || by_login) {
-            // Kept as a cookie, and taken off the address bar.
             let cookie = format!(
-                "{}={}; Path=/; HttpOnly; SameSite=Strict",
-                self.cookie,
-                self.secret.token()
+                "{}={session}; Path=/; HttpOnly; SameSite=Strict",
+                self.cookie
             );
             return Some(
                 (
                     StatusCode::SEE_OTHER,
-                    [
-                        (header::SET_COOKIE, cookie),
-                        (header::LOCATION, req.uri().path().to_string()),
-                    ],
+                    [(header::SET_COOKIE, cookie), (header::LOCATION, "/".into())],
                 )
                     .into_response(),
             );
@@ -413,20 +444,22 @@ async fn ask(State(app): State<App>, bytes: Bytes) -> Result<Response, Failure> 
     if text.is_empty() {
         return Err(fail(StatusCode::BAD_REQUEST, "the request is empty"));
     }
-    if text.chars().count() > MAX_REQUEST_CHARS {
-        return Err(fail(
-            StatusCode::PAYLOAD_TOO_LARGE,
-            format!("a request is at most {MAX_REQUEST_CHARS} characters"),
-        ));
-    }
-    // Stop wins: the e-stop first, whatever is running or waiting, and no model.
-    if crate::stop_intent::asks_to_stop(&text) {
+    // Stop wins: the e-stop first, whatever is running or waiting, and no model (a
+    // dictated stop that runs on past the length limit too).
+    let head: String = text.chars().take(MAX_REQUEST_CHARS).collect();
+    if crate::agent::asks_to_stop(&head) {
         let estop = app.hub.estop.clone();
         let _ = tokio::task::spawn_blocking(move || {
             estop.trigger("the operator (a stop sent to the web console)")
         })
         .await;
         return Ok((StatusCode::OK, Json(json!({"stopped": true}))).into_response());
+    }
+    if head.len() < text.len() {
+        return Err(fail(
+            StatusCode::PAYLOAD_TOO_LARGE,
+            format!("a request is at most {MAX_REQUEST_CHARS} characters"),
+        ));
     }
     let language = match a.language.as_deref().map(str::trim) {
         None | Some("") | Some("auto") => None,

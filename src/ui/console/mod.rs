@@ -129,18 +129,7 @@ pub fn run(args: &ServeArgs) -> anyhow::Result<()> {
 
 /// Ctrl-C, or the TERM a service manager sends.
 async fn shutdown() {
-    use tokio::signal::unix::{signal, SignalKind};
-    match signal(SignalKind::terminate()) {
-        Ok(mut term) => {
-            tokio::select! {
-                _ = tokio::signal::ctrl_c() => {}
-                _ = term.recv() => {}
-            }
-        }
-        Err(_) => {
-            let _ = tokio::signal::ctrl_c().await;
-        }
-    }
+    crate::ui::term::interrupted().await;
     eprintln!("ferrosa serve: shutting down (the robot is braked)");
 }
 
