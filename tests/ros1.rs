@@ -33,11 +33,39 @@ impl Drop for Peers {
     }
 }
 
-fn ros_env<'a>(cmd: &'a mut Command, home: &Path) -> &'a mut Command {
+pub fn ros_env<'a>(cmd: &'a mut Command, home: &Path) -> &'a mut Command {
     cmd.env("ROS_MASTER_URI", MASTER)
         .env("ROS_HOSTNAME", "127.0.0.1")
         .env("HOME", home)
         .env("ROS_LOG_DIR", home.join("log"))
+}
+
+/// What `rostopic echo -n 1 TOPIC` prints once ferrosa publishes `text` on it as a
+/// std_msgs/String (published until the echo has subscribed, at most 20 s).
+pub fn echoed_by_rostopic(
+    graph: &dyn ferrosa::ros::RosGraph,
+    rt: &tokio::runtime::Runtime,
+    home: &Path,
+    topic: &str,
+    text: &str,
+) -> String {
+    let echo = ros_env(
+        Command::new("timeout").args(["30", "rostopic", "echo", "-n", "1", topic]),
+        home,
+    )
+    .stdout(Stdio::piped())
+    .spawn()
+    .unwrap();
+    let start = Instant::now();
+    loop {
+        let sent = rt.block_on(graph.publish(topic, "std_msgs/String", json!({ "data": text })));
+        if sent.is_ok() || start.elapsed() > Duration::from_secs(20) {
+            sent.unwrap();
+            break;
+        }
+    }
+    let out = echo.wait_with_output().unwrap();
+    String::from_utf8_lossy(&out.stdout).into_owned()
 }
 
 /// A Debian ROS 1 command line tool's output (under a time limit).
@@ -111,31 +139,8 @@ fn ros1_peers_and_the_agent_with_the_real_model() {
     let rt = crate::util::runtime();
 
     // `rostopic echo` (rospy, its generated std_msgs/String) receives what ferrosa sends.
-    let echo = ros_env(
-        Command::new("timeout").args(["30", "rostopic", "echo", "-n", "1", "/ferrosa_check"]),
-        &home,
-    )
-    .stdout(Stdio::piped())
-    .spawn()
-    .unwrap();
-    let start = Instant::now();
-    loop {
-        let sent = rt.block_on(graph.publish(
-            "/ferrosa_check",
-            "std_msgs/String",
-            json!({"data": "over tcpros"}),
-        ));
-        if sent.is_ok() || start.elapsed() > Duration::from_secs(20) {
-            sent.unwrap();
-            break;
-        }
-    }
-    let echoed = echo.wait_with_output().unwrap();
-    assert!(
-        String::from_utf8_lossy(&echoed.stdout).contains("over tcpros"),
-        "{}",
-        String::from_utf8_lossy(&echoed.stdout)
-    );
+    let echoed = echoed_by_rostopic(graph.as_ref(), &rt, &home, "/ferrosa_check", "over tcpros");
+    assert!(echoed.contains("over tcpros"), "{echoed}");
 
     let args = crate::util::agent_args(Robot::Ros1, true);
     let estop = ferrosa::estop::EStop::new();

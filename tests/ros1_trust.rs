@@ -25,6 +25,7 @@ use ferrosa::ros::RosGraph;
 use proptest::prelude::*;
 use serde_json::json;
 
+use crate::ros1::ros_env;
 use crate::util::rerun_in_loopback_netns;
 
 const MASTER: &str = "http://127.0.0.1:11311/";
@@ -45,13 +46,6 @@ impl Drop for Children {
             crate::util::stop(c);
         }
     }
-}
-
-fn ros_env<'a>(cmd: &'a mut Command, home: &Path) -> &'a mut Command {
-    cmd.env("ROS_MASTER_URI", MASTER)
-        .env("ROS_HOSTNAME", "127.0.0.1")
-        .env("HOME", home)
-        .env("ROS_LOG_DIR", home.join("log"))
 }
 
 fn home(test: &str) -> PathBuf {
@@ -937,27 +931,9 @@ fn issue_41_ros1_tcpros_lengths_are_bounded_before_allocation() {
         "publishing hangs on a subscriber that does not read"
     );
     drop(stalled);
-    let echo = ros_env(
-        Command::new("timeout").args(["30", "rostopic", "echo", "-n", "1", "/chatter"]),
-        &home,
-    )
-    .stdout(Stdio::piped())
-    .spawn()
-    .unwrap();
-    let start = Instant::now();
-    loop {
-        let sent = rt.block_on(graph.publish(
-            "/chatter",
-            "std_msgs/String",
-            json!({"data": "still here"}),
-        ));
-        if sent.is_ok() || start.elapsed() > Duration::from_secs(20) {
-            sent.unwrap();
-            break;
-        }
-    }
-    let out = echo.wait_with_output().unwrap();
-    assert!(String::from_utf8_lossy(&out.stdout).contains("still here"));
+    let echoed =
+        crate::ros1::echoed_by_rostopic(graph.as_ref(), &rt, &home, "/chatter", "still here");
+    assert!(echoed.contains("still here"), "{echoed}");
     drop(graph);
     drop(peers);
     let _ = std::fs::remove_dir_all(&home);

@@ -23,7 +23,7 @@ use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use ferrosa::agent::{Agent, AgentConfig, Finish, NameSource, RunResult, StepRecord, ANSWER_TOOL};
+use ferrosa::agent::{Agent, AgentConfig, Finish, RunResult, StepRecord, ANSWER_TOOL};
 use ferrosa::decode::envelope::Envelope;
 use ferrosa::estop::EStop;
 use ferrosa::ros::RosGraph;
@@ -83,34 +83,6 @@ impl Confirm for Operator {
         self.asked.fetch_add(1, Ordering::SeqCst);
         self.approves.load(Ordering::SeqCst)
     }
-}
-
-/// The robot's names for the grammar's name arguments, as `ui::agent::build_with` gives
-/// them (the fenced ones left out).
-fn robot_names(graph: Arc<dyn RosGraph>, fence: Arc<ferrosa::fence::Fence>) -> NameSource {
-    Arc::new(move || {
-        let Some(g) = ferrosa::ros::graph_now(graph.as_ref()) else {
-            return Vec::new();
-        };
-        let mut out = std::collections::BTreeSet::new();
-        for n in &g.nodes {
-            out.insert(("node", n.clone()));
-        }
-        for (kind, entries) in [("topic", g.topics()), ("service", g.services())] {
-            for (name, types) in entries {
-                out.insert((kind, name));
-                out.extend(types.into_iter().map(|t| ("type", t)));
-            }
-        }
-        for a in g.actions() {
-            out.insert(("action", a.action));
-            out.insert(("type", a.type_name));
-        }
-        out.into_iter()
-            .filter(|(_, name)| !fence.denies(name))
-            .map(|(k, name)| (k.to_string(), name))
-            .collect()
-    })
 }
 
 fn call(name: &str, args: Value) -> String {
@@ -407,7 +379,7 @@ fn agent(
     graph.set_fence(fence.clone());
     Agent::new(Box::new(backend), registry, policy, prompt.render(), config)
         .expect("the agent")
-        .with_names(robot_names(graph.clone(), fence))
+        .with_names(ferrosa::ui::agent::robot_names(graph.clone(), fence))
 }
 
 /// Wait until the agent's participant sees every peer's endpoints.

@@ -473,6 +473,14 @@ pub fn asks_to_stop(request: &str) -> bool {
     asked_acts(&clauses(request)).contains(&Act::Stop)
 }
 
+/// Whether the operator's `request` asks the robot to stop: a stop phrase
+/// (`stop_intent`, the words operators use) or a clause that asks for the stop act
+/// (`asks_to_stop`). What every channel checks before anything else, the agent's run
+/// included.
+pub fn operator_stops(request: &str) -> bool {
+    crate::stop_intent::asks_to_stop(request) || asks_to_stop(request)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

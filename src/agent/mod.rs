@@ -53,13 +53,6 @@ use std::time::Instant;
 use serde_json::json;
 
 pub use answer::{answer_spec, ANSWER_TOOL};
-
-/// Whether `request` asks the robot to stop: a stop phrase (`stop_intent`, the words
-/// operators use) or a clause that asks for the stop act (`concepts`). What every
-/// channel checks before anything else, the agent's run included.
-pub fn asks_to_stop(request: &str) -> bool {
-    crate::stop_intent::asks_to_stop(request) || concepts::asks_to_stop(request)
-}
 pub use config::{AgentConfig, AnswerMode};
 pub use event::Event;
 pub use outcome::{AgentError, Finish, RunResult, StepRecord, Timings};

@@ -108,7 +108,7 @@ impl Run<'_> {
     /// Run steps until the run ends. A request to stop stops the robot before anything
     /// else, without the model (stopping needs no model, no intent, no confirmation).
     pub fn run(mut self) -> Result<RunResult, AgentError> {
-        if super::asks_to_stop(self.query) {
+        if super::concepts::operator_stops(self.query) {
             let estop = self.agent.exec.policy().estop().clone();
             estop.trigger(&format!("the operator: {}", self.query.trim()));
             self.answer =
@@ -413,7 +413,8 @@ impl Run<'_> {
         // A stop the request did not ask for (a small model reaches for the tool it was
         // always shown) still brakes the robot, but does not latch the e-stop: the
         // operator's words, `/stop`, Ctrl-C and the ROS topic latch it.
-        let unasked = |c: &ToolCall| c.name == STOP_TOOL && !super::asks_to_stop(self.query);
+        let unasked =
+            |c: &ToolCall| c.name == STOP_TOOL && !super::concepts::operator_stops(self.query);
         let (run_calls, run_decisions): (Vec<ToolCall>, Vec<Decision>) = calls
             .iter()
             .zip(&decisions)

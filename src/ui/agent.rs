@@ -281,7 +281,7 @@ pub fn build_with(
 /// that takes each, the fenced ones left out. The graph is a snapshot of what discovery
 /// has seen: a graph that cannot answer at once gives no names (the bias is a nudge; a
 /// run never waits for it).
-fn robot_names(graph: Arc<dyn RosGraph>, fence: Arc<crate::fence::Fence>) -> NameSource {
+pub fn robot_names(graph: Arc<dyn RosGraph>, fence: Arc<crate::fence::Fence>) -> NameSource {
     Arc::new(move || {
         let Some(g) = crate::ros::graph_now(graph.as_ref()) else {
             return Vec::new();

@@ -16,17 +16,17 @@ pub const CHROMEDRIVER: &str = "/usr/bin/chromedriver";
 /// The key WebDriver names an element reference by.
 const ELEMENT: &str = "element-6066-11e4-a52e-4f735466cecf";
 
-/// One HTTP exchange: (status, headers, body).
-pub fn http(
+/// Send one HTTP/1.1 request (`Host` added unless given) on a new connection; the
+/// connection, to read the answer from (read time-out 120 s).
+pub fn send(
     addr: &str,
     method: &str,
     path: &str,
     headers: &[(&str, &str)],
-    body: Option<&str>,
-) -> (u16, String, String) {
+    body: &str,
+) -> TcpStream {
     let mut s = TcpStream::connect(addr).unwrap_or_else(|e| panic!("connecting to {addr}: {e}"));
     s.set_read_timeout(Some(Duration::from_secs(120))).unwrap();
-    let body = body.unwrap_or("");
     let mut req = format!(
         "{method} {path} HTTP/1.1\r\nConnection: close\r\nContent-Length: {}\r\n",
         body.len()
@@ -40,6 +40,18 @@ pub fn http(
     req.push_str("\r\n");
     req.push_str(body);
     s.write_all(req.as_bytes()).unwrap();
+    s
+}
+
+/// One HTTP exchange: (status, headers, body).
+pub fn http(
+    addr: &str,
+    method: &str,
+    path: &str,
+    headers: &[(&str, &str)],
+    body: Option<&str>,
+) -> (u16, String, String) {
+    let mut s = send(addr, method, path, headers, body.unwrap_or(""));
     // Read the head, then the body by its length (a server may keep the connection
     // open whatever the request said), or to the end.
     let mut raw = Vec::new();

@@ -447,7 +447,7 @@ async fn ask(State(app): State<App>, bytes: Bytes) -> Result<Response, Failure> 
     // Stop wins: the e-stop first, whatever is running or waiting, and no model (a
     // dictated stop that runs on past the length limit too).
     let head: String = text.chars().take(MAX_REQUEST_CHARS).collect();
-    if crate::agent::asks_to_stop(&head) {
+    if crate::agent::concepts::operator_stops(&head) {
         let estop = app.hub.estop.clone();
         let _ = tokio::task::spawn_blocking(move || {
             estop.trigger("the operator (a stop sent to the web console)")
