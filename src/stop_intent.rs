@@ -6,7 +6,7 @@
 //! The ways of saying stop are data: `data/stop/<language>.txt`, one file per language,
 //! built into the binary. A sentence asks to stop when, after filler words ("please",
 //! "hey", "por favor", "bitte"), it opens with one of its language's stop phrases and says
-//! little more: up to ten more words for a plain stop ("stop the robot now"; the stop
+//! little more: up to ten more words for a plain stop ("stop it right there"; the stop
 //! said again does not count), up to two for a phrase that also means something else
 //! ("wait", "para", "hold on"). A plain stop also stops when it closes a short sentence
 //! that does not negate it and is no question ("I said stop", "turtle, halt", not "why
@@ -58,10 +58,7 @@ impl Phrase {
     fn opens(&self, words: &[String], filler: impl Fn(&str) -> bool) -> Option<usize> {
         let mut i = 0;
         for (k, p) in self.0.iter().enumerate() {
-            let matches = |w: &str| match p.strip_suffix('*') {
-                Some(prefix) => w.starts_with(prefix),
-                None => p == w,
-            };
+            let matches = |w: &str| word_matches(p, w);
             while k > 0 && i < words.len() && !matches(&words[i]) && filler(&words[i]) {
                 i += 1;
             }
@@ -71,6 +68,14 @@ impl Phrase {
             i += 1;
         }
         Some(i)
+    }
+}
+
+/// Whether `word` is the phrase word `p`: whole, or begun by it when `p` ends in `*`.
+fn word_matches(p: &str, word: &str) -> bool {
+    match p.strip_suffix('*') {
+        Some(prefix) => word.starts_with(prefix),
+        None => p == word,
     }
 }
 
@@ -184,7 +189,7 @@ fn sentence_stops(text: &str, question: bool) -> bool {
     let is_stop = |w: &str| {
         t.stop
             .iter()
-            .any(|p| p.0.len() == 1 && p.opens(&[w.to_string()], |_| false).is_some())
+            .any(|p| p.0.len() == 1 && word_matches(&p.0[0], w))
     };
     let after = |n: usize| {
         words[n..]

@@ -360,21 +360,30 @@ pub fn check_extent(
     extent_at(name, lookup, &mut path, &mut memo)
 }
 
+/// The error for `name` met again on `path` (the types being walked, outermost first):
+/// a type that contains itself has no end. `None` when `name` is not on the path.
+pub fn recursion(name: &str, path: &[String]) -> Option<MsgError> {
+    if !path.iter().any(|p| p == name) {
+        return None;
+    }
+    let mut cycle = path.to_vec();
+    cycle.push(name.to_string());
+    Some(MsgError::Recursive {
+        type_name: path[0].clone(),
+        path: cycle.join(" > "),
+    })
+}
+
 fn extent_at(
     name: &str,
     lookup: &dyn Fn(&str) -> Option<Arc<MessageDef>>,
     path: &mut Vec<String>,
     memo: &mut BTreeMap<String, Extent>,
 ) -> Result<Extent, MsgError> {
-    let root = path.first().cloned().unwrap_or_else(|| name.to_string());
-    if path.iter().any(|p| p == name) {
-        let mut cycle = path.clone();
-        cycle.push(name.to_string());
-        return Err(MsgError::Recursive {
-            type_name: root,
-            path: cycle.join(" > "),
-        });
+    if let Some(e) = recursion(name, path) {
+        return Err(e);
     }
+    let root = path.first().cloned().unwrap_or_else(|| name.to_string());
     let too_large = |reason: String| MsgError::TooLarge {
         type_name: root.clone(),
         reason,

@@ -20,8 +20,8 @@ use std::time::Duration;
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
 
 use crate::ros::msg::{
-    check_extent, normalize_type, parse_message, BaseType, Interfaces, MessageDef, MsgError, Shape,
-    MAX_DEFINITION_BYTES, MAX_DEPTH, MAX_TYPES,
+    check_extent, normalize_type, parse_message, recursion, BaseType, Interfaces, MessageDef,
+    MsgError, Shape, MAX_DEFINITION_BYTES, MAX_DEPTH, MAX_TYPES,
 };
 
 /// Largest message frame read from a peer (a point cloud or a camera image fits).
@@ -234,19 +234,12 @@ fn md5_in(
     if let Some(sum) = memo.get(name) {
         return Ok(sum.clone());
     }
-    let root = path.first().cloned().unwrap_or_else(|| name.to_string());
-    if path.iter().any(|p| p == name) {
-        let mut cycle = path.clone();
-        cycle.push(name.to_string());
-        return Err(MsgError::Recursive {
-            type_name: root,
-            path: cycle.join(" > "),
-        }
-        .into());
+    if let Some(e) = recursion(name, path) {
+        return Err(e.into());
     }
     if path.len() >= MAX_DEPTH {
         return Err(MsgError::TooLarge {
-            type_name: root,
+            type_name: path.first().cloned().unwrap_or_else(|| name.to_string()),
             reason: format!("nested more than {MAX_DEPTH} deep"),
         }
         .into());
