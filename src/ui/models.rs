@@ -22,14 +22,15 @@ pub fn list(dir: &Path) -> anyhow::Result<()> {
             ModelKind::Instruct => "instruct",
             ModelKind::Base => "base",
             ModelKind::Speech => "speech",
+            ModelKind::Encoder => "encoder",
         };
         let default = if e.name == cat.default {
             " (default)"
         } else {
             ""
         };
-        // A speech model is no GGUF: its row says only whether it is there.
-        let speech = e.kind == ModelKind::Speech;
+        // A speech model or an encoder is no GGUF: its row says only whether it is there.
+        let speech = matches!(e.kind, ModelKind::Speech | ModelKind::Encoder);
         if !path.exists() || speech {
             println!(
                 "{:<16} {:<9} {:<9} {:>9.1} {:<8} {:>7} {:>7} {:<9}{default}",
@@ -37,7 +38,7 @@ pub fn list(dir: &Path) -> anyhow::Result<()> {
                 kind,
                 if path.exists() { "yes" } else { "no" },
                 mib(e.size),
-                if speech { "whisper" } else { "-" },
+                if speech { e.family.as_str() } else { "-" },
                 "-",
                 "-",
                 "-"
@@ -78,9 +79,12 @@ fn selected<'a>(cat: &'a Catalog, names: &[String], all: bool) -> anyhow::Result
         return Ok(cat.model.iter().collect());
     }
     if names.is_empty() {
-        return Ok(vec![cat
+        // The agent's default model and what it reads requests with (the encoder).
+        let mut out = vec![cat
             .get(&cat.default)
-            .expect("catalog validated its default")]);
+            .expect("catalog validated its default")];
+        out.extend(cat.model.iter().filter(|e| e.kind == ModelKind::Encoder));
+        return Ok(out);
     }
     names
         .iter()
