@@ -6,7 +6,7 @@
 //!
 //! A small model writes a name it has not seen as often as one it has ("turtle1" for the
 //! node, "object" for the type, "topic_echo_topic_name"), and of real names the one it
-//! always likes (`/turtle1/teleport_absolute` for "clear the screen"). Once the value
+//! always likes (`/turtle1/teleport_absolute` for "clear the canvas"). Once the value
 //! must be a real name the words point at, it chooses among a few, or none. What the
 //! operator wrote stays open, so a name the robot lacks is still asked for and still
 //! reported missing ("no topic /chatter"); when the words point at none of the robot's
@@ -190,8 +190,8 @@ fn bind_object(object: &mut Value, h: &Held, taken: &[(String, String)]) -> bool
             })
             .collect();
         // A ROS name written (with its slash) that the robot lacks, under no other key
-        // either, and words that point at none of the key's names ("echo the /odom
-        // topic"): what is asked for is the name written, which the tool reports
+        // either, and words that point at none of the key's names ("print what
+        // /odom says"): what is asked for is the name written, which the tool reports
         // missing, not any of the robot's.
         let bare = |n: &str| n.trim_start_matches('/').to_string();
         let asked: Vec<&str> = missing
@@ -386,6 +386,7 @@ mod tests {
             description: String::new(),
             parameters,
             alone: false,
+            examples: Vec::new(),
         }
     }
 
@@ -502,7 +503,7 @@ mod tests {
             consts
         };
         // The words point at one service: its branch alone is left.
-        assert_eq!(free("clear the screen"), [json!("/clear")]);
+        assert_eq!(free("please clear the canvas"), [json!("/clear")]);
         // At none: every service the robot holds, but not the fenced one, nor the open
         // branch (nothing written).
         assert_eq!(free("call a service"), [json!("/clear"), json!("/spawn")]);
@@ -536,8 +537,8 @@ mod tests {
                 .map(|(_, n)| n)
                 .collect()
         };
-        assert_eq!(favoured("spawn a new turtle at x 2 y 3"), ["/spawn"]);
-        assert_eq!(favoured("kill the turtle named turtle1"), ["/kill"]);
+        assert_eq!(favoured("spawn another turtle at x 4 y 1"), ["/spawn"]);
+        assert_eq!(favoured("please kill turtle1 for me"), ["/kill"]);
         assert_eq!(favoured("Borra la pantalla con CLEAR"), ["/clear"]);
         assert_eq!(
             favoured("teleport turtle1 to 3 4"),
@@ -615,25 +616,22 @@ mod tests {
         };
         // A name's short word meets the word it shortens, not one the name has whole.
         assert_eq!(
-            held("set the background blue to 255"),
+            held("change the blue of the background to 10"),
             json!(["background_b"])
         );
         assert_eq!(
-            held("what's the red component of the background color?"),
+            held("how much red is in the background?"),
             json!(["background_r"])
         );
         // A name written whole is the only one; one the node lacks stays possible (but
         // not a name the robot has for something else).
         assert_eq!(
-            held("read the background_g parameter"),
+            held("what value does background_g hold?"),
             json!(["background_g"])
         );
         let mut lacked = params.to_vec();
         lacked.insert(3, "max_speed");
-        assert_eq!(
-            held("get the max_speed parameter of /turtlesim"),
-            json!(lacked)
-        );
+        assert_eq!(held("what is max_speed on /turtlesim?"), json!(lacked));
         // Words that point at none leave them all.
         assert_eq!(held("show me a parameter"), json!(params));
     }

@@ -24,6 +24,8 @@
 //! - `language`: the language an answer is written in
 //! - `prompt`: robot system prompts (ROSA's fields) from TOML
 //! - `memory`: chat history, trimming, output truncation
+//! - `meaning`: how near a request is to each tool's description and examples, by the
+//!   sentence encoder
 //! - `select`: choosing tools when their specs exceed the budget
 //! - `bound`: name arguments held to the names the robot has and the operator wrote
 //! - `event`: the typed event stream every front end consumes
@@ -38,6 +40,7 @@ pub mod facts;
 pub mod guard;
 pub mod intent;
 pub mod language;
+pub mod meaning;
 pub mod memory;
 pub mod outcome;
 pub mod plan;

@@ -45,6 +45,10 @@ pub struct RobotPrompt {
     /// usual first requests). Not part of the rendered prompt.
     #[serde(default)]
     pub warm: Vec<String>,
+    /// Requests this robot's operators make, by the tool that answers each: they join
+    /// the tool's own examples for tool choice (`meaning`).
+    #[serde(default)]
+    pub examples: BTreeMap<String, Vec<String>>,
 }
 
 impl RobotPrompt {

@@ -5,7 +5,7 @@
 //! - each tool is a document: the words of its name (weighing three times), of its
 //!   description and of its parameters; a tool that acts on a ROS thing by name
 //!   (`topic`, `service`, `node`, `action`, `type` arguments) also holds the words of the
-//!   robot's names of that kind (weighing twice): "clear the screen" meets the service
+//!   robot's names of that kind (weighing twice): "clear it all" meets the service
 //!   `/clear`, "the color sensor" the topic `/turtle1/color_sensor`; a name the request
 //!   writes whole ("/turtle1/pose") weighs more than a tool's own name;
 //! - a request word meets a document word when they are the same word folded, one is a
@@ -214,7 +214,7 @@ struct Document {
 }
 
 /// Weight of the words of a robot's name the request writes whole ("/turtle1/pose"):
-/// above a tool's own name, so "print 3 messages from /turtle1/pose" is for a tool that
+/// above a tool's own name, so "show two messages of /turtle1/pose" is for a tool that
 /// takes a topic, not `turtle_pose`.
 const WRITTEN_NAME: f64 = 4.0;
 
@@ -264,18 +264,19 @@ impl Document {
     }
 }
 
-/// Each tool's score for `query`: over the request's words, the weight of the field
-/// each meets times how rare the word is among the tools. `names` are the robot's
-/// (kind, name) pairs.
-pub fn scores(query: &str, specs: &[ToolSpec], names: &[(String, String)]) -> Vec<f64> {
+/// Each tool's score for `query`, by its words: over the request's words, the weight
+/// of the field each meets times how rare the word is among the tools. `names` are the
+/// robot's (kind, name) pairs.
+fn lexical(query: &str, specs: &[ToolSpec], names: &[(String, String)]) -> Vec<f64> {
     let written = super::bound::written_names(query);
     let docs: Vec<Document> = specs
         .iter()
         .map(|s| Document::new(s, names, &written))
         .collect();
+    let words = words_of(query);
     let n = docs.len() as f64;
     let mut out = vec![0.0; docs.len()];
-    for w in words_of(query) {
+    for w in words {
         let hits: Vec<f64> = docs.iter().map(|d| d.meets(&w)).collect();
         let df = hits.iter().filter(|h| **h > 0.0).count() as f64;
         if df == 0.0 {
@@ -289,10 +290,37 @@ pub fn scores(query: &str, specs: &[ToolSpec], names: &[(String, String)]) -> Ve
     out
 }
 
+/// How much a similarity gap weighs: a tool whose similarity is `TEMPERATURE` below the
+/// best one scores 1/e of it.
+const TEMPERATURE: f64 = 0.1;
+
+/// Each tool's score for `query` (`names`: the robot's (kind, name) pairs). With `sims`
+/// (each tool's similarity to the request by meaning, the robot's names included,
+/// `meaning`), the share exp((s - best) / TEMPERATURE); without, by the words the
+/// request and the tool share (`lexical`).
+pub fn scores(
+    query: &str,
+    specs: &[ToolSpec],
+    names: &[(String, String)],
+    sims: Option<&[f64]>,
+) -> Vec<f64> {
+    let Some(sims) = sims.filter(|s| s.len() == specs.len()) else {
+        return lexical(query, specs, names);
+    };
+    let best = sims.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    sims.iter()
+        .map(|r| ((r - best) / TEMPERATURE).exp())
+        .collect()
+}
+
 /// A tool scoring under this share of the best one is not offered: a small model
 /// chooses better among fewer. On the ROS suite, 0.3 keeps every expected tool (in both
 /// halves) with 9.8 tools offered per request instead of 12.1; 0.4 loses two.
 const RELATIVE_FLOOR: f64 = 0.3;
+
+/// The same floor for scores by meaning: a tool more than 0.2 below the best one's
+/// similarity (two `TEMPERATURE`s) is not offered.
+const MEANING_FLOOR: f64 = 0.135;
 
 /// Indices of the tools to offer: the best scoring within `budget` tokens as measured
 /// by `cost`, best first, then the always-on ones. When everything fits, all tools in
@@ -301,6 +329,7 @@ pub fn select(
     query: &str,
     specs: &[ToolSpec],
     names: &[(String, String)],
+    sims: Option<&[f64]>,
     always_on: &[String],
     budget: usize,
     cost: impl Fn(&ToolSpec) -> usize,
@@ -313,7 +342,7 @@ pub fn select(
         .filter(|&i| always_on.contains(&specs[i].name))
         .collect();
     let mut used: usize = always.iter().map(|&i| costs[i]).sum();
-    let mut ranked: Vec<(f64, usize)> = scores(query, specs, names)
+    let mut ranked: Vec<(f64, usize)> = scores(query, specs, names, sims)
         .into_iter()
         .enumerate()
         .filter(|(i, sc)| !always.contains(i) && *sc > 0.0)
@@ -328,7 +357,12 @@ pub fn select(
         tracing::debug!(target: "ferrosa::select", ranked = ?named, "retrieval");
     }
     let top = ranked.first().map_or(0.0, |r| r.0);
-    ranked.retain(|r| r.0 >= RELATIVE_FLOOR * top);
+    let floor = if sims.is_some() {
+        MEANING_FLOOR
+    } else {
+        RELATIVE_FLOOR
+    };
+    ranked.retain(|r| r.0 >= floor * top);
     let mut chosen: Vec<usize> = Vec::new();
     for (_, i) in ranked {
         if used + costs[i] <= budget {
@@ -364,9 +398,9 @@ const PRIOR_FLOOR: f64 = 1e-3;
 /// Which of a part's results an answer is held to, given each one's tool's prior (in
 /// the order they ran): the latest of those whose tool the request meets best. A part
 /// is one request (`plan` cuts "move, then tell me where it is" in two), so a result
-/// the request asked for is not replaced by one the model went on to fetch ("what is the
-/// battery level?": the status, not the pose read after it; "what type is the /spawn
-/// service?": the service's info, not the list of services after it).
+/// the request asked for is not replaced by one the model went on to fetch ("how charged
+/// is the battery?": the status, not the pose read after it; "which type does /spawn
+/// have?": the service's info, not the list of services after it).
 pub fn grounding(priors: &[f64]) -> Option<usize> {
     let best = priors.iter().copied().fold(f64::NEG_INFINITY, f64::max);
     priors.iter().rposition(|p| *p >= best - 1e-9)
@@ -375,16 +409,17 @@ pub fn grounding(priors: &[f64]) -> Option<usize> {
 /// Per candidate name, its prior for the weighed tool choice: the log of its retrieval
 /// score's share of the best score among `specs` (all the tools the request could be
 /// offered, so the words' weights are those `select` uses). The answer, `fallback`,
-/// is held at `FALLBACK_SHARE`; when the request meets no tool at all, every tool is
+/// is held at `FALLBACK_SHARE` (by meaning, at least there); when the request meets no tool at all, every tool is
 /// at the floor and the answer at 0.
 pub fn prior(
     query: &str,
     specs: &[ToolSpec],
     names: &[(String, String)],
+    sims: Option<&[f64]>,
     candidates: &[&str],
     fallback: &str,
 ) -> Vec<f64> {
-    let scored = scores(query, specs, names);
+    let scored = scores(query, specs, names, sims);
     let score_of = |name: &str| {
         specs
             .iter()
@@ -400,6 +435,9 @@ pub fn prior(
     candidates
         .iter()
         .map(|&c| match (c == fallback, top > 0.0) {
+            // By meaning, the answer has examples of its own (small talk): it is held at
+            // its share when that is above the floor.
+            (true, true) if sims.is_some() => (score_of(c) / top).max(FALLBACK_SHARE).ln(),
             (true, true) => FALLBACK_SHARE.ln(),
             (true, false) => 0.0,
             (false, true) => (score_of(c) / top).max(PRIOR_FLOOR).ln(),
@@ -435,7 +473,7 @@ mod tests {
     fn pick(q: &str) -> Vec<String> {
         let names = [("service".to_string(), "/clear".to_string())];
         let s = specs();
-        select(q, &s, &names, &["reply".into()], 20, |_| 10)
+        select(q, &s, &names, None, &["reply".into()], 20, |_| 10)
             .into_iter()
             .map(|i| s[i].name.clone())
             .collect()
@@ -447,7 +485,7 @@ mod tests {
         let names: [(String, String); 0] = [];
         let q = "which topics are there? list them";
         let cands = ["ros_topic_list", "ros_node_list", "turtle_pose"];
-        let priors = prior(q, &s, &names, &cands, "reply");
+        let priors = prior(q, &s, &names, None, &cands, "reply");
         // The best match answered: nothing follows but the answer.
         assert_eq!(beyond(&priors, &priors[..1]), [false, false, false]);
         // One it does not meet answered: those it meets more may follow.
@@ -466,35 +504,39 @@ mod tests {
             ),
         ];
         let names = [("topic".to_string(), "/turtle1/pose".to_string())];
-        let sc = scores("how fast is /turtle1/pose published?", &s, &names);
+        let sc = scores("at what rate does /turtle1/pose come in?", &s, &names, None);
         assert!(sc[1] > sc[0], "{sc:?}");
         // Its words alone still point at the tool named for them.
-        let sc = scores("where is the turtle's pose?", &s, &names);
+        let sc = scores("tell me the turtle pose", &s, &names, None);
         assert!(sc[0] > sc[1], "{sc:?}");
     }
 
     #[test]
     fn picks_relevant_tools_within_budget_in_any_language() {
-        assert_eq!(pick("what topics are there?"), ["ros_topic_list", "reply"]);
+        assert_eq!(pick("which topics exist?"), ["ros_topic_list", "reply"]);
         assert_eq!(pick("what is the mean of 3 and 5"), ["calc_stats", "reply"]);
-        assert_eq!(pick("what is 12 times 7?")[0], "calc_eval");
+        assert_eq!(pick("what is 9 times 6?")[0], "calc_eval");
         assert_eq!(pick("mueve la tortuga 1 metro")[0], "turtle_move");
-        assert_eq!(pick("¿dónde está la tortuga?")[0], "turtle_pose");
+        assert_eq!(pick("dime dónde está ahora la tortuga")[0], "turtle_pose");
         assert_eq!(pick("Zeige die laufenden Knoten")[0], "ros_node_list");
         // The robot's names: the service /clear is what "clear" asks for.
-        assert_eq!(pick("clear the screen")[0], "ros_service_call");
+        assert_eq!(pick("please clear all of it")[0], "ros_service_call");
         assert_eq!(pick("hello"), ["reply"]);
         // Everything fits: everything is offered.
-        assert_eq!(select("hi", &specs(), &[], &[], 1000, |_| 10).len(), 9);
+        assert_eq!(
+            select("hi", &specs(), &[], None, &[], 1000, |_| 10).len(),
+            9
+        );
     }
 
     #[test]
     fn the_prior_is_each_tools_share_of_the_best_and_the_answer_a_fixed_one() {
         let s = specs();
         let p = prior(
-            "what topics are there?",
+            "which topics exist?",
             &s,
             &[],
+            None,
             &["ros_node_list", "ros_topic_list", "reply"],
             "reply",
         );
@@ -502,15 +544,15 @@ mod tests {
         assert!(p[0] < FALLBACK_SHARE.ln(), "{p:?}");
         assert_eq!(p[2], FALLBACK_SHARE.ln());
         // A request no tool meets: the answer is all the prior allows.
-        let p = prior("hello", &s, &[], &["ros_node_list", "reply"], "reply");
+        let p = prior("hello", &s, &[], None, &["ros_node_list", "reply"], "reply");
         assert_eq!(p, [PRIOR_FLOOR.ln(), 0.0]);
     }
 
     #[test]
     fn words_every_tool_has_count_for_little() {
         let s = specs();
-        let sc = scores("the turtle", &s, &[]);
-        let turtle = scores("turtle", &s, &[]);
+        let sc = scores("the turtle", &s, &[], None);
+        let turtle = scores("turtle", &s, &[], None);
         let top = turtle.iter().copied().fold(0.0, f64::max);
         for (a, b) in sc.iter().zip(&turtle) {
             assert!((a - b).abs() < 0.2 * top, "{sc:?} {turtle:?}");

@@ -45,6 +45,8 @@ pub struct Agent {
     pub(super) cancel: Arc<AtomicBool>,
     /// The names the robot holds now, by the argument that takes them (`with_names`).
     pub(super) names: Option<NameSource>,
+    /// Tool choice by meaning (`with_meaning`); by words without it.
+    pub(super) meaning: Option<Arc<super::meaning::Meaning>>,
     /// The server that writes the turns, when the model runs there (`backend` is then
     /// its vocabulary only).
     pub(super) remote: Option<crate::remote::Remote>,
@@ -107,6 +109,7 @@ impl Agent {
             trace: None,
             cancel: Arc::new(AtomicBool::new(false)),
             names: None,
+            meaning: None,
             remote: None,
         })
     }
@@ -222,10 +225,12 @@ impl Agent {
     /// Which tools to offer for `query`, by the token cost of their specs.
     pub fn offered_tools(&self, query: &str) -> Vec<ToolSpec> {
         let (specs, names) = (self.retrievable(), self.robot_names());
+        let sims = self.similarities(query, &specs, &names);
         let chosen = select::select(
             query,
             &specs,
             &names,
+            sims.as_deref(),
             &self.config.always_on,
             self.config.tool_budget_tokens,
             |s| self.tokens(&Envelope::describe_tool(s)),
@@ -241,7 +246,38 @@ impl Agent {
         candidates: &[&str],
         names: &[(String, String)],
     ) -> Vec<f64> {
-        select::prior(part, &self.retrievable(), names, candidates, ANSWER_TOOL)
+        let specs = self.retrievable();
+        let sims = self.similarities(part, &specs, names);
+        select::prior(
+            part,
+            &specs,
+            names,
+            sims.as_deref(),
+            candidates,
+            ANSWER_TOOL,
+        )
+    }
+
+    /// Each of `specs`' similarity to `text` by meaning, with the sentence encoder
+    /// (`with_meaning`); None without it.
+    fn similarities(
+        &self,
+        text: &str,
+        specs: &[ToolSpec],
+        names: &[(String, String)],
+    ) -> Option<Vec<f64>> {
+        self.meaning
+            .as_ref()
+            .map(|m| m.similarities(text, specs, names))
+    }
+
+    /// Read requests by meaning (`meaning`): tool choice compares each with the tools'
+    /// descriptions and examples instead of their words. The tools' sentences are
+    /// encoded now.
+    pub fn with_meaning(mut self, meaning: Arc<super::meaning::Meaning>) -> Agent {
+        meaning.prepare(&self.retrievable());
+        self.meaning = Some(meaning);
+        self
     }
 
     /// The prompt cache the agent keeps its stable prefixes in, if any.

@@ -7,12 +7,14 @@
 //!
 //! Layout:
 //! - `spec`: `ToolSpec` (name, description, schema), `ToolCall`, schema normalisation
+//! - `examples`: the shipped tools' example requests (data files, one per language)
 //! - `schema`: JSON schemas from Rust types (schemars), cleaned for grammars
 //! - `registry`: the type-erased `DynTool`, named packages, lookup
 //! - `policy`: the fence, the e-stop, read-only, confirmation, argument limits, time limits
 //! - `exec`: running calls after the policy (concurrent, time-limited, aborted on the
 //!   e-stop, outputs redacted)
 
+pub mod examples;
 pub mod exec;
 pub mod policy;
 pub mod registry;

@@ -28,6 +28,11 @@ pub struct ToolSpec {
     /// call's result is a guess.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub alone: bool,
+    /// Requests an operator makes when this tool is the one to call (`examples`: the
+    /// shipped tools' come from data files; declared tools and robot prompt files add
+    /// theirs). Tool choice reads them; the prompt does not show them.
+    #[serde(skip)]
+    pub examples: Vec<String>,
 }
 
 impl ToolSpec {
@@ -59,6 +64,7 @@ impl ToolSpec {
         close_objects(&mut parameters);
         jsonschema::validator_for(&parameters).map_err(|e| schema_err(e.to_string()))?;
         Ok(ToolSpec {
+            examples: super::examples::shipped(&name),
             name,
             description: description.into(),
             parameters,

@@ -112,6 +112,10 @@ struct ToolDecl {
     description: String,
     #[serde(default)]
     parameters: Option<Value>,
+    /// Requests an operator makes when this tool is the one to call: tool choice
+    /// compares requests with them by meaning (`agent::meaning`).
+    #[serde(default)]
+    examples: Vec<String>,
     effect: EffectDecl,
     #[serde(default)]
     publish: Option<PublishAction>,
@@ -353,11 +357,13 @@ fn build(
             format!("tool {name}: the description is empty; say what the tool does (the model chooses tools by it), and for an actuating tool that it moves the robot"),
         ));
     }
-    let spec = ToolSpec::new(&name, &d.description, d.parameters.clone().unwrap_or(Value::Null))
+    let mut spec = ToolSpec::new(&name, &d.description, d.parameters.clone().unwrap_or(Value::Null))
         .map_err(|e| match e {
             SpecError::Name(_) => ("name", e.to_string()),
             other => ("parameters", format!("{other}; write parameters = {{ type = \"object\", properties = {{ … }}, required = [ … ] }}")),
         })?;
+    spec.examples
+        .extend(d.examples.iter().filter(|e| !e.trim().is_empty()).cloned());
     let effect = match d.effect {
         EffectDecl::Observes => Effect::Observes,
         EffectDecl::Actuates => Effect::Actuates,

@@ -5,7 +5,7 @@
 //! and turtle tools; `--robot ros2` joins the ROS 2 graph already running here.
 
 use std::io::{IsTerminal, Write};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 
@@ -15,6 +15,7 @@ use serde_json::json;
 use super::robot;
 pub use super::robot::{connect, Robot, RobotLink};
 use super::term::{clean, Input, TerminalConfirm};
+use crate::agent::meaning::Meaning;
 use crate::agent::prompt::RobotPrompt;
 use crate::agent::trace::Trace;
 use crate::agent::{Agent, AgentConfig, AnswerMode, Event, NameSource};
@@ -139,7 +140,7 @@ pub fn warm(args: &AgentArgs, requests: &[String]) -> anyhow::Result<()> {
     };
     anyhow::ensure!(
         !requests.is_empty(),
-        "nothing to warm: name the requests (ferrosa models warm --robot sim \"list the ROS nodes\"), or list them under `warm` in the robot prompt file"
+        "nothing to warm: name the requests (ferrosa models warm --robot sim \"show every ROS node\"), or list them under `warm` in the robot prompt file"
     );
     anyhow::ensure!(
         args.model.prompt_cache,
@@ -259,6 +260,9 @@ pub fn build_with(
     let remote = args.model.connect(&resolved, model.as_ref())?;
     let sampler = config.sampler;
     let mut agent = Agent::new(model, registry, policy, prompt.render(), config)?;
+    if let Some(meaning) = meaning(&args.model.models_dir, &prompt) {
+        agent = agent.with_meaning(meaning);
+    }
     if let Some(cache) = cache {
         agent = agent.with_prompt_cache(cache);
     }
@@ -275,6 +279,25 @@ pub fn build_with(
         agent = agent.with_trace(trace);
     }
     Ok(agent)
+}
+
+/// Tool choice by meaning (`FERROSA_TOOL_CHOICE=meaning`): the sentence encoder and the
+/// prompt file's examples. Not yet the default: on the turtle suite's tune half it
+/// passed fewer cases than the word tables, and on the arm's as many (README,
+/// Understanding requests). Without the encoder's files it says so once and tool
+/// choice reads words.
+fn meaning(models_dir: &Path, prompt: &RobotPrompt) -> Option<Arc<Meaning>> {
+    if !std::env::var("FERROSA_TOOL_CHOICE").is_ok_and(|v| v.trim() == "meaning") {
+        return None;
+    }
+    match crate::embed::shared(models_dir) {
+        Ok(encoder) => Some(Arc::new(Meaning::new(encoder, prompt.examples.clone()))),
+        Err(e) => {
+            static SAID: std::sync::Once = std::sync::Once::new();
+            SAID.call_once(|| eprintln!("ferrosa: tool choice reads words, not meaning: {e}"));
+            None
+        }
+    }
 }
 
 /// The robot's nodes, topics, services, actions and their types, keyed by the argument
