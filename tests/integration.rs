@@ -12,6 +12,7 @@ mod util;
 
 mod agent;
 mod alloc;
+mod arm;
 mod arrows;
 
 #[global_allocator]
@@ -23,6 +24,7 @@ mod cli;
 mod console;
 mod declared;
 mod decoding;
+mod embed;
 mod estop;
 mod eval;
 mod fence_params;
@@ -37,4 +39,5 @@ mod runtime;
 mod safety;
 mod soak;
 mod speech;
+mod suite_leak;
 mod trust;

@@ -29,8 +29,8 @@ pub enum AnswerMode {
 pub enum Pick {
     /// The model's likeliest name.
     Likeliest,
-    /// The name the request raised most over a content-free request. On, "what is the
-    /// mean of 3, 5 and 10?" is answered without a tool (the README has the ROS suite
+    /// The name the request raised most over a content-free request. On, a request to
+    /// average a few numbers is answered without a tool (the README has the ROS suite
     /// with it).
     Calibrated,
     /// The model's log-probability of each name, weighed with the tool retrieval's

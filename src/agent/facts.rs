@@ -446,12 +446,16 @@ mod tests {
         let summary = "1 node: /turtlesim";
         for reply in ["1.0.0.0:8080:8:1:1:1:1:1:1", "1", "42 %"] {
             assert_eq!(
-                grounded(reply, Some(summary), "list the ROS nodes"),
+                grounded(reply, Some(summary), "which ROS nodes are up?"),
                 summary
             );
         }
         assert_eq!(
-            grounded("1 node: /turtlesim", Some(summary), "list the ROS nodes"),
+            grounded(
+                "1 node: /turtlesim",
+                Some(summary),
+                "which ROS nodes are up?"
+            ),
             "1 node: /turtlesim"
         );
     }
@@ -467,13 +471,16 @@ mod tests {
     #[test]
     fn an_answer_about_something_else_is_replaced_by_the_result() {
         let summary = "1 node: /turtlesim";
-        let request = "list the ROS nodes";
+        let request = "which ROS nodes are up?";
         let off = "Hello, World! This is a response to your request. Please use the `/turtlesim` protocol to send a response to the user.";
         assert_eq!(grounded(off, Some(summary), request), summary);
         let on = "There is 1 node running: /turtlesim.";
         assert_eq!(grounded(on, Some(summary), request), on);
         // In another language: the result's names and the request's words are met.
         let es = "Hay 1 nodo: /turtlesim.";
-        assert_eq!(grounded(es, Some(summary), "lista los nodos de ROS"), es);
+        assert_eq!(
+            grounded(es, Some(summary), "enumera los nodos ROS activos"),
+            es
+        );
     }
 }

@@ -355,7 +355,7 @@ impl Guard for AskedFor {
     }
 
     /// A generic actuator whose grammar holds its targets to names (`agent::bound`) is
-    /// kept only when the request asks for one of them: "send the map to the cloud" asks
+    /// kept only when the request asks for one of them: "upload the map to a server" asks
     /// nothing of `/clear`, `/kill` or `/spawn`, so the service call is not written (and
     /// refused).
     fn keeps(&self, declared: &ToolSpec, bound: &ToolSpec) -> bool {
@@ -626,7 +626,7 @@ mod tests {
         }
         // Questions, negations and acts named only inside names force nothing.
         for q in [
-            "where is the turtle?",
+            "where does the turtle stand?",
             "how do I move the turtle?",
             "don't move the turtle",
             "echo /turtle1/cmd_vel",
@@ -664,15 +664,15 @@ mod tests {
             Guards::standard(q, &[q], Some(asked(&["ros_service_call"]))).keeps(&declared, b)
         };
         let services = bound(&["/clear", "/kill", "/spawn"]);
-        assert!(keeps("clear the screen", &services));
+        assert!(keeps("clear the canvas", &services));
         assert!(keeps("spawn a turtle at x 2 y 3", &services));
-        assert!(!keeps("send the map to the cloud", &services));
+        assert!(!keeps("upload the map to a server", &services));
         assert!(!keeps("what is the weather in Paris?", &services));
         // A target that may be any name: the call is judged once written.
         let open = ToolSpec {
             parameters: json!({"anyOf": [{"type": "object", "properties": {"service": {"type": "string"}}}]}),
             ..declared.clone()
         };
-        assert!(keeps("send the map to the cloud", &open));
+        assert!(keeps("upload the map to a server", &open));
     }
 }

@@ -1,6 +1,7 @@
 //! Actuation the operator asked for. A small model that has run one tool tends to call
 //! the next one it was shown, and with an operator who approves everything (`--yes`) that
-//! moves the robot unasked ("where is the turtle?" → pose, then move, rotate, teleport).
+//! moves the robot unasked ("where does the turtle stand?" → pose, then move, rotate,
+//! teleport).
 //! So an actuating call runs only when the request asks for it (`concepts`: in a clause
 //! that neither forbids it, "don't move", nor only asks about it, "is it moving?"):
 //!
@@ -163,13 +164,13 @@ mod tests {
         let asks = |q: &str, i: usize, args: Value| {
             Intent::new(q).asks_for(&call(&act[i].name, args), &act[i], &obs)
         };
-        assert!(asks("move the turtle forward 2 meters", 0, json!({})));
-        assert!(!asks("where is the turtle?", 0, json!({})));
+        assert!(asks("move forward 4 meters", 0, json!({})));
+        assert!(!asks("where can I find the turtle?", 0, json!({})));
         assert!(!asks("don't move the turtle", 0, json!({})));
         assert!(!asks("how much battery is left?", 1, json!({})));
         assert!(!asks("stop the turtle now", 0, json!({})));
         assert!(asks(
-            "Bewege die Schildkröte 1 Meter vorwärts",
+            "Bewege die Schildkröte drei Meter geradeaus",
             0,
             json!({})
         ));
@@ -186,8 +187,8 @@ mod tests {
                 &obs,
             )
         };
-        assert!(svc("spawn a new turtle at x 2 y 3", "/spawn"));
-        assert!(!svc("spawn a new turtle at x 2 y 3", "/kill"));
+        assert!(svc("spawn another turtle at x 4 y 1", "/spawn"));
+        assert!(!svc("spawn another turtle at x 4 y 1", "/kill"));
         assert!(svc("call the reset service", "/reset"));
         assert!(!svc("call the reset service", "/kill"));
         assert!(!svc("list the running nodes", "/reset"));

@@ -221,10 +221,10 @@ impl Language {
     }
 
     /// The language `text` is written in, when it shows one more than any other. When
-    /// several show the most ("tourne la tortue de 90 degrés": "la" and "de" are
-    /// French and Spanish), the text's letter trigrams choose among them (`whatlang`,
-    /// kept to the tied languages: on a short request its own guess across all
-    /// languages is often wrong).
+    /// several show the most ("pivote doucement la tortue de trente degrés": "la" and
+    /// "de" are French and Spanish), the text's letter trigrams choose among them
+    /// (`whatlang`, kept to the tied languages: on a short request its own guess across
+    /// all languages is often wrong).
     pub fn of(text: &str) -> Option<Language> {
         let prose = prose(text);
         chosen(&evidence(&prose), &prose)
@@ -417,15 +417,15 @@ mod tests {
     #[test]
     fn requests_are_read_in_their_language() {
         let cases = [
-            ("list the ROS nodes", Some(English)),
-            ("who publishes /turtle1/pose?", Some(English)),
-            ("lista los nodos de ROS", Some(Spanish)),
-            ("¿dónde está la tortuga?", Some(Spanish)),
-            ("quels sont les topics ?", Some(French)),
-            ("tourne la tortue de 90 degrés", Some(French)),
-            ("Zeige die laufenden ROS-Knoten", Some(German)),
-            ("Bewege die Schildkröte 1 Meter vorwärts", Some(German)),
-            ("qual è il livello della batteria?", Some(Italian)),
+            ("show me the running ROS nodes", Some(English)),
+            ("which node sends /turtle1/pose?", Some(English)),
+            ("muestra los nodos de ROS activos", Some(Spanish)),
+            ("¿dónde se encuentra la tortuga ahora?", Some(Spanish)),
+            ("quels topics sont publiés ?", Some(French)),
+            ("pivote doucement la tortue de trente degrés", Some(French)),
+            ("Welche ROS-Knoten laufen gerade?", Some(German)),
+            ("Fahre die Schildkröte zwei Meter nach vorne", Some(German)),
+            ("qual è lo stato della batteria?", Some(Italian)),
             ("mostre os tópicos do robô", Some(Portuguese)),
             // Names and numbers alone say nothing.
             ("/turtle1/pose 2.0", None),

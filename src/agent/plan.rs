@@ -1,5 +1,5 @@
-//! A request of several parts ("list the topics, then tell me the type of
-//! /turtle1/pose", "move 1 m and tell me where it is now") is worked through one part at
+//! A request of several parts ("list every service, then tell me the type of /spawn",
+//! "move 3 m and tell me where it ended up") is worked through one part at
 //! a time. A small model shown the whole request answers after its first call; shown one
 //! part as the operator's turn, then the next part after that part's result, it makes
 //! each part's call with the earlier results in view, as in a conversation.
@@ -12,7 +12,7 @@
 //!   "tell me", a word naming an act, or a word of a tool's name ("echo", "list");
 //!   never at "or" nor "but".
 //!
-//! A part of one word joins its neighbour ("hello, who are you?" is one part), and a
+//! A part of one word joins its neighbour ("hi, what can you do?" is one part), and a
 //! request with a negation anywhere is not cut ("don't move, just turn" is read whole,
 //! as the guards read it). Cutting only changes what the model is shown; the guards and
 //! the policy still judge every call against the whole request.
@@ -153,23 +153,20 @@ mod tests {
     #[test]
     fn requests_of_several_parts_are_cut_where_a_new_request_opens() {
         assert_eq!(
-            cut("list the topics, then tell me the type of /turtle1/pose"),
-            ["list the topics", "tell me the type of /turtle1/pose"]
+            cut("list every service, then tell me the type of /spawn"),
+            ["list every service", "tell me the type of /spawn"]
         );
         assert_eq!(
-            cut("move 1 m and tell me where it is now"),
-            ["move 1 m", "tell me where it is now"]
+            cut("move 3 m and tell me where it ended up"),
+            ["move 3 m", "tell me where it ended up"]
         );
         assert_eq!(
-            cut("list the topics and echo the battery state"),
-            ["list the topics", "echo the battery state"]
+            cut("show the services and echo /turtle1/pose"),
+            ["show the services", "echo /turtle1/pose"]
         );
         assert_eq!(
-            cut("which node publishes /turtle1/pose and what parameters does it have?"),
-            [
-                "which node publishes /turtle1/pose",
-                "what parameters does it have?"
-            ]
+            cut("which node offers /spawn and what topics does it publish?"),
+            ["which node offers /spawn", "what topics does it publish?"]
         );
         assert_eq!(
             cut("mueve la tortuga 1 metro y luego dime dónde está"),
@@ -184,11 +181,11 @@ mod tests {
     #[test]
     fn one_request_stays_whole() {
         for q in [
-            "list the ROS nodes",
-            "hello, who are you?",
-            "thanks, that is all",
-            "spawn a new turtle at x 2 y 3",
-            "teleport turtle1 to x 3 y 4 with the teleport_absolute service",
+            "show every ROS node",
+            "hi, what can you do?",
+            "thank you, that will do",
+            "spawn another turtle at x 4 y 1",
+            "teleport turtle1 to x 6 y 2 via the teleport_absolute service",
             "teleport the turtle to x 2.5, y 3",
             "what are the x and y of the turtle?",
             "list the nodes and topics",

@@ -78,8 +78,11 @@ mod tests {
             errors("Move the turtle, please.", "move the turtle please"),
             (0, 4)
         );
-        assert_eq!(errors("list the ROS nodes", "list the rose nodes"), (1, 4));
-        assert_eq!(errors("list the ROS nodes", "list ROS nodes now"), (2, 4));
+        assert_eq!(
+            errors("show the ROS topics", "show the rose topics"),
+            (1, 4)
+        );
+        assert_eq!(errors("show the ROS topics", "show ROS topics now"), (2, 4));
         assert_eq!(errors("turn 90 degrees", ""), (3, 3));
         assert_eq!(
             words("/turtle1/pose at 2.5 m."),

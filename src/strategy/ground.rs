@@ -177,7 +177,8 @@ mod tests {
     #[test]
     fn an_optional_filter_nobody_mentioned_is_dropped() {
         let mut c = call(json!({"node": "/made_up", "namespace": "ros_node_list", "count": 3}));
-        let dropped = Grounding::new(["list the ROS nodes"]).drop_ungrounded(&mut c, &spec());
+        let dropped =
+            Grounding::new(["show me every running node"]).drop_ungrounded(&mut c, &spec());
         assert_eq!(dropped, ["namespace"]);
         // The required guess and the number stay.
         assert_eq!(c.arguments, json!({"node": "/made_up", "count": 3}));
