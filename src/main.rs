@@ -367,7 +367,8 @@ impl AgentOpts {
 
 #[derive(Subcommand)]
 enum EvalCommand {
-    /// Run the ROS task suite: full agent episodes, each against a fresh built-in sim.
+    /// Run the ROS task suite: full agent episodes, each against a fresh built-in sim, or
+    /// all against the robot already on the graph (`--robot ros2|ros1`).
     Ros {
         /// Cases, one JSON object per line (tests/eval/ros.jsonl is the project's).
         suite: PathBuf,
@@ -404,10 +405,22 @@ enum EvalCommand {
         backend: BackendArg,
         #[arg(short, long)]
         threads: Option<usize>,
-        /// The sim over ROS 2 (`sim`), or served on ROS 1 (`sim-ros1`, needs a roscore at
-        /// ROS_MASTER_URI): the agent reaches it over that ROS.
+        /// The robot: the built-in sim over ROS 2 (`sim`) or served on ROS 1 (`sim-ros1`,
+        /// needs a roscore at ROS_MASTER_URI), a fresh one per case; or a robot already on
+        /// the graph, over ROS 2 (`ros2`) or ROS 1 (`ros1`), joined once and not reset: it
+        /// keeps its state between cases.
         #[arg(long, value_enum, default_value_t = ui::agent::Robot::Sim)]
         robot: ui::agent::Robot,
+        /// Robot prompt file (TOML), as for `ask` (default: prompts/turtlesim.toml on the
+        /// sim, prompts/default.toml on any other robot).
+        #[arg(long)]
+        prompt: Option<PathBuf>,
+        /// Robot tools declared in a TOML file (repeatable), as for `ask`.
+        #[arg(long = "tools")]
+        tools: Vec<PathBuf>,
+        /// Policy file (TOML): deny-list, limits, time limit, as for `ask`.
+        #[arg(long)]
+        policy: Option<PathBuf>,
     },
     /// Speech recognition on spoken operator requests: each spoken by espeak-ng voices
     /// at several speeds, transcribed, scored by word error rate.
@@ -650,6 +663,9 @@ fn main() -> ExitCode {
                     backend,
                     threads,
                     robot,
+                    prompt,
+                    tools,
+                    policy,
                 },
         } => ui::eval::ros(&ui::eval::RosArgs {
             retrieval,
@@ -665,11 +681,11 @@ fn main() -> ExitCode {
                 },
                 yes: false,
                 read_only: false,
-                policy: None,
-                prompt: None,
+                policy,
+                prompt,
                 trace_dir: None,
                 log_dirs: Vec::new(),
-                tools: Vec::new(),
+                tools,
                 max_steps,
                 decoding: Decoding::Constrained,
                 answer_mode: AnswerMode::Tool,

@@ -195,3 +195,158 @@ fn ros_suite_slice_runs_scores_and_reports() {
         assert_eq!(v["pass"] == true, v["reason"].is_null(), "{line}");
     }
 }
+
+/// A tiny suite about the rclpy peer's own graph (requests of this test's own, not the
+/// project's suites): a topic listing, a reading (a tool the test declares, or the
+/// echo), and two requests to stop, which latch the e-stop without a model. Two cases
+/// in one category, so each half has one.
+const PEER_SUITE: &str = r#"{"id": "stop-01", "query": "please stop right now", "forbid_calls": ["*"]}
+{"id": "listing-01", "query": "show me the topics on the graph", "expect_calls": [{"name": "ros_topic_list"}], "forbid_calls": ["ros_topic_publish", "ros_service_call", "ros_param_set"], "answer_contains": ["/chatter"]}
+{"id": "stop-02", "query": "halt the robot immediately", "forbid_calls": ["*"]}
+{"id": "reading-01", "query": "read one message from /chatter", "expect_any": [{"name": "peer_chatter_read"}, {"name": "ros_topic_echo"}], "answer_contains": ["hello"]}
+"#;
+
+/// The peer robot's prompt file: its own words, and the tools file beside it.
+const PEER_PROMPT: &str = r#"embodiment_and_persona = "You are the on-board assistant of a small test robot. You are brief and exact."
+critical_instructions = "Use a tool to get facts; never invent them. Answer with the names and numbers the tools return."
+about_your_capabilities = "You can list ROS nodes, topics and services and read messages."
+tools = ["peer_tools.toml"]
+"#;
+
+/// A declared tool of the peer robot, loaded through its prompt file.
+const PEER_TOOLS: &str = r#"[[tool]]
+name = "peer_chatter_read"
+description = "Read the latest line the peer publishes on /chatter."
+effect = "observes"
+[tool.read]
+topic = "/chatter"
+type = "std_msgs/msg/String"
+"#;
+
+/// `ferrosa eval ros SUITE --robot ros2 --prompt FILE` on a robot already on the graph (an
+/// rclpy node over real DDS, in a loopback namespace), with the default model: the
+/// robot is joined once and said to keep its state between cases; the prompt file's
+/// tools and `--tools` are loaded as `ask` loads them (the same file twice is refused by
+/// name); an e-stop a case latched is released before the next case, which then runs;
+/// the report keeps its per-category and per-half rows. The topic listing is answered
+/// from the peer's graph: with a topic named nowhere in the requests or the prompt.
+#[test]
+#[ignore = "needs the model weights (or a ROS peer): cargo test --release -- --include-ignored"]
+fn ros_suite_runs_on_a_ros2_robot_already_on_the_graph() {
+    use std::io::BufRead;
+    if crate::util::rerun_in_loopback_netns(
+        "eval::ros_suite_runs_on_a_ros2_robot_already_on_the_graph",
+        1200,
+    ) {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let suite = dir.path().join("peer.jsonl");
+    std::fs::write(&suite, PEER_SUITE).unwrap();
+    let prompt = dir.path().join("peer.toml");
+    std::fs::write(&prompt, PEER_PROMPT).unwrap();
+    let tools = dir.path().join("peer_tools.toml");
+    std::fs::write(&tools, PEER_TOOLS).unwrap();
+    let mut child = Command::new("timeout")
+        .args(["1100"])
+        .arg(crate::ros::rclpy_python())
+        .arg(crate::ros::peer_script())
+        .arg("serve")
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .expect("starting the rclpy peer");
+    let stdout = child.stdout.take().expect("the peer's stdout");
+    let peer = crate::ros::Peer(child);
+    // The peer is on the graph before ferrosa joins it, as a robot is.
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        for line in std::io::BufReader::new(stdout).lines() {
+            let Ok(line) = line else { break };
+            if line.contains("peer ready") {
+                let _ = tx.send(());
+            }
+        }
+    });
+    rx.recv_timeout(std::time::Duration::from_secs(60))
+        .expect("the rclpy peer did not start within 60 s");
+    let out = dir.path().join("out");
+    let eval = |extra: &[&std::ffi::OsStr]| {
+        Command::new(env!("CARGO_BIN_EXE_ferrosa"))
+            .args(["eval", "ros"])
+            .arg(&suite)
+            .args(["--robot", "ros2", "--max-steps", "4", "--prompt"])
+            .arg(&prompt)
+            .arg("--out")
+            .arg(&out)
+            .args(extra)
+            .env("FERROSA_MODELS_DIR", models_dir())
+            .output()
+            .unwrap()
+    };
+    // The prompt file's tools are loaded: the same file again under --tools is refused.
+    let twice = eval(&["--tools".as_ref(), tools.as_os_str()]);
+    let stderr = String::from_utf8_lossy(&twice.stderr);
+    assert!(
+        !twice.status.success()
+            && stderr.contains("peer_tools.toml, line 2: tool peer_chatter_read")
+            && stderr.contains("has this name"),
+        "{stderr}"
+    );
+    let o = eval(&[]);
+    drop(peer);
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{stderr}");
+    eprintln!("{stdout}");
+    assert!(
+        stdout.contains(
+            "| robot ros2 (the one on the graph, not reset: it keeps its state between cases) |"
+        ),
+        "{stdout}"
+    );
+    for row in [
+        "listing",
+        "stop",
+        "reading",
+        "all",
+        "tune half",
+        "report half",
+    ] {
+        assert!(
+            stdout.contains(&format!("| {row} | constrained |")),
+            "{row} row missing: {stdout}"
+        );
+    }
+    assert!(
+        stdout.contains(
+            "e-stop: engaged by 2 case(s) (stop-01, stop-02), released before the next case"
+        ),
+        "{stdout}\n{stderr}"
+    );
+    let cases: Vec<serde_json::Value> = std::fs::read_to_string(out.join("ros_cases.jsonl"))
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    assert_eq!(cases.len(), 4, "{cases:?}");
+    for v in &cases {
+        // Constrained decoding: every call the model made was valid for its schema.
+        assert!(
+            v["valid_call"] == true || v["attempted_call"] == false,
+            "{v}"
+        );
+    }
+    // The stops made no call; the listing ran after one (the e-stop released) and named
+    // a topic only the peer's graph holds.
+    assert_eq!(cases[0]["pass"], true, "{}", cases[0]);
+    assert_eq!(cases[2]["pass"], true, "{}", cases[2]);
+    assert_eq!(cases[1]["pass"], true, "{}", cases[1]);
+    assert!(
+        cases[1]["text"]
+            .as_str()
+            .is_some_and(|t| t.contains("/peer/transition")),
+        "{}",
+        cases[1]
+    );
+}

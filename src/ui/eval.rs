@@ -1,7 +1,8 @@
 //! `ferrosa eval bfcl PATH...`: run BFCL files through the model; `ferrosa eval ros
-//! SUITE`: run agent episodes against a fresh built-in sim per case. Both print a
-//! markdown summary (decoding modes side by side with `--decoding both`) and write every
-//! case as JSONL so failures can be read.
+//! SUITE`: run agent episodes against a fresh built-in sim per case, or against a robot
+//! already on the graph (`--robot ros2|ros1`), joined once and never reset between
+//! cases. Both print a markdown summary (decoding modes side by side with `--decoding
+//! both`) and write every case as JSONL so failures can be read.
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -10,6 +11,7 @@ use std::sync::Arc;
 
 use anyhow::Context;
 
+use super::agent::Robot;
 use crate::agent::language::Language;
 use crate::agent::Event;
 use crate::decode::envelope::Envelope;
@@ -143,22 +145,96 @@ impl Confirm for CaseOperator {
     }
 }
 
+/// How the cases meet the robot.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Fixture {
+    /// The built-in sim (over ROS 2, or served on ROS 1): a new one per case.
+    FreshSim,
+    /// A robot already on the graph (`--robot ros2|ros1`): joined once, never reset; it
+    /// keeps the state each case leaves it in.
+    Shared,
+}
+
+impl Fixture {
+    fn of(robot: Robot) -> anyhow::Result<Fixture> {
+        Ok(match robot {
+            Robot::Sim | Robot::SimRos1 => Fixture::FreshSim,
+            Robot::Ros2 | Robot::Ros1 => Fixture::Shared,
+            Robot::None => anyhow::bail!(
+                "the ROS suite needs a robot: --robot sim or sim-ros1 (a fresh built-in sim per case), or --robot ros2 or ros1 (the robot already on the graph, kept between cases)"
+            ),
+        })
+    }
+
+    /// The report header's robot part.
+    fn describe(self, robot: Robot) -> String {
+        let name = format!("{robot:?}").to_lowercase();
+        match self {
+            Fixture::FreshSim => format!("robot {name} (a fresh one per case)"),
+            Fixture::Shared => format!(
+                "robot {name} (the one on the graph, not reset: it keeps its state between cases)"
+            ),
+        }
+    }
+}
+
+/// Before a case on a shared robot: an e-stop engaged since the last case was pressed
+/// on the robot's side, and only its operator releases it. `skip` resumes at this case.
+fn refuse_outside_estop(
+    estop: &crate::estop::EStop,
+    case: &eval::ros::RosCase,
+    skip: usize,
+) -> anyhow::Result<()> {
+    match estop.engaged_by() {
+        Some(e) => anyhow::bail!(
+            "the e-stop was engaged by {} before case {}: the suite stops here; release it on the robot's side and go on with --skip {skip}",
+            e.source,
+            case.id
+        ),
+        None => Ok(()),
+    }
+}
+
+/// After a case: an e-stop the case latched (the agent's `robot_stop`, a request to
+/// stop) is released before the next one, as an operator would; one a ROS node pressed
+/// on a shared robot is not (the suite stops; `skip` resumes at this case, run again).
+/// Returns whether the case latched it.
+fn release_case_estop(
+    estop: &crate::estop::EStop,
+    fixture: Fixture,
+    case: &eval::ros::RosCase,
+    skip: usize,
+) -> anyhow::Result<bool> {
+    let Some(engaged) = estop.engaged_by() else {
+        return Ok(false);
+    };
+    if fixture == Fixture::Shared && engaged.source == super::robot::estop_topic_source() {
+        anyhow::bail!(
+            "the e-stop was engaged by {} during case {}: the suite stops here; release it on the robot's side and go on with --skip {skip}",
+            engaged.source,
+            case.id
+        );
+    }
+    estop.reset();
+    Ok(true)
+}
+
 pub fn ros(args: &RosArgs) -> anyhow::Result<()> {
-    use super::agent::{build_with, connect, Robot};
+    use super::agent::{build_with, connect};
     let cases = eval::ros::load(&args.suite, args.skip, args.limit)?;
     let approve = Arc::new(AtomicBool::new(false));
     let operator: Arc<dyn Confirm> = Arc::new(CaseOperator(approve.clone()));
-    let robot = match args.agent.robot {
-        Robot::SimRos1 => Robot::SimRos1,
-        Robot::Sim => Robot::Sim,
-        other => anyhow::bail!(
-            "the ROS suite runs on the built-in sim: --robot sim or sim-ros1, not {other:?}"
-        ),
-    };
-    let mut link = connect(robot, false)?;
-    let first: Arc<dyn RosGraph> = link.graph.clone().expect("the sim has a graph");
+    let robot = args.agent.robot;
+    let fixture = Fixture::of(robot)?;
+    // A shared robot is joined as `ask` joins it (and the discovery reported).
+    let mut link = connect(robot, fixture == Fixture::Shared)?;
+    let first: Arc<dyn RosGraph> = link
+        .graph
+        .clone()
+        .context("no ROS graph joined for the robot")?;
     let switch = Arc::new(SwitchGraph::new(first));
-    // The robot just started serves the first case; every later case gets a new one.
+    // The robot just started serves the first case; on the sim every later case gets a
+    // new one.
     if args.retrieval {
         let agent = build_with(
             &args.agent,
@@ -174,6 +250,8 @@ pub fn ros(args: &RosArgs) -> anyhow::Result<()> {
     // The answers to requests in another language than English: in it, in another one,
     // or data alone (names and numbers, words no language shows).
     let mut answered_in = [0usize; 3];
+    // The cases that latched the e-stop (released before the next case).
+    let mut latched: Vec<String> = Vec::new();
     let total = cases.len() * args.decoding.modes().len();
     let mut model_name = String::new();
     for &mode in args.decoding.modes() {
@@ -185,30 +263,43 @@ pub fn ros(args: &RosArgs) -> anyhow::Result<()> {
             Some(switch.clone()),
             crate::estop::EStop::new(),
         )?;
+        if fixture == Fixture::Shared {
+            // As `ask` does: what the graph asks of other nodes by itself stays outside
+            // the fence.
+            if let Some(g) = &link.graph {
+                g.set_fence(agent.fence().clone());
+            }
+        }
         model_name = format!(
             "{} ({})",
             args.agent.model.model.as_deref().unwrap_or("default"),
             agent.backend().name()
         );
-        for case in &cases {
-            // A fresh robot: a new sim and a new participant to see it; the old pair goes.
-            if used {
-                if robot == Robot::SimRos1 {
-                    // On ROS 1 the new robot takes the old one's node name: the old
-                    // one leaves the master first.
-                    drop(std::mem::replace(
-                        &mut link,
-                        super::robot::RobotLink::none(),
-                    ));
+        for (i, case) in cases.iter().enumerate() {
+            match fixture {
+                Fixture::FreshSim => {
+                    // A fresh robot: a new sim and a new participant to see it; the old
+                    // pair goes.
+                    if used {
+                        if robot == Robot::SimRos1 {
+                            // On ROS 1 the new robot takes the old one's node name: the
+                            // old one leaves the master first.
+                            drop(std::mem::replace(
+                                &mut link,
+                                super::robot::RobotLink::none(),
+                            ));
+                        }
+                        let fresh = connect(robot, false)?;
+                        switch.replace(fresh.graph.clone().context("the sim has no graph")?);
+                        link = fresh;
+                    }
+                    // A fresh robot starts released.
+                    agent.estop().reset();
                 }
-                let fresh = connect(robot, false)?;
-                switch.replace(fresh.graph.clone().expect("the sim has a graph"));
-                link = fresh;
+                Fixture::Shared => refuse_outside_estop(&agent.estop(), case, args.skip + i)?,
             }
             used = true;
             agent.clear();
-            // The operator releases an e-stop a case engaged before the next one.
-            agent.estop().reset();
             approve.store(case.confirm, Ordering::SeqCst);
             let (mut calls, mut invalid) = (Vec::new(), 0usize);
             let r = agent.ask(&case.query, &mut |e| match e {
@@ -229,6 +320,14 @@ pub fn ros(args: &RosArgs) -> anyhow::Result<()> {
                 Event::Error { message } if message.contains("did not parse") => invalid += 1,
                 _ => {}
             })?;
+            // The operator releases an e-stop the case engaged before the next one.
+            if release_case_estop(&agent.estop(), fixture, case, args.skip + i)? {
+                eprintln!(
+                    "\ncase {}: the e-stop it engaged is released for the next case",
+                    case.id
+                );
+                latched.push(case.id.clone());
+            }
             let tokens = r.timings.generated_tokens;
             let verdict = eval::ros::check(case, &calls, &r.answer);
             match Language::of(&case.query) {
@@ -283,8 +382,9 @@ pub fn ros(args: &RosArgs) -> anyhow::Result<()> {
     };
     let pick = format!("{:?}", args.agent.pick).to_lowercase();
     println!(
-        "model {model_name} | suite {}{copy} | tool pick {pick} | {} cases per mode\n",
+        "model {model_name} | suite {}{copy} | tool pick {pick} | {} | {} cases per mode\n",
         args.suite.display(),
+        fixture.describe(robot),
         cases.len()
     );
     let overall = eval::summarize_overall(&results);
@@ -320,6 +420,13 @@ pub fn ros(args: &RosArgs) -> anyhow::Result<()> {
         println!(
             "\nanswers to the {} requests not in English: {own} in their language, {other} in another, {data} data alone (names and numbers; the agent's lead word)",
             own + other + data
+        );
+    }
+    if !latched.is_empty() {
+        println!(
+            "\ne-stop: engaged by {} case(s) ({}), released before the next case",
+            latched.len(),
+            latched.join(", ")
         );
     }
     eprintln!("per-case results: {}", jsonl.display());
@@ -389,4 +496,47 @@ fn retrieval(agent: &crate::agent::Agent, cases: &[eval::ros::RosCase]) -> anyho
         println!("  {cat:<12} {:5.1}% ({}/{})", pct(c), c.0, c.1);
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn case(id: &str) -> eval::ros::RosCase {
+        serde_json::from_value(serde_json::json!({"id": id, "query": "q"})).unwrap()
+    }
+
+    #[test]
+    fn a_case_releases_its_own_estop_but_never_one_pressed_on_a_shared_robot() {
+        let estop = crate::estop::EStop::new();
+        let c = case("stop-01");
+        assert!(!release_case_estop(&estop, Fixture::Shared, &c, 1).unwrap());
+        // The agent's stop, or the request's: released for the next case.
+        estop.trigger("the agent (robot_stop)");
+        assert!(release_case_estop(&estop, Fixture::Shared, &c, 1).unwrap());
+        assert!(!estop.is_engaged());
+        refuse_outside_estop(&estop, &c, 1).unwrap();
+        // A node on the robot's e-stop topic: the suite stops, the e-stop stays.
+        estop.trigger(&crate::ui::robot::estop_topic_source());
+        let err = release_case_estop(&estop, Fixture::Shared, &c, 3).unwrap_err();
+        assert!(err.to_string().contains("--skip 3"), "{err}");
+        assert!(estop.is_engaged());
+        let err = refuse_outside_estop(&estop, &case("listing-02"), 3).unwrap_err();
+        assert!(err.to_string().contains("before case listing-02"), "{err}");
+        // On the sim, a fresh robot per case: whoever pressed it, it is released.
+        assert!(release_case_estop(&estop, Fixture::FreshSim, &c, 3).unwrap());
+        assert!(!estop.is_engaged());
+    }
+
+    #[test]
+    fn only_a_robot_decides_how_cases_meet_it() {
+        assert_eq!(Fixture::of(Robot::Sim).unwrap(), Fixture::FreshSim);
+        assert_eq!(Fixture::of(Robot::SimRos1).unwrap(), Fixture::FreshSim);
+        assert_eq!(Fixture::of(Robot::Ros2).unwrap(), Fixture::Shared);
+        assert_eq!(Fixture::of(Robot::Ros1).unwrap(), Fixture::Shared);
+        assert!(Fixture::of(Robot::None).is_err());
+        assert!(Fixture::Shared
+            .describe(Robot::Ros1)
+            .contains("robot ros1 (the one on the graph, not reset"));
+    }
 }

@@ -19,6 +19,11 @@ use crate::tool::{Policy, Registry};
 /// The topic any node publishes `true` on to engage the e-stop.
 pub const ESTOP_TOPIC: &str = "/ferrosa/estop";
 
+/// Who engaged the e-stop when a node published on `ESTOP_TOPIC` (the e-stop's source).
+pub fn estop_topic_source() -> String {
+    format!("a ROS node on {ESTOP_TOPIC}")
+}
+
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum Robot {
     None,
@@ -221,7 +226,7 @@ fn follow_estop_topic(raw: Arc<dyn RosGraph>, estop: Arc<EStop>) {
         };
         while let Some(v) = rx.recv().await {
             if v["data"] == true {
-                estop.trigger(&format!("a ROS node on {ESTOP_TOPIC}"));
+                estop.trigger(&estop_topic_source());
             }
         }
     });
