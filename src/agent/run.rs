@@ -111,6 +111,17 @@ impl Run<'_> {
         if super::concepts::operator_stops(self.query) {
             let estop = self.agent.exec.policy().estop().clone();
             estop.trigger(&format!("the operator: {}", self.query.trim()));
+            // The stop is the `robot_stop` act, taken without the model: the run's
+            // record says so, as for a stop the model calls.
+            self.records.push(StepRecord {
+                step: 0,
+                name: STOP_TOOL.to_string(),
+                arguments: json!({}),
+                output: json!({"stopped": true, "by": "the operator's words"}),
+                ok: true,
+                ms: 0.0,
+                decision: Decision::Allowed,
+            });
             self.answer =
                 "Stopped. Motion stays refused until the operator resets the e-stop.".into();
             return Ok(self.end(Finish::Answer));

@@ -276,7 +276,17 @@ impl Filter {
             .filter(|(n, _)| self.keeps(n))
             .map(|(n, v)| (n.as_str(), v))
             .unzip();
-        let mut out = json!({"summary": summary(key, &kept_names), "count": kept.len(), key: kept, "filters": self.echo});
+        // The robot's own names first: every ROS 2 node's parameter and type
+        // description services (and the logging and parameter-event topics) say
+        // nothing of this robot, and would otherwise fill the names shown.
+        let mut shown: Vec<(bool, &str)> = kept
+            .iter()
+            .zip(&kept_names)
+            .map(|(v, n)| (infrastructure(v), *n))
+            .collect();
+        shown.sort_by_key(|(infra, _)| *infra);
+        let shown: Vec<&str> = shown.into_iter().map(|(_, n)| n).collect();
+        let mut out = json!({"summary": summary(key, &shown), "count": kept.len(), key: kept, "filters": self.echo});
         let filtered = self.pattern.is_some() || self.namespace.is_some();
         if kept.is_empty() && !items.is_empty() && filtered {
             let (all_names, all): (Vec<&str>, Vec<&Value>) =
@@ -297,6 +307,24 @@ impl Filter {
         });
         ns_ok && self.pattern.as_ref().is_none_or(|re| re.is_match(name))
     }
+}
+
+/// Whether a listed item is the ROS 2 client library's own, on every node whatever the
+/// robot: its type is of `rcl_interfaces` (parameters, `/rosout`, `/parameter_events`)
+/// or `type_description_interfaces`.
+fn infrastructure(item: &Value) -> bool {
+    let types: Vec<&str> = match &item["type"] {
+        Value::String(s) => s.split(", ").collect(),
+        Value::Array(a) => a.iter().filter_map(Value::as_str).collect(),
+        _ => item["types"]
+            .as_array()
+            .map(|a| a.iter().filter_map(Value::as_str).collect())
+            .unwrap_or_default(),
+    };
+    !types.is_empty()
+        && types.iter().all(|t| {
+            t.starts_with("rcl_interfaces/") || t.starts_with("type_description_interfaces/")
+        })
 }
 
 /// "2 nodes: /a, /b" (at most 12 names, then "and N more"), the sentence a small model
@@ -423,6 +451,35 @@ pub(crate) fn with_mux(mut out: Value, asked: &str, d: &crate::ros::Delivery) ->
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_listing_names_the_robots_own_services_before_every_nodes_parameter_services() {
+        let items = typed(
+            "service",
+            graph(&[
+                (
+                    "/arm/describe_parameters",
+                    "rcl_interfaces/srv/DescribeParameters",
+                ),
+                ("/arm/get_parameters", "rcl_interfaces/srv/GetParameters"),
+                (
+                    "/arm/get_type_description",
+                    "type_description_interfaces/srv/GetTypeDescription",
+                ),
+                ("/arm/list_parameters", "rcl_interfaces/srv/ListParameters"),
+                ("/zz/open", "std_srvs/srv/Trigger"),
+            ]),
+        );
+        let f = Filter::new(None, None).unwrap();
+        let out = f.listing("services", items);
+        let summary = out["summary"].as_str().unwrap();
+        assert!(
+            summary.starts_with("5 services: /zz/open, /arm/"),
+            "{summary}"
+        );
+        // The listing itself keeps its order.
+        assert_eq!(out["services"][0]["service"], "/arm/describe_parameters");
+    }
 
     fn graph(items: &[(&str, &str)]) -> BTreeMap<String, BTreeSet<String>> {
         items
