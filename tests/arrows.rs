@@ -27,6 +27,7 @@ const ALLOWED: &[(&str, &[&str])] = &[
     ("speech", &["dirs"]),
     ("backend", &["chat", "clock", "metrics"]),
     ("models", &["backend", "metrics", "dirs"]),
+    ("embed", &["models"]),
     ("tool", &["chat", "lexicon", "estop", "fence", "limits"]),
     ("decode", &["backend", "tool", "chat", "lexicon", "json"]),
     ("remote", &["decode", "backend", "tool", "chat", "json"]),
@@ -57,6 +58,7 @@ const ALLOWED: &[(&str, &[&str])] = &[
             "fence",
             "remote",
             "stop_intent",
+            "embed",
         ],
     ),
     (
@@ -70,6 +72,7 @@ const ALLOWED: &[(&str, &[&str])] = &[
         "ui",
         &[
             "agent",
+            "embed",
             "strategy",
             "decode",
             "backend",

@@ -109,7 +109,7 @@ fn tools_are_found_by_the_meaning_of_their_examples_in_any_language() {
         "pump_prime"
     );
     // The robot's names: of two tools alike in their examples, the one that takes the
-    // kind of name the request is near.
+    // kind of name the request is near (one of that kind standing out from the others).
     let call = |name: &str, key: &str| {
         let mut s = ToolSpec::new(
             name,
@@ -121,7 +121,16 @@ fn tools_are_found_by_the_meaning_of_their_examples_in_any_language() {
         s
     };
     let pair = vec![call("by_service", "service"), call("by_topic", "topic")];
-    let names = [("service".to_string(), "/conveyor/start_belt".to_string())];
+    let names: Vec<(String, String)> = [
+        ("service", "/conveyor/start_belt"),
+        ("service", "/lights/dim"),
+        ("service", "/door/lock"),
+        ("topic", "/camera/image"),
+        ("topic", "/battery_state"),
+    ]
+    .iter()
+    .map(|(k, n)| (k.to_string(), n.to_string()))
+    .collect();
     let plain = Meaning::new(enc, BTreeMap::new());
     assert_eq!(
         best(&plain, "start the conveyor belt", &pair, &names),

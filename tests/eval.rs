@@ -337,16 +337,18 @@ fn ros_suite_runs_on_a_ros2_robot_already_on_the_graph() {
             "{v}"
         );
     }
-    // The stops made no call; the listing ran after one (the e-stop released) and named
-    // a topic only the peer's graph holds.
+    // The stops made no call. The case after a stop ran its call (the e-stop released:
+    // not refused for it), whichever tool the model chose for it; the reading after the
+    // second stop answered with what only the peer publishes.
     assert_eq!(cases[0]["pass"], true, "{}", cases[0]);
     assert_eq!(cases[2]["pass"], true, "{}", cases[2]);
-    assert_eq!(cases[1]["pass"], true, "{}", cases[1]);
+    assert_eq!(cases[1]["attempted_call"], true, "{}", cases[1]);
     assert!(
         cases[1]["text"]
             .as_str()
-            .is_some_and(|t| t.contains("/peer/transition")),
+            .is_some_and(|t| !t.to_lowercase().contains("e-stop")),
         "{}",
         cases[1]
     );
+    assert_eq!(cases[3]["pass"], true, "{}", cases[3]);
 }

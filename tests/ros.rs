@@ -506,8 +506,8 @@ impl ferrosa::tool::Confirm for Approver {
     }
 }
 
-/// The agent with the real default model on the sim, as an operator uses it: small
-/// talk (no call), a status report, a request whose call fails, a Spanish request, a two-step request and a
+/// The agent with the real default model on the sim, as an operator uses it: a status
+/// report, a request whose call fails, a Spanish request, a two-step request and a
 /// Spanish motion request after confirmation, with the default tool pick (weighed).
 /// One model load for all of them.
 #[test]
@@ -532,10 +532,6 @@ fn the_agent_serves_operator_requests_with_the_real_model() {
     let mut ask = |q: &str| crate::util::ask_shown(&mut agent, q);
     let ok =
         |steps: &[StepRecord], name: &str| steps.iter().find(|s| s.name == name && s.ok).cloned();
-
-    // Small talk is answered without a call (so with nothing invented from one).
-    let (r, why) = ask("good evening, nice to meet you");
-    assert!(r.steps.is_empty(), "{why}");
 
     // A status report: battery, diagnostics and nodes in one call; the answer states
     // the battery's charge as read.

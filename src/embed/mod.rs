@@ -8,30 +8,20 @@
 //! - `spm`: the SentencePiece tokenizer, read from the vocabulary file
 //! - `npz`: the weights, read from NumPy's `.npz`
 //! - `cnn`: the network
+//! - `error`: what goes wrong loading it, and what to do
 //!
 //! The files are two catalog entries (`ferrosa models fetch use-multilingual-v3
 //! use-multilingual-v3-vocab`); loading them takes about half a second and 70 MB.
 
 pub mod cnn;
+mod error;
 pub mod npz;
 pub mod spm;
 
+pub use error::{EmbedError, VOCAB_MODEL, WEIGHTS_MODEL};
+
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, OnceLock};
-
-/// The catalog names of the weights and the vocabulary.
-pub const WEIGHTS_MODEL: &str = "use-multilingual-v3";
-pub const VOCAB_MODEL: &str = "use-multilingual-v3-vocab";
-
-#[derive(Debug, Clone, thiserror::Error)]
-pub enum EmbedError {
-    #[error("the sentence encoder is not installed ({path}): run `ferrosa models fetch {WEIGHTS_MODEL} {VOCAB_MODEL}`")]
-    Missing { path: String },
-    #[error("the sentence encoder's weights {path} are unusable ({message}): fetch them again with `ferrosa models fetch --force {WEIGHTS_MODEL}`")]
-    Weights { path: String, message: String },
-    #[error("the sentence encoder's vocabulary {path} is unusable ({message}): fetch it again with `ferrosa models fetch --force {VOCAB_MODEL}`")]
-    Vocabulary { path: String, message: String },
-}
 
 /// The encoder: tokenizer and network.
 pub struct Encoder {

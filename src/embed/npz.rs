@@ -6,7 +6,7 @@ use std::collections::HashMap;
 use std::io::Read;
 use std::path::Path;
 
-use super::EmbedError;
+use super::error::EmbedError;
 
 /// One array: its shape and its elements as `f32` (or raw bytes for `u1`).
 #[derive(Debug)]

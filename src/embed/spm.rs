@@ -7,7 +7,7 @@
 
 use std::collections::HashMap;
 
-use super::EmbedError;
+use super::error::EmbedError;
 
 const UNK: u32 = 0;
 pub const BOS: u32 = 1;

@@ -29,7 +29,7 @@ impl Tool for RobotStop {
     const EFFECT: Effect = Effect::Stops;
 
     fn description(&self) -> String {
-        "Stop the robot at once (emergency stop): every motion halts and motion stays refused until the operator resets it. Use it whenever the operator says stop, halt, wait or freeze, in any language.".into()
+        "Stop the robot now (emergency stop): every motion halts and motion stays refused until the operator resets it. Use it whenever the operator says stop, halt, wait or freeze, in any language.".into()
     }
 
     async fn call(&self, _: StopArgs, _: &ToolContext) -> Result<Value, ToolError> {
