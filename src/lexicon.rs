@@ -20,6 +20,29 @@ pub fn words(text: &str) -> Vec<String> {
         .collect()
 }
 
+/// The words of a ROS name or type, as written: runs of letters and digits, camel case
+/// split ("sensor_msgs/msg/BatteryState" → sensor, msgs, msg, Battery, State).
+pub fn name_words(name: &str) -> Vec<String> {
+    let mut words = Vec::new();
+    let mut cur = String::new();
+    let mut prev_lower = false;
+    for c in name.chars() {
+        if !c.is_alphanumeric() {
+            words.push(std::mem::take(&mut cur));
+            prev_lower = false;
+            continue;
+        }
+        if c.is_uppercase() && prev_lower {
+            words.push(std::mem::take(&mut cur));
+        }
+        prev_lower = c.is_lowercase() || c.is_ascii_digit();
+        cur.push(c);
+    }
+    words.push(cur);
+    words.retain(|w| !w.is_empty());
+    words
+}
+
 /// `text` lowercased with the diacritics of Latin letters removed, so the same word
 /// written with or without accents compares equal ("Posición" → "posicion").
 pub fn fold(text: &str) -> String {

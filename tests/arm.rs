@@ -8,12 +8,13 @@
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use ferrosa::agent::prompt::RobotPrompt;
 use serde_json::{json, Value};
 
+use crate::ros::Peer;
 use crate::util::rerun_in_loopback_netns;
 
 const CONTROLLER: &str = "/arm_controller";
@@ -26,33 +27,21 @@ fn repo(path: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join(path)
 }
 
-/// Stops the peer when the test ends: SIGTERM to its `timeout`, which passes it on;
-/// `timeout` alone ends it if this process dies.
-struct Peer(Child);
-
-impl Peer {
-    /// `arm_peer.py serve`, ended by `timeout` after `limit_s` whatever happens here.
-    fn start(limit_s: u32) -> Peer {
-        Peer(
-            Command::new("timeout")
-                .args(["-k", "5", &limit_s.to_string()])
-                .arg(crate::ros::rclpy_python())
-                .arg(repo("tests/peers/arm_peer.py"))
-                .arg("serve")
-                .env("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-                .stdout(Stdio::null())
-                .stderr(Stdio::null())
-                .spawn()
-                .expect("starting the arm peer"),
-        )
-    }
-}
-
-impl Drop for Peer {
-    fn drop(&mut self) {
-        let _ = Command::new("kill").arg(self.0.id().to_string()).status();
-        let _ = self.0.wait();
-    }
+/// `arm_peer.py serve`, ended by `timeout` after `limit_s` whatever happens here, and
+/// stopped when the test ends (`ros::Peer`).
+fn start_peer(limit_s: u32) -> Peer {
+    Peer(
+        Command::new("timeout")
+            .args(["-k", "5", &limit_s.to_string()])
+            .arg(crate::ros::rclpy_python())
+            .arg(repo("tests/peers/arm_peer.py"))
+            .arg("serve")
+            .env("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("starting the arm peer"),
+    )
 }
 
 /// `ferrosa call TOOL ARGS --robot ros2 --yes`, under a hard time limit: its JSON
@@ -380,7 +369,7 @@ fn the_arm_is_what_its_prompt_and_suite_say_and_moves_when_told() {
     ) {
         return;
     }
-    let _peer = Peer::start(400);
+    let _peer = start_peer(400);
     let facts = Facts::read(Duration::from_secs(90));
     assert_eq!(facts.joints.len(), 6, "{:?}", facts.joints);
     check_prompt(&facts);

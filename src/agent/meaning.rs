@@ -87,7 +87,8 @@ impl Meaning {
         specs: &[ToolSpec],
         names: &[(String, String)],
     ) -> Vec<f64> {
-        let q = self.encoder.encode(query);
+        // Kept like the tools' sentences: each step of a run asks again.
+        let q = self.vector(query);
         let mut by_kind: HashMap<&str, Vec<f64>> = HashMap::new();
         for (kind, name) in names {
             let c = f64::from(cosine(&q, &self.vector(&words_of_name(name))));
@@ -108,7 +109,7 @@ impl Meaning {
         specs
             .iter()
             .map(|spec| {
-                let named = name_kinds(spec)
+                let named = super::select::name_kinds(spec)
                     .filter_map(|k| nearest.get(k).copied())
                     .fold(0.0, f64::max);
                 let mut c: Vec<f64> = self
@@ -134,38 +135,10 @@ impl Meaning {
 /// 0.5 lost a turtle case, the nearest name's plain similarity lost arm listings).
 const NAME_GAIN: f64 = 0.3;
 
-/// Arguments that name a ROS thing of the robot's graph (the kinds of the names).
-const NAME_KINDS: &[&str] = &["node", "topic", "service", "action", "type"];
-
-/// The kinds of the robot's names `spec` takes (string arguments of those names).
-fn name_kinds(spec: &ToolSpec) -> impl Iterator<Item = &'static str> + '_ {
-    let props = spec.parameters["properties"].as_object();
-    NAME_KINDS
-        .iter()
-        .copied()
-        .filter(move |k| props.is_some_and(|p| p.get(*k).is_some_and(|v| v["type"] == "string")))
-}
-
-/// A ROS name as words: split at `/` and `_`, and a type's CamelCase apart
+/// A ROS name as the encoder reads it: its words (`lexicon::name_words`) apart
 /// (`sensor_msgs/msg/JointState`: "sensor msgs msg Joint State").
 fn words_of_name(name: &str) -> String {
-    let mut out = String::new();
-    let mut prev_lower = false;
-    for c in name.chars() {
-        if c == '/' || c == '_' || c.is_whitespace() {
-            if !out.ends_with(' ') && !out.is_empty() {
-                out.push(' ');
-            }
-            prev_lower = false;
-            continue;
-        }
-        if c.is_uppercase() && prev_lower {
-            out.push(' ');
-        }
-        prev_lower = c.is_lowercase() || c.is_ascii_digit();
-        out.push(c);
-    }
-    out.trim_end().to_string()
+    crate::lexicon::name_words(name).join(" ")
 }
 
 #[cfg(test)]

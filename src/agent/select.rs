@@ -221,6 +221,15 @@ const WRITTEN_NAME: f64 = 4.0;
 /// Arguments that name a ROS thing of the robot's graph (the kinds of `names`).
 const NAME_KINDS: &[&str] = &["node", "topic", "service", "action", "type"];
 
+/// The kinds of the robot's names `spec` takes (its string arguments of those names).
+pub(super) fn name_kinds(spec: &ToolSpec) -> impl Iterator<Item = &'static str> + '_ {
+    let props = spec.parameters["properties"].as_object();
+    NAME_KINDS
+        .iter()
+        .copied()
+        .filter(move |k| props.is_some_and(|p| p.get(*k).is_some_and(|v| v["type"] == "string")))
+}
+
 impl Document {
     fn new(spec: &ToolSpec, names: &[(String, String)], written: &[String]) -> Document {
         let props = spec.parameters["properties"].as_object();
@@ -233,11 +242,7 @@ impl Document {
                 text.push_str(d);
             }
         }
-        let kinds: Vec<&str> = NAME_KINDS
-            .iter()
-            .copied()
-            .filter(|k| props.is_some_and(|p| p.get(*k).is_some_and(|v| v["type"] == "string")))
-            .collect();
+        let kinds: Vec<&str> = name_kinds(spec).collect();
         let bare = |n: &str| n.trim_start_matches('/').to_string();
         let (whole, graph): (Vec<&str>, Vec<&str>) = names
             .iter()

@@ -176,11 +176,6 @@ impl Network {
         })
     }
 
-    /// The rows the embedding table has (ids at or past it are read as unknown).
-    pub fn vocabulary(&self) -> usize {
-        self.rows
-    }
-
     /// The unit vector of one tokenised sentence (BOS and EOS included).
     pub fn forward(&self, ids: &[u32]) -> Vec<f32> {
         let n = ids.len();

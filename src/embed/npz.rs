@@ -21,16 +21,6 @@ pub enum Data {
     F32(Vec<f32>),
 }
 
-impl Array {
-    pub fn len(&self) -> usize {
-        self.shape.iter().product()
-    }
-
-    pub fn is_empty(&self) -> bool {
-        self.len() == 0
-    }
-}
-
 /// Largest member read (the encoder's biggest is 3.9 MB): a corrupt size cannot make it
 /// allocate more.
 const MAX_MEMBER: u64 = 64 << 20;
@@ -169,7 +159,7 @@ mod tests {
         let b = parse(&npy("|u1", "(2, 3)", &[1, 2, 3, 4, 5, 6])).unwrap();
         assert_eq!(b.shape, vec![2, 3]);
         let s = parse(&npy("<f8", "()", &1e-3f64.to_le_bytes())).unwrap();
-        assert_eq!(s.len(), 1);
+        assert_eq!(s.shape.iter().product::<usize>(), 1);
     }
 
     #[test]

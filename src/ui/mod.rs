@@ -53,26 +53,18 @@ impl ModelArgs {
     /// Resolve `-m`, check the file, and load it with the chosen runtime.
     pub fn load(&self) -> anyhow::Result<(ResolvedModel, LoadOptions, Box<dyn Backend>)> {
         let resolved = crate::models::resolve(self.model.as_deref(), &self.models_dir)?;
-        if let Some(e) = resolved
-            .entry
-            .as_ref()
-            .filter(|e| e.kind == crate::models::ModelKind::Speech)
-        {
-            anyhow::bail!(
+        use crate::models::ModelKind;
+        match resolved.entry.as_ref() {
+            Some(e) if e.kind == ModelKind::Speech => anyhow::bail!(
                 "{} is a speech recogniser, not a language model: use it with `ferrosa transcribe -m {}`, and pick the agent's model with -m (see `ferrosa models list`)",
                 e.name,
                 e.name
-            );
-        }
-        if let Some(e) = resolved
-            .entry
-            .as_ref()
-            .filter(|e| e.kind == crate::models::ModelKind::Encoder)
-        {
-            anyhow::bail!(
+            ),
+            Some(e) if e.kind == ModelKind::Encoder => anyhow::bail!(
                 "{} is the sentence encoder tool choice reads requests with, not a language model: pick the agent's model with -m (see `ferrosa models list`)",
                 e.name
-            );
+            ),
+            _ => {}
         }
         let mut opts = LoadOptions::new(resolved.path.clone());
         opts.family = resolved.family().map(str::to_string);

@@ -83,27 +83,14 @@ pub(super) fn with_resolved(mut out: Value, note: Option<String>) -> Value {
     out
 }
 
-/// The words of a ROS name or type: lowercase runs of letters and digits, camel case
-/// split ("BatteryState" → "battery", "state"); words under three characters dropped.
+/// The words of a ROS name or type, lowercase (`lexicon::name_words`: camel case split,
+/// "BatteryState" → "battery", "state"); words under three characters dropped.
 fn name_words(name: &str) -> Vec<String> {
-    let mut words = Vec::new();
-    let mut cur = String::new();
-    let mut prev_lower = false;
-    for c in name.chars() {
-        if !c.is_alphanumeric() {
-            words.push(std::mem::take(&mut cur));
-            prev_lower = false;
-            continue;
-        }
-        if c.is_uppercase() && prev_lower {
-            words.push(std::mem::take(&mut cur));
-        }
-        prev_lower = c.is_lowercase() || c.is_ascii_digit();
-        cur.extend(c.to_lowercase());
-    }
-    words.push(cur);
-    words.retain(|w| w.chars().count() >= 3);
-    words
+    crate::lexicon::name_words(name)
+        .into_iter()
+        .map(|w| w.to_lowercase())
+        .filter(|w| w.chars().count() >= 3)
+        .collect()
 }
 
 /// The one topic whose name and type share the most words with `wanted`, a word of its
@@ -313,18 +300,12 @@ impl Filter {
 /// robot: its type is of `rcl_interfaces` (parameters, `/rosout`, `/parameter_events`)
 /// or `type_description_interfaces`.
 fn infrastructure(item: &Value) -> bool {
-    let types: Vec<&str> = match &item["type"] {
-        Value::String(s) => s.split(", ").collect(),
-        Value::Array(a) => a.iter().filter_map(Value::as_str).collect(),
-        _ => item["types"]
-            .as_array()
-            .map(|a| a.iter().filter_map(Value::as_str).collect())
-            .unwrap_or_default(),
-    };
-    !types.is_empty()
-        && types.iter().all(|t| {
+    // `typed` joins a name's types with ", ".
+    item["type"].as_str().is_some_and(|types| {
+        types.split(", ").all(|t| {
             t.starts_with("rcl_interfaces/") || t.starts_with("type_description_interfaces/")
         })
+    })
 }
 
 /// "2 nodes: /a, /b" (at most 12 names, then "and N more"), the sentence a small model
