@@ -18,8 +18,9 @@ use serde_json::Value;
 
 /// Values a made summary holds at most.
 const MAX_ITEMS: usize = 12;
-/// Characters a made summary holds at most.
-const MAX_CHARS: usize = 300;
+/// Characters a made summary holds at most (a six-joint arm's state, one row a joint,
+/// fits).
+const MAX_CHARS: usize = 480;
 /// Keys whose values say nothing an operator asked about.
 const NOISE: &[&str] = &[
     "header",
@@ -101,7 +102,14 @@ fn leaves(v: &Value, path: &str, out: &mut Vec<String>) {
     };
     match v {
         Value::Object(m) => {
+            let rows = by_name(m);
+            for row in &rows.0 {
+                out.push(named(row.clone()));
+            }
             for (k, child) in m {
+                if rows.1.contains(&k.as_str()) {
+                    continue;
+                }
                 let p = if path.is_empty() {
                     k.clone()
                 } else {
@@ -134,6 +142,44 @@ fn leaves(v: &Value, path: &str, out: &mut Vec<String>) {
         Value::Null => {}
         other => out.push(named(scalar(other))),
     }
+}
+
+/// A message's parallel lists read one entry at a time: a `name` list of strings and
+/// the lists of scalars as long as it (a joint state's `position`, `velocity`, `effort`)
+/// give one row per name, "elbow_joint: position 1.5 velocity 0 effort 2.1", so the
+/// values of a joint stand beside its name. Returns the rows and the keys they took.
+fn by_name(m: &serde_json::Map<String, Value>) -> (Vec<String>, Vec<&str>) {
+    let Some(names) = m.get("name").and_then(Value::as_array) else {
+        return (Vec::new(), Vec::new());
+    };
+    if names.is_empty() || !names.iter().all(Value::is_string) {
+        return (Vec::new(), Vec::new());
+    }
+    let columns: Vec<(&str, &Vec<Value>)> = m
+        .iter()
+        .filter(|(k, _)| k.as_str() != "name")
+        .filter_map(|(k, v)| Some((k.as_str(), v.as_array()?)))
+        .filter(|(_, a)| {
+            a.len() == names.len() && a.iter().all(|x| !x.is_object() && !x.is_array())
+        })
+        .collect();
+    if columns.is_empty() {
+        return (Vec::new(), Vec::new());
+    }
+    let rows = names
+        .iter()
+        .enumerate()
+        .map(|(i, n)| {
+            let values: Vec<String> = columns
+                .iter()
+                .map(|(k, a)| format!("{k} {}", scalar(&a[i])))
+                .collect();
+            format!("{}: {}", scalar(n), values.join(" "))
+        })
+        .collect();
+    let mut taken: Vec<&str> = columns.iter().map(|(k, _)| *k).collect();
+    taken.push("name");
+    (rows, taken)
 }
 
 fn scalar(v: &Value) -> String {
@@ -360,6 +406,19 @@ mod tests {
         );
         let nested = json!({"pose": {"x": 1.0}, "names": ["a", "b"]});
         assert_eq!(summarize(&nested).unwrap(), "pose.x 1.0, names a b");
+    }
+
+    #[test]
+    fn parallel_lists_are_read_a_name_at_a_time() {
+        let state = json!({"topic": "/j", "messages": [{"name": ["wheel_l", "wheel_r"],
+            "position": [0.5, 1.25], "velocity": [0.0, 2.0], "effort": [], "frame": "base"}]});
+        assert_eq!(
+            summarize(&state).unwrap(),
+            "topic /j, wheel_l: position 0.5 velocity 0.0, wheel_r: position 1.25 velocity 2.0, frame base"
+        );
+        // A name that is not a list of strings reads as before.
+        let plain = json!({"name": "x", "position": [1.0]});
+        assert_eq!(summarize(&plain).unwrap(), "name x, position 1.0");
     }
 
     #[test]

@@ -299,7 +299,7 @@ impl Filter {
 /// Whether a listed item is the ROS 2 client library's own, on every node whatever the
 /// robot: its type is of `rcl_interfaces` (parameters, `/rosout`, `/parameter_events`)
 /// or `type_description_interfaces`.
-fn infrastructure(item: &Value) -> bool {
+pub(super) fn infrastructure(item: &Value) -> bool {
     // `typed` joins a name's types with ", ".
     item["type"].as_str().is_some_and(|types| {
         types.split(", ").all(|t| {

@@ -69,7 +69,25 @@ impl Tool for NodeInfo {
             services(&g.servers),
             services(&g.clients),
         );
+        // Each list by name, the node's own before what the client library gives
+        // every node (parameter and type description services, `/rosout`).
+        let said = |items: &[Value], field: &str, noun: &str| -> String {
+            let mut named: Vec<(bool, &str)> = items
+                .iter()
+                .filter_map(|v| Some((super::base::infrastructure(v), v[field].as_str()?)))
+                .collect();
+            named.sort_by_key(|(infra, _)| *infra);
+            let names: Vec<&str> = named.into_iter().map(|(_, n)| n).collect();
+            super::base::summary(noun, &names)
+        };
+        let summary = format!(
+            "node {node} publishes {}; subscribes to {}; serves {}",
+            said(&p, "topic", "topics"),
+            said(&s, "topic", "topics"),
+            said(&sv, "service", "services")
+        );
         Ok(json!({
+            "summary": summary,
             "node": node,
             "counts": {"publishers": p.len(), "subscribers": s.len(), "services": sv.len(), "clients": c.len()},
             "publishers": p, "subscribers": s, "services": sv, "clients": c,

@@ -38,7 +38,60 @@ impl Tool for InterfaceShow {
         } else {
             cdr::template(ifaces, &ty).unwrap_or(Value::Null)
         };
-        Ok(json!({"type": ty, "definition": definition, "example": example}))
+        let summary = format!("{ty}: {}", fields(&definition, &ty, Some(ifaces)));
+        Ok(json!({"summary": summary, "type": ty, "definition": definition, "example": example}))
+    }
+}
+
+/// The fields a definition declares, "name (type)", a service's or an action's parts
+/// named ("request: a (int64); response: sum (int64)"): what an operator asking for a
+/// type's fields wants said, without its comments and constants.
+fn fields(definition: &str, ty: &str, nested: Option<&crate::ros::Interfaces>) -> String {
+    let parts: &[&str] = if ty.contains("/srv/") {
+        &["request", "response"]
+    } else if ty.contains("/action/") {
+        &["goal", "result", "feedback"]
+    } else {
+        &[]
+    };
+    let package = ty.split('/').next().unwrap_or_default();
+    let mut sections: Vec<Vec<String>> = vec![Vec::new()];
+    for line in definition.lines() {
+        let line = line.split('#').next().unwrap_or("").trim();
+        if line == "---" {
+            sections.push(Vec::new());
+            continue;
+        }
+        let Some((ty, rest)) = line.split_once(char::is_whitespace) else {
+            continue;
+        };
+        // A constant ("uint8 OK=0", "int8 WARN = 1") is not a field; a bounded type
+        // ("string<=8 id") is.
+        if let (Some(name), false) = (rest.split_whitespace().next(), rest.contains('=')) {
+            if let Some(last) = sections.last_mut() {
+                last.push(field(name, ty, package, nested));
+            }
+        }
+    }
+    let sections: Vec<String> = sections
+        .into_iter()
+        .map(|s| {
+            if s.is_empty() {
+                "none".to_string()
+            } else {
+                s.join(", ")
+            }
+        })
+        .collect();
+    if sections.len() == parts.len() {
+        let named: Vec<String> = parts
+            .iter()
+            .zip(&sections)
+            .map(|(p, s)| format!("{p}: {s}"))
+            .collect();
+        named.join("; ")
+    } else {
+        sections.join("; ")
     }
 }
 
@@ -130,5 +183,30 @@ impl Tool for LogRead {
             json!({"count": entries.len(), "matching": total, "entries": entries,
                   "filters": {"level": min, "node": node}}),
         )
+    }
+}
+
+/// "name (type)"; a field of a message type (not a header or a time) with that type's
+/// own fields, one level down: "wrench (Wrench: force (Vector3), torque (Vector3))",
+/// so what a message holds is said without asking for each part.
+fn field(name: &str, ty: &str, package: &str, nested: Option<&crate::ros::Interfaces>) -> String {
+    let base = ty.split(['[', '<']).next().unwrap_or(ty);
+    let builtin = base.chars().next().is_some_and(char::is_lowercase) && !base.contains('/');
+    let plumbing = ["Header", "Time", "Duration"]
+        .iter()
+        .any(|t| base.rsplit('/').next() == Some(t));
+    let inner = nested.filter(|_| !builtin && !plumbing).and_then(|ifaces| {
+        let full = match base.split('/').collect::<Vec<_>>().as_slice() {
+            [pkg, "msg", t] => format!("{pkg}/msg/{t}"),
+            [pkg, t] => format!("{pkg}/msg/{t}"),
+            [t] => format!("{package}/msg/{t}"),
+            _ => return None,
+        };
+        let text = ifaces.source(&full).ok()?;
+        Some(fields(&text, &full, None))
+    });
+    match inner {
+        Some(inner) => format!("{name} ({ty}: {inner})"),
+        None => format!("{name} ({ty})"),
     }
 }

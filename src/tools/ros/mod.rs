@@ -163,6 +163,11 @@ mod tests {
             info["counts"],
             json!({"publishers": 1, "subscribers": 1, "services": 1, "clients": 0})
         );
+        assert_eq!(
+            info["summary"],
+            "node /turtlesim publishes 1 topic: /turtle1/pose; subscribes to 1 topic: \
+             /turtle1/cmd_vel; serves 1 service: /turtle1/teleport_absolute"
+        );
     }
 
     #[test]
@@ -239,6 +244,23 @@ mod tests {
         let out = run(&InterfaceShow(ros), json!({"type": "turtlesim/srv/Spawn"})).unwrap();
         assert!(out["definition"].as_str().unwrap().contains("string name"));
         assert_eq!(out["example"]["request"]["name"], "");
+        // The summary says the fields, by part; constants are not fields.
+        let summary = out["summary"].as_str().unwrap();
+        assert!(
+            summary.starts_with("turtlesim/srv/Spawn: request: x (float32), y (float32)")
+                && summary.ends_with("; response: name (string)"),
+            "{summary}"
+        );
+        let out = run(
+            &InterfaceShow(Ros::new(fake())),
+            json!({"type": "diagnostic_msgs/msg/DiagnosticStatus"}),
+        )
+        .unwrap();
+        let summary = out["summary"].as_str().unwrap();
+        assert!(
+            summary.contains("level (byte), name (string)") && !summary.contains("OK"),
+            "{summary}"
+        );
     }
 
     #[test]
@@ -259,8 +281,22 @@ mod tests {
         assert_eq!(teleport["required"], json!(["service"]));
         assert!(branches[1]["properties"]["service"].get("const").is_none());
 
-        let live = TopicPublish(ros).live_parameters().unwrap();
+        let live = TopicPublish(ros.clone()).live_parameters().unwrap();
         let branches = live["anyOf"].as_array().unwrap();
+        // Only a topic some node listens to is typed (`/turtle1/pose` is only
+        // published), then the open branch.
+        assert_eq!(branches.len(), 2, "{live}");
+        // Reading offers the topics some node publishes, or any other.
+        for reading in [
+            TopicEcho(ros.clone()).live_parameters().unwrap(),
+            TopicHz(ros.clone()).live_parameters().unwrap(),
+        ] {
+            let topic = &reading["properties"]["topic"]["anyOf"];
+            assert_eq!(topic[0]["enum"], json!(["/turtle1/pose"]), "{reading}");
+            assert_eq!(topic[1], json!({"type": "string"}));
+            assert_eq!(reading["required"], json!(["topic"]));
+            assert_eq!(reading["additionalProperties"], json!(false));
+        }
         let twist = branches
             .iter()
             .find(|b| b["properties"]["topic"]["const"] == "/turtle1/cmd_vel")

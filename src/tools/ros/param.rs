@@ -58,8 +58,26 @@ impl Tool for ParamList {
         self.0
             .params
             .record(&absolute(&a.node), super::param_names::names(&r));
+        let mut listed: Vec<&str> = names
+            .as_array()
+            .into_iter()
+            .flatten()
+            .filter_map(Value::as_str)
+            .collect();
+        // The node's own parameters first: the client library declares the same few on
+        // every node, which would otherwise fill the names shown.
+        listed.sort_by_key(|n| {
+            *n == "use_sim_time"
+                || *n == "start_type_description_service"
+                || n.starts_with("qos_overrides.")
+        });
+        let summary = format!(
+            "{}: {}",
+            absolute(&a.node),
+            super::base::summary("parameters", &listed)
+        );
         Ok(
-            json!({"node": absolute(&a.node), "count": names.as_array().map_or(0, Vec::len), "parameters": names}),
+            json!({"summary": summary, "node": absolute(&a.node), "count": listed.len(), "parameters": names}),
         )
     }
 }

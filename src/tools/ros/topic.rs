@@ -9,7 +9,42 @@ use serde_json::{json, Map, Value};
 use super::base::{
     absolute, failed, typed_by_name, with_mux, with_note, with_resolved, Resolved, Ros,
 };
+use crate::ros::Graph;
+use crate::tool::schema::schema_for;
 use crate::tool::{Effect, Tool, ToolContext, ToolError};
+
+/// The topics some node publishes: what reading a topic can hear. A topic only
+/// subscribed to (a command topic: `cmd_vel`, a joint command) is silent.
+fn published(g: &Graph) -> Vec<String> {
+    let mut out: Vec<String> = g
+        .publishers
+        .iter()
+        .map(|e| e.topic.clone())
+        .filter(|t| !t.contains("/_action/"))
+        .collect();
+    out.sort_unstable();
+    out.dedup();
+    out
+}
+
+/// `Args`'s schema with its `topic` a choice of the topics published now, or any other
+/// (`agent::bound` holds it to those the request points at, and keeps a name the
+/// operator writes): a reading tool is offered the topics it can hear. `None` while
+/// nothing is published.
+fn reading<A: JsonSchema>(ros: &Ros) -> Option<Value> {
+    let g = crate::ros::graph_now(ros.graph.as_ref())?;
+    let topics = published(&g);
+    if topics.is_empty() {
+        return None;
+    }
+    // Closed and bounded as the declared arguments are (`ToolSpec::new`).
+    let mut schema = crate::tool::ToolSpec::new("reading", "", schema_for::<A>())
+        .ok()?
+        .parameters;
+    schema["properties"]["topic"] =
+        json!({"anyOf": [{"type": "string", "enum": topics}, {"type": "string"}]});
+    Some(schema)
+}
 
 #[derive(Deserialize, JsonSchema)]
 pub struct EchoArgs {
@@ -82,6 +117,10 @@ impl Tool for TopicEcho {
         }
         Ok(with_resolved(out, resolved))
     }
+
+    fn live_parameters(&self) -> Option<Value> {
+        reading::<EchoArgs>(&self.0)
+    }
 }
 
 #[derive(Deserialize, JsonSchema)]
@@ -126,6 +165,10 @@ impl Tool for TopicHz {
         let out = json!({"topic": topic, "messages": samples.len(), "window_s": window.as_secs_f64(),
                   "rate_hz": (rate * 100.0).round() / 100.0});
         Ok(with_resolved(out, resolved))
+    }
+
+    fn live_parameters(&self) -> Option<Value> {
+        reading::<HzArgs>(&self.0)
     }
 }
 
@@ -172,11 +215,19 @@ impl Tool for TopicPublish {
         Ok(with_note(with_mux(out, &topic, &sent), sent.note))
     }
 
-    /// One branch per topic of a known type, its message typed by that type, and one
-    /// for a topic the robot lacks (`agent::bound` holds its name to those the operator
-    /// wrote), which needs `message_type`.
+    /// One branch per topic of a known type that some node subscribes to (a message
+    /// nobody reads moves nothing; publishing on a topic the robot only publishes
+    /// would feign its state), its message typed by that type, and one for any other
+    /// topic (`agent::bound` holds its name to those the operator wrote), which needs
+    /// `message_type`. Every topic when none is subscribed to.
     fn live_parameters(&self) -> Option<Value> {
         let g = crate::ros::graph_now(self.0.graph.as_ref())?;
+        let mut topics = g.topics();
+        let heard: std::collections::BTreeSet<&str> =
+            g.subscribers.iter().map(|e| e.topic.as_str()).collect();
+        if topics.keys().any(|t| heard.contains(t.as_str())) {
+            topics.retain(|t, _| heard.contains(t.as_str()));
+        }
         let open = json!({
             "type": "object",
             "properties": {"topic": {"type": "string"},
@@ -185,6 +236,6 @@ impl Tool for TopicPublish {
             "required": ["topic", "message", "message_type"],
             "additionalProperties": false,
         });
-        typed_by_name(&self.0, g.topics(), ("topic", "message", ""), true, open)
+        typed_by_name(&self.0, topics, ("topic", "message", ""), true, open)
     }
 }
