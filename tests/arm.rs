@@ -1,10 +1,11 @@
 //! The project's second robot: a six-joint arm with a gripper and a wrist force/torque
-//! sensor (`tests/peers/arm_peer.py`, rclpy over Fast DDS), driven only through
+//! sensor (`tests/peers/arm_peer.py`, rclpy over Fast DDS), driven first through
 //! `ferrosa call --robot ros2` (no model), as an operator scripts it. Its prompt file
 //! (`prompts/arm.toml`) and its suite (`tests/eval/arm.jsonl`) must describe the graph
 //! that is really there, and the arm must be real: the joints read back, a named pose
 //! moves them and `/arm/go_home` brings them back, the gripper's services open and close
-//! what `/gripper/state` reports.
+//! what `/gripper/state` reports. Then the agent with the real model answers one request
+//! in each of six languages from the arm's tools.
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
@@ -360,20 +361,89 @@ fn check_gripper() {
     assert!(close(&open, &[width]), "the gripper never opened: {open:?}");
 }
 
+/// The agent with the real default model on the arm, one request in each of the six
+/// languages, none of them from the arm's suite: each is answered by a call of a tool
+/// that holds the fact, and the answer states a fact of that call's result. The agent
+/// reads the arm's prompt file only; nothing in the product was written for this robot.
+fn check_agent_in_six_languages() {
+    use ferrosa::ui::agent::{build_with, connect, Robot};
+    use std::sync::Arc;
+    std::env::set_var("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST");
+    let link = connect(Robot::Ros2, false).expect("joining the arm's graph");
+    let graph = link.graph.clone().expect("a ROS 2 graph");
+    let mut args = crate::util::agent_args(Robot::Ros2, false);
+    args.prompt = Some(repo("prompts/arm.toml"));
+    let estop = ferrosa::estop::EStop::new();
+    let refuse = Arc::new(ferrosa::tool::policy::NoOperator);
+    let mut agent = build_with(&args, refuse, Some(graph.clone()), estop).expect("the agent");
+    graph.set_fence(agent.fence().clone());
+    // (request, the tools that hold the fact, a fact of the result the answer states)
+    let cases: [(&str, &[&str], &str); 6] = [
+        (
+            "What topics does this robot have?",
+            &["ros_topic_list"],
+            "/joint_states",
+        ),
+        (
+            "¿Qué nodos están funcionando en el brazo?",
+            &["ros_node_list"],
+            "/gripper_driver",
+        ),
+        (
+            "Quels services le nœud /gripper_driver propose-t-il ?",
+            &["ros_node_info", "ros_service_list"],
+            "/gripper/close",
+        ),
+        (
+            "Welchen Nachrichtentyp hat das Topic /ft_sensor/wrench?",
+            &["ros_topic_info", "ros_topic_list"],
+            "WrenchStamped",
+        ),
+        (
+            "Quali parametri ha il nodo /gripper_driver?",
+            &["ros_param_list"],
+            "grip_force",
+        ),
+        (
+            "Quais serviços o braço oferece?",
+            &["ros_service_list"],
+            "/arm/go_home",
+        ),
+    ];
+    let mut failures = Vec::new();
+    for (q, tools, fact) in cases {
+        let (r, why) = crate::util::ask_shown(&mut agent, q);
+        let answered = r
+            .steps
+            .iter()
+            .any(|s| s.ok && tools.contains(&s.name.as_str()));
+        if !answered || !r.answer.contains(fact) {
+            failures.push(format!(
+                "wanted a call of {tools:?} and {fact:?} in the answer: {why}"
+            ));
+        }
+    }
+    assert!(failures.is_empty(), "{}", failures.join("\n\n"));
+}
+
+/// One peer for every check of the arm (its start and discovery cost most of a
+/// minute): the graph against the prompt file and the suite, motion without a model,
+/// then the agent with the model.
 #[test]
-#[ignore = "needs the rclpy peer and a network namespace"]
-fn the_arm_is_what_its_prompt_and_suite_say_and_moves_when_told() {
+#[ignore = "needs the rclpy peer, the model weights and a network namespace"]
+fn the_arm_is_what_its_prompt_and_suite_say_moves_when_told_and_is_understood() {
     if rerun_in_loopback_netns(
-        "arm::the_arm_is_what_its_prompt_and_suite_say_and_moves_when_told",
-        420,
+        "arm::the_arm_is_what_its_prompt_and_suite_say_moves_when_told_and_is_understood",
+        600,
     ) {
         return;
     }
-    let _peer = start_peer(400);
+    let _peer = start_peer(580);
     let facts = Facts::read(Duration::from_secs(90));
     assert_eq!(facts.joints.len(), 6, "{:?}", facts.joints);
     check_prompt(&facts);
     check_suite(&facts);
     check_joints();
     check_gripper();
+    check_agent_in_six_languages();
 }

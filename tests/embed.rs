@@ -67,7 +67,7 @@ fn tools_are_found_by_the_meaning_of_their_examples_in_any_language() {
         ),
         tool("small_talk", &["hello", "thanks a lot"]),
     ];
-    let meaning = Meaning::new(enc.clone(), BTreeMap::new());
+    let meaning = Meaning::new(enc.clone(), BTreeMap::new(), "");
     meaning.prepare(&specs);
     let best = |m: &Meaning, q: &str, specs: &[ToolSpec], names: &[(String, String)]| {
         let s = m.similarities(q, specs, names);
@@ -93,7 +93,7 @@ fn tools_are_found_by_the_meaning_of_their_examples_in_any_language() {
             "fill the pump with water before starting".to_string(),
         ],
     )]);
-    let with_prompt = Meaning::new(enc.clone(), extra);
+    let with_prompt = Meaning::new(enc.clone(), extra, "");
     assert_eq!(
         best(&with_prompt, "get the pump primed", &bare, &[]),
         "pump_prime"
@@ -121,7 +121,7 @@ fn tools_are_found_by_the_meaning_of_their_examples_in_any_language() {
     .iter()
     .map(|(k, n)| (k.to_string(), n.to_string()))
     .collect();
-    let plain = Meaning::new(enc, BTreeMap::new());
+    let plain = Meaning::new(enc, BTreeMap::new(), "");
     assert_eq!(
         best(&plain, "start the conveyor belt", &pair, &names),
         "by_service"

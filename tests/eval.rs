@@ -200,9 +200,9 @@ fn ros_suite_slice_runs_scores_and_reports() {
 /// project's suites): a topic listing, a reading (a tool the test declares, or the
 /// echo), and two requests to stop, which latch the e-stop without a model. Two cases
 /// in one category, so each half has one.
-const PEER_SUITE: &str = r#"{"id": "stop-01", "query": "please stop right now", "forbid_calls": ["*"]}
+const PEER_SUITE: &str = r#"{"id": "stop-01", "query": "please stop right now", "expect_calls": [{"name": "robot_stop"}]}
 {"id": "listing-01", "query": "show me the topics on the graph", "expect_calls": [{"name": "ros_topic_list"}], "forbid_calls": ["ros_topic_publish", "ros_service_call", "ros_param_set"], "answer_contains": ["/chatter"]}
-{"id": "stop-02", "query": "halt the robot immediately", "forbid_calls": ["*"]}
+{"id": "stop-02", "query": "halt the robot immediately", "expect_calls": [{"name": "robot_stop"}]}
 {"id": "reading-01", "query": "read one message from /chatter", "expect_any": [{"name": "peer_chatter_read"}, {"name": "ros_topic_echo"}], "answer_contains": ["hello"]}
 "#;
 
@@ -337,7 +337,7 @@ fn ros_suite_runs_on_a_ros2_robot_already_on_the_graph() {
             "{v}"
         );
     }
-    // The stops made no call. The case after a stop ran its call (the e-stop released:
+    // The stops were the stop act, taken without the model. The case after a stop ran its call (the e-stop released:
     // not refused for it), whichever tool the model chose for it; the reading after the
     // second stop answered with what only the peer publishes.
     assert_eq!(cases[0]["pass"], true, "{}", cases[0]);

@@ -506,10 +506,10 @@ impl ferrosa::tool::Confirm for Approver {
     }
 }
 
-/// The agent with the real default model on the sim, as an operator uses it: a status
-/// report, a request whose call fails, a Spanish request, a two-step request and a
-/// Spanish motion request after confirmation, with the default tool pick (weighed).
-/// One model load for all of them.
+/// The agent with the real default model on the sim, as an operator uses it: a
+/// greeting (no call), a count, a status report, a request whose call fails, a Spanish
+/// request, a two-step request and a Spanish motion request after confirmation, with
+/// the default tool pick (weighed). One model load for all of them.
 #[test]
 #[ignore = "needs the model weights (or a ROS peer): cargo test --release -- --include-ignored"]
 fn the_agent_serves_operator_requests_with_the_real_model() {
@@ -532,6 +532,21 @@ fn the_agent_serves_operator_requests_with_the_real_model() {
     let mut ask = |q: &str| crate::util::ask_shown(&mut agent, q);
     let ok =
         |steps: &[StepRecord], name: &str| steps.iter().find(|s| s.name == name && s.ok).cloned();
+
+    // A greeting is answered without a call, so with nothing invented from one.
+    let (r, why) = ask("hi there, glad to meet you");
+    assert!(r.steps.is_empty(), "{why}");
+
+    // A count is answered with the count the listing gave.
+    let (r, why) = ask("how many topics does this robot have at the moment?");
+    let listing = ok(&r.steps, "ros_topic_list").unwrap_or_else(|| panic!("{why}"));
+    let count = listing.output["count"].as_u64().unwrap();
+    let said: Vec<&str> = r
+        .answer
+        .split(|c: char| !c.is_ascii_digit())
+        .filter(|w| !w.is_empty())
+        .collect();
+    assert!(said.contains(&count.to_string().as_str()), "{why}");
 
     // A status report: battery, diagnostics and nodes in one call; the answer states
     // the battery's charge as read.

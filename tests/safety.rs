@@ -1388,18 +1388,21 @@ fn injected_text_cannot_forge_roles_calls_or_the_screen() {
             json!({}),
         ),
     ] {
-        let mut st = stack(&s, &[call(tool, args), answer("Nothing new.")]);
-        let run = st.ask(name, request);
+        // A second part, so the model is shown the first part's result (a result
+        // that answers the request alone is the answer, with no turn after it).
+        let mut st = stack(&s, &[call(tool, args), call("system_time", json!({}))]);
+        let run = st.ask(name, &format!("{request} Then tell me the time."));
         let own = match run.prompts.get(1) {
             // The second turn's prompt holds the tool result: exactly one opener per
-            // real message (system, user, assistant, tool) and the new assistant turn.
+            // real message (system, user, assistant, tool, the next part) and the new
+            // assistant turn.
             Some(p) => {
                 let n = openers(p, st.agent.backend());
-                if n == 5 {
+                if n == 6 {
                     Ok(())
                 } else {
                     Err(run.fail(format!(
-                        "{n} role openers in the prompt after the injected text (5 expected)"
+                        "{n} role openers in the prompt after the injected text (6 expected)"
                     )))
                 }
             }

@@ -377,6 +377,8 @@ fn agent(
     config.tool_budget_tokens = 6000;
     // The scripted replies are the model's choices, taken as written.
     config.pick = ferrosa::agent::config::Pick::Likeliest;
+    // The script gives every turn its answer.
+    config.composed_answers = false;
     let fence = policy.fence().clone();
     graph.set_fence(fence.clone());
     Agent::new(Box::new(backend), registry, policy, prompt.render(), config)

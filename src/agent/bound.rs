@@ -29,16 +29,24 @@ use crate::tool::ToolSpec;
 /// `request`'s words point at (`pointed`) and the names `request` writes
 /// (`written_names`). A schema that is a choice of branches, one per name
 /// (`Tool::live_parameters`), keeps the branches of names it may take. Tools with no
-/// such argument are unchanged.
-pub fn bind(specs: &[ToolSpec], names: &[(String, String)], request: &str) -> Vec<ToolSpec> {
+/// such argument are unchanged. `near`, a name's nearness to the request by meaning
+/// (`meaning::Meaning::name_similarity`), narrows the names the words point at
+/// equally, or at none of (`NEAR_MARGIN`).
+pub fn bind(
+    specs: &[ToolSpec],
+    names: &[(String, String)],
+    request: &str,
+    near: Option<&dyn Fn(&str) -> f64>,
+) -> Vec<ToolSpec> {
     let written = written_names(request);
     let given = given_fields(request);
-    let (names, met) = pointing(names, &[request], &written);
+    let (names, met) = pointing(names, &[request], &written, near);
     let held = Held {
         names: &names,
         met: &met,
         written: &written,
         request,
+        near,
     };
     specs
         .iter()
@@ -116,6 +124,7 @@ struct Held<'a> {
     /// The names the request writes.
     written: &'a [String],
     request: &'a str,
+    near: Option<&'a dyn Fn(&str) -> f64>,
 }
 
 fn bind_schema(schema: &mut Value, held: &Held) {
@@ -163,7 +172,8 @@ fn bind_object(object: &mut Value, h: &Held, taken: &[(String, String)]) -> bool
             continue;
         }
         if let Some(known) = suggested(prop) {
-            *prop = json!({"type": "string", "enum": held_to(&known, names, request, written)});
+            let open = held_to(&known, key, names, request, written, h.near);
+            *prop = json!({"type": "string", "enum": open});
             continue;
         }
         if prop["type"] != "string" {
@@ -241,27 +251,57 @@ fn suggested(prop: &Value) -> Option<Vec<String>> {
 }
 
 /// Of the `known` names, those `request`'s words point at (all when they point at none),
-/// with the names `written` that are neither among them nor one of the robot's other
-/// `names` ("/turtlesim" is a node, not a missing parameter): what the operator wrote
-/// stays possible, and the tool reports it missing.
+/// with the names `written` that are neither among them nor one of the robot's names
+/// of another key than `key` ("/turtlesim" is a node, not a missing parameter): what
+/// the operator wrote stays possible (a topic nobody publishes, which reading then
+/// says), and the tool reports what is missing.
 fn held_to(
     known: &[String],
+    key: &str,
     names: &[(String, String)],
     request: &str,
     written: &[String],
+    near: Option<&dyn Fn(&str) -> f64>,
 ) -> Vec<String> {
-    let entries: Vec<(String, String)> = known.iter().map(|n| (String::new(), n.clone())).collect();
-    let mut out: Vec<String> = pointed(&entries, &[request], written)
-        .into_iter()
-        .map(|(_, n)| n)
-        .collect();
     let bare = |n: &str| n.trim_start_matches('/').to_string();
-    for w in written {
-        let held = known.iter().chain(names.iter().map(|(_, n)| n));
-        if !held.into_iter().any(|k| bare(k) == bare(w)) {
-            out.push(w.clone());
-        }
+    // A name of this key written whole is the one asked for, offered or not.
+    let mut whole: Vec<String> = names
+        .iter()
+        .filter(|(k, n)| k == key && written.iter().any(|w| bare(w) == bare(n)))
+        .map(|(_, n)| n.clone())
+        .collect();
+    if !whole.is_empty() {
+        whole.sort_unstable();
+        whole.dedup();
+        return whole;
     }
+    let entries: Vec<(String, String)> = known.iter().map(|n| (String::new(), n.clone())).collect();
+    let (pointed_known, met) = pointing(&entries, &[request], written, near);
+    let missing: Vec<String> = written
+        .iter()
+        .filter(|w| {
+            let mut held = known
+                .iter()
+                .chain(names.iter().filter(|(k, _)| k != key).map(|(_, n)| n));
+            !held.any(|k| bare(k) == bare(w))
+        })
+        .cloned()
+        .collect();
+    // A ROS name written that the robot lacks, and words that point at none of the
+    // known names ("echo /odom"): what is asked for is the name written, which the
+    // tool reports missing.
+    let asked: Vec<String> = missing
+        .iter()
+        .filter(|w| w.starts_with('/'))
+        .cloned()
+        .collect();
+    let mut out: Vec<String> = if met.is_empty() && !asked.is_empty() {
+        asked
+    } else {
+        let mut out: Vec<String> = pointed_known.into_iter().map(|(_, n)| n).collect();
+        out.extend(missing);
+        out
+    };
     out.sort_unstable();
     out.dedup();
     out
@@ -280,7 +320,7 @@ pub fn pointed(
     sources: &[&str],
     written: &[String],
 ) -> Vec<(String, String)> {
-    pointing(names, sources, written).0
+    pointing(names, sources, written, None).0
 }
 
 /// `pointed`, and the keys of which the words point at some name (or a name is
@@ -289,6 +329,7 @@ fn pointing(
     names: &[(String, String)],
     sources: &[&str],
     written: &[String],
+    near: Option<&dyn Fn(&str) -> f64>,
 ) -> (Vec<(String, String)>, BTreeSet<String>) {
     let said: BTreeSet<String> = sources.iter().flat_map(|s| folded_words(s)).collect();
     let mut by_key: BTreeMap<&str, Vec<(&str, BTreeSet<String>)>> = BTreeMap::new();
@@ -319,8 +360,9 @@ fn pointing(
         let scores: Vec<f64> = entries
             .iter()
             .map(|(_, ws)| {
-                // A shortened word counts only beside one said whole.
-                if !ws.iter().any(|w| said.contains(w)) {
+                // A shortened word counts only beside one said whole (or said with
+                // an ending: "joints" for `joint`).
+                if !ws.iter().any(|w| said_whole(w, &said)) {
                     return 0.0;
                 }
                 ws.iter()
@@ -333,13 +375,47 @@ fn pointing(
         if best > 0.0 {
             met.insert(key.to_string());
         }
-        for ((name, _), score) in entries.iter().zip(&scores) {
-            if best == 0.0 || *score >= best - 1e-9 {
-                out.push((key.to_string(), name.to_string()));
-            }
-        }
+        let tied: Vec<&str> = entries
+            .iter()
+            .zip(&scores)
+            .filter(|(_, score)| best == 0.0 || **score >= best - 1e-9)
+            .map(|((name, _), _)| *name)
+            .collect();
+        out.extend(
+            nearest(tied, near)
+                .into_iter()
+                .map(|name| (key.to_string(), name.to_string())),
+        );
     }
     (out, met)
+}
+
+/// How much nearer by meaning than the nearest a name may be and still be offered: the
+/// request's words point at `/arm/state` and `/arm/tcp_pose` alike ("what is the arm
+/// doing?"), its meaning at the first (chosen on the tune halves of both robots' suites).
+const NEAR_MARGIN: f64 = 0.03;
+
+/// Of `names`, those within `NEAR_MARGIN` of the nearest to the request by meaning
+/// (`near`); all of them without it.
+fn nearest<'a>(names: Vec<&'a str>, near: Option<&dyn Fn(&str) -> f64>) -> Vec<&'a str> {
+    let Some(near) = near.filter(|_| names.len() > 1) else {
+        return names;
+    };
+    let sims: Vec<f64> = names.iter().map(|n| near(n)).collect();
+    let top = sims.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    names
+        .into_iter()
+        .zip(sims)
+        .filter(|(_, s)| *s >= top - NEAR_MARGIN)
+        .map(|(n, _)| n)
+        .collect()
+}
+
+/// Whether a name's word `w` is said whole, or said with an ending: a word said that
+/// starts with it, when it has four letters or more ("joints", "nodos" for `joint`,
+/// `nodo`).
+fn said_whole(w: &str, said: &BTreeSet<String>) -> bool {
+    said.contains(w) || (w.chars().count() >= 4 && said.iter().any(|s| s.starts_with(w)))
 }
 
 /// Whether the word `w` of a name (whose words are `own`) is one of the words `said`, or
@@ -412,20 +488,20 @@ mod tests {
               "required": ["topic"]}),
         )];
         // A name the robot lacks, and words that point at none it holds: that name.
-        let bound = bind(&specs, &names(), "echo /chatter, please");
+        let bound = bind(&specs, &names(), "echo /chatter, please", None);
         assert_eq!(
             bound[0].parameters["properties"]["topic"]["enum"],
             json!(["/chatter"])
         );
         // Words that point at one it holds too: both.
-        let either = bind(&specs, &names(), "echo /chatter or the pose");
+        let either = bind(&specs, &names(), "echo /chatter or the pose", None);
         assert_eq!(
             either[0].parameters["properties"]["topic"]["enum"],
             json!(["/chatter", "/turtle1/pose"])
         );
         // A name the robot holds, written without its slash, is that name, and the one
         // the words point at.
-        let bound_again = bind(&specs, &names(), "echo turtle1/pose");
+        let bound_again = bind(&specs, &names(), "echo turtle1/pose", None);
         assert_eq!(
             bound_again[0].parameters["properties"]["topic"]["enum"],
             json!(["/turtle1/pose"])
@@ -453,7 +529,7 @@ mod tests {
                     "service": {"type": "string"}}, "required": ["service"]}),
             ),
         ];
-        let bound = bind(&specs, &names(), "what does /spawn take?");
+        let bound = bind(&specs, &names(), "what does /spawn take?", None);
         assert_eq!(bound[0].parameters, specs[0].parameters);
         // The robot gave no services: nothing to hold the argument to.
         assert_eq!(bound[1].parameters, specs[1].parameters);
@@ -491,7 +567,7 @@ mod tests {
                 branch(json!({"type": "string"}))]}),
         )];
         let free = |request: &str| {
-            let bound = bind(&specs, &names, request);
+            let bound = bind(&specs, &names, request, None);
             let branches = bound[0].parameters["anyOf"].as_array().unwrap().clone();
             let consts: Vec<Value> = branches
                 .iter()
@@ -582,7 +658,7 @@ mod tests {
                     "name": {"type": "string"}}}},
               "required": ["service"]}]}),
         )];
-        let bound = bind(&specs, &[], "spawn a turtle at x 2 y 3");
+        let bound = bind(&specs, &[], "spawn a turtle at x 2 y 3", None);
         let branch = &bound[0].parameters["anyOf"][0];
         assert_eq!(
             branch["properties"]["request"]["required"],
@@ -590,7 +666,7 @@ mod tests {
         );
         assert_eq!(branch["required"], json!(["service", "request"]));
         // Nothing given: nothing required beyond the declared.
-        let bound = bind(&specs, &[], "spawn a turtle");
+        let bound = bind(&specs, &[], "spawn a turtle", None);
         assert_eq!(bound[0].parameters, specs[0].parameters);
     }
 
@@ -611,7 +687,7 @@ mod tests {
         )];
         let names = [("node".to_string(), "/turtlesim".to_string())];
         let held = |request: &str| {
-            let bound = bind(&specs, &names, request);
+            let bound = bind(&specs, &names, request, None);
             bound[0].parameters["anyOf"][0]["properties"]["name"]["enum"].clone()
         };
         // A name's short word meets the word it shortens, not one the name has whole.
@@ -634,5 +710,83 @@ mod tests {
         assert_eq!(held("what is max_speed on /turtlesim?"), json!(lacked));
         // Words that point at none leave them all.
         assert_eq!(held("show me a parameter"), json!(params));
+    }
+
+    #[test]
+    fn a_reading_tool_takes_the_heard_topics_and_a_silent_one_written() {
+        // The tool offers the topics some node publishes; the robot also has a command
+        // topic nobody publishes on.
+        let heard = ["/arm/state", "/wrist/force"];
+        let specs = [spec(
+            "ros_topic_echo",
+            json!({"type": "object", "properties": {
+                "topic": {"anyOf": [{"type": "string", "enum": heard}, {"type": "string"}]}},
+              "required": ["topic"]}),
+        )];
+        let names: Vec<(String, String)> = ["/arm/state", "/wrist/force", "/arm/command"]
+            .iter()
+            .map(|n| ("topic".to_string(), n.to_string()))
+            .collect();
+        let held = |request: &str| {
+            let bound = bind(&specs, &names, request, None);
+            bound[0].parameters["properties"]["topic"]["enum"].clone()
+        };
+        // "arm" meets a heard topic and a silent one: only the heard one is offered.
+        assert_eq!(held("what is the arm doing?"), json!(["/arm/state"]));
+        // A silent topic the operator writes stays possible: reading it says so.
+        assert_eq!(held("echo /arm/command"), json!(["/arm/command"]));
+        // A topic the robot lacks, with words that point at none it has: that one.
+        assert_eq!(held("print what /odom says"), json!(["/odom"]));
+        // A name of another kind written is not taken for a topic.
+        let mut with_node = names.clone();
+        with_node.push(("node".to_string(), "/wrist".to_string()));
+        let bound = bind(&specs, &with_node, "what does /wrist feel?", None);
+        assert_eq!(
+            bound[0].parameters["properties"]["topic"]["enum"],
+            json!(["/wrist/force"])
+        );
+    }
+
+    #[test]
+    fn meaning_narrows_the_names_the_words_point_at_alike() {
+        let specs = [spec(
+            "ros_topic_echo",
+            json!({"type": "object", "properties": {"topic": {"type": "string"}},
+              "required": ["topic"]}),
+        )];
+        let names: Vec<(String, String)> = ["/arm/state", "/arm/pose", "/wrist/force"]
+            .iter()
+            .map(|n| ("topic".to_string(), n.to_string()))
+            .collect();
+        let near = |n: &str| match n {
+            "/arm/state" => 0.40,
+            "/arm/pose" => 0.35,
+            _ => 0.38,
+        };
+        let held = |request: &str, near: Option<&dyn Fn(&str) -> f64>| {
+            let bound = bind(&specs, &names, request, near);
+            bound[0].parameters["properties"]["topic"]["enum"].clone()
+        };
+        // The words point at both arm topics; meaning at one.
+        assert_eq!(
+            held("what is the arm doing?", None),
+            json!(["/arm/pose", "/arm/state"])
+        );
+        assert_eq!(
+            held("what is the arm doing?", Some(&near)),
+            json!(["/arm/state"])
+        );
+        // Words that point at none: the nearest and those within the margin.
+        assert_eq!(
+            held("anything new?", Some(&near)),
+            json!(["/arm/state", "/wrist/force"])
+        );
+        // A name the words point at alone stays, however far by meaning.
+        assert_eq!(
+            held("what does the wrist feel?", Some(&near)),
+            json!(["/wrist/force"])
+        );
+        // A word said with an ending points at the name that has it bare.
+        assert_eq!(held("show the forces", None), json!(["/wrist/force"]));
     }
 }

@@ -66,6 +66,10 @@ pub struct AgentConfig {
     pub copy_bias: f32,
     /// How the first step of a request (and of each of its parts) picks its tool.
     pub pick: Pick,
+    /// Once a result is in and the answer is all that may follow, the answer is that
+    /// result (`facts`), with no model turn; off, the model writes it (a benchmark of
+    /// the model's own answers, a script that gives every turn its answer).
+    pub composed_answers: bool,
     /// The language answers are written in; `None`: each request's own
     /// (`language::Language::of`).
     pub language: Option<Language>,
@@ -88,6 +92,7 @@ impl AgentConfig {
             output_chars: 1500,
             copy_bias: 0.0,
             pick: Pick::default(),
+            composed_answers: true,
             language: None,
             sampler: SamplerConfig::default(),
         }

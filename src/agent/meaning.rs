@@ -25,16 +25,39 @@ pub struct Meaning {
     encoder: Arc<Encoder>,
     /// Examples the robot prompt file adds, by tool name.
     extra: BTreeMap<String, Vec<String>>,
+    /// The robot prompt file's prose, cut into clauses (`clauses`): what it says of each
+    /// of the robot's names.
+    about: Vec<String>,
     cache: Mutex<HashMap<String, Arc<Vec<f32>>>>,
 }
 
 impl Meaning {
-    pub fn new(encoder: Arc<Encoder>, extra: BTreeMap<String, Vec<String>>) -> Meaning {
+    /// `about`: the robot prompt file's prose (its sections joined), which describes
+    /// the robot's names ("/gripper/state gives its opening and grip force").
+    pub fn new(
+        encoder: Arc<Encoder>,
+        extra: BTreeMap<String, Vec<String>>,
+        about: &str,
+    ) -> Meaning {
         Meaning {
             encoder,
             extra,
+            about: clauses(about),
             cache: Mutex::new(HashMap::new()),
         }
+    }
+
+    /// How near `query` is to the robot's `name`: the best cosine of the request with the
+    /// name read as its words and with each clause of the robot prompt file that writes
+    /// the name ("what the arm is doing on /arm/state"). `bound` breaks a tie of the
+    /// names a request's words point at with it, and chooses among names they point at
+    /// none of.
+    pub fn name_similarity(&self, query: &str, name: &str) -> f64 {
+        let q = self.vector(query);
+        std::iter::once(words_of_name(name))
+            .chain(self.about.iter().filter_map(|c| said_of(c, name)))
+            .map(|s| f64::from(cosine(&q, &self.vector(&s))))
+            .fold(f64::NEG_INFINITY, f64::max)
     }
 
     fn vector(&self, text: &str) -> Arc<Vec<f32>> {
@@ -141,9 +164,110 @@ fn words_of_name(name: &str) -> String {
     crate::lexicon::name_words(name).join(" ")
 }
 
+/// `text` cut where a sentence or a clause ends (a `.`, `;` or `:` before a space): a
+/// prompt file describes one name or a few in each.
+fn clauses(text: &str) -> Vec<String> {
+    let mut out = Vec::new();
+    let mut start = 0;
+    let chars: Vec<(usize, char)> = text.char_indices().collect();
+    for (i, &(at, c)) in chars.iter().enumerate() {
+        let next_space = chars.get(i + 1).is_none_or(|(_, n)| n.is_whitespace());
+        if matches!(c, '.' | ';' | ':') && next_space {
+            out.push(text[start..at].trim().to_string());
+            start = at + c.len_utf8();
+        }
+    }
+    out.push(text[start..].trim().to_string());
+    out.retain(|c| !c.is_empty());
+    out
+}
+
+/// What `clause` says of the ROS `name` it writes: the words between it and the name
+/// written before it ("motor temperatures and currents on /diagnostics"), or when
+/// those are fewer than two, the words after it up to the next name
+/// ("/gripper/state gives its opening and grip force"). A clause often describes
+/// several names in turn; each keeps its own words. `None` when the clause does not
+/// write the name whole (only as the start of a longer one).
+fn said_of(clause: &str, name: &str) -> Option<String> {
+    let names = ros_names(clause);
+    let i = names.iter().position(|(_, n)| *n == name)?;
+    let start = names[i].0;
+    let end = start + name.len();
+    let prev_end = i
+        .checked_sub(1)
+        .map_or(0, |j| names[j].0 + names[j].1.len());
+    let next_start = names.get(i + 1).map_or(clause.len(), |(at, _)| *at);
+    let trim = |t: &str| {
+        t.trim_matches(|c: char| c.is_whitespace() || matches!(c, ',' | ';' | '.' | ':'))
+            .to_string()
+    };
+    let before = trim(&clause[prev_end..start]);
+    Some(if before.split_whitespace().count() >= 2 {
+        format!("{before} {name}")
+    } else {
+        format!("{name} {}", trim(&clause[end..next_start]))
+    })
+}
+
+/// The ROS names `text` writes (words that start with `/`), with where each starts.
+fn ros_names(text: &str) -> Vec<(usize, &str)> {
+    let part = |c: char| c.is_alphanumeric() || c == '_' || c == '/';
+    let mut out = Vec::new();
+    let mut iter = text.char_indices().peekable();
+    while let Some((at, c)) = iter.next() {
+        let after_space = text[..at].chars().next_back().is_none_or(|b| !part(b));
+        if c != '/' || !after_space {
+            continue;
+        }
+        let mut end = at + 1;
+        while let Some(&(j, d)) = iter.peek() {
+            if !part(d) {
+                break;
+            }
+            end = j + d.len_utf8();
+            iter.next();
+        }
+        let word = text[at..end].trim_end_matches('/');
+        if word.len() > 1 {
+            out.push((at, word));
+        }
+    }
+    out
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_prompt_file_is_read_as_clauses_that_name_things() {
+        let about =
+            clauses("Lights: /lamp/on turns them on; /lamp/level is 0.5 now. The dock is /dock.");
+        assert_eq!(
+            about,
+            [
+                "Lights",
+                "/lamp/on turns them on",
+                "/lamp/level is 0.5 now",
+                "The dock is /dock"
+            ]
+        );
+        // Each name keeps the words said of it.
+        assert_eq!(
+            said_of(&about[1], "/lamp/on").as_deref(),
+            Some("/lamp/on turns them on")
+        );
+        assert_eq!(said_of(&about[1], "/lamp"), None);
+        let shared = "the pose is on /arm/pose, what the arm does on /arm/state";
+        assert_eq!(
+            said_of(shared, "/arm/state").as_deref(),
+            Some("what the arm does on /arm/state")
+        );
+        assert_eq!(
+            said_of(shared, "/arm/pose").as_deref(),
+            Some("the pose is on /arm/pose")
+        );
+    }
 
     #[test]
     fn a_name_reads_as_its_words() {

@@ -112,12 +112,28 @@ impl Run<'_> {
             let estop = self.agent.exec.policy().estop().clone();
             estop.trigger(&format!("the operator: {}", self.query.trim()));
             // The stop is the `robot_stop` act, taken without the model: the run's
-            // record says so, as for a stop the model calls.
+            // record and its events say so, as for a stop the model calls.
+            let output = json!({"stopped": true, "by": "the operator's words"});
+            self.emit(Event::ToolCall {
+                step: 0,
+                index: 0,
+                name: STOP_TOOL.to_string(),
+                arguments: json!({}),
+                decision: Decision::Allowed,
+            });
+            self.emit(Event::ToolResult {
+                step: 0,
+                index: 0,
+                name: STOP_TOOL.to_string(),
+                output: output.clone(),
+                ok: true,
+                ms: 0.0,
+            });
             self.records.push(StepRecord {
                 step: 0,
                 name: STOP_TOOL.to_string(),
                 arguments: json!({}),
-                output: json!({"stopped": true, "by": "the operator's words"}),
+                output,
                 ok: true,
                 ms: 0.0,
                 decision: Decision::Allowed,
@@ -298,6 +314,19 @@ impl Run<'_> {
             ),
             other => other,
         };
+        // A result is in and answering is all that is left: the answer is the result
+        // as `held` gives it, without the model. Its reply here would be one the
+        // answer replaces (a small model's rarely states the result) and the turn's
+        // slowest part.
+        if self.agent.config.composed_answers
+            && !self.grounds.is_empty()
+            && allowed
+                .as_deref()
+                .is_some_and(|names| names.iter().all(|n| n == ANSWER_TOOL))
+        {
+            let held = self.held("");
+            return Ok(self.answered(held));
+        }
         let t_model = Instant::now();
         let result = self.turn(allowed, &robot_names);
         self.timings.model_ms += t_model.elapsed().as_secs_f64() * 1e3;
@@ -607,7 +636,14 @@ impl Run<'_> {
                     .unwrap_or_else(|| s.clone())
             })
             .collect();
-        let mut allowed_specs = bound::bind(&allowed_specs, robot_names, &self.parts[self.part]);
+        let part = self.parts[self.part].clone();
+        let meaning = self.agent.meaning.clone();
+        let near = meaning
+            .as_ref()
+            .map(|m| move |name: &str| m.name_similarity(&part, name));
+        let near = near.as_ref().map(|f| f as &dyn Fn(&str) -> f64);
+        let mut allowed_specs =
+            bound::bind(&allowed_specs, robot_names, &self.parts[self.part], near);
         // A tool every call of which the guards would refuse is not written.
         allowed_specs.retain(|b| {
             self.offered

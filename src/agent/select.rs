@@ -25,6 +25,7 @@ use crate::lexicon::folded_words;
 use crate::tool::ToolSpec;
 
 use super::concepts::{acts_of, word_matches, Act};
+use super::config::STOP_TOOL;
 
 /// Concepts of the robot's domain: the words (folded prefixes, whole words when three
 /// letters or fewer) that say each, in English, Spanish, French, German, Italian and
@@ -318,6 +319,34 @@ pub fn scores(
         .collect()
 }
 
+/// Each tool's score for weighing the model's choice (`prior`): by meaning, the mean of
+/// its share by meaning and its share of the best score by words. The two err apart:
+/// the encoder takes "ângulo" for a unit conversion, the words miss "pinza"; on the tune
+/// halves of both robots' suites the mean chose better than either (README,
+/// Understanding requests). Which tools are offered stays by meaning alone (`select`):
+/// fewer tools, a shorter prompt.
+fn blended(
+    query: &str,
+    specs: &[ToolSpec],
+    names: &[(String, String)],
+    sims: Option<&[f64]>,
+) -> Vec<f64> {
+    let by_meaning = scores(query, specs, names, sims);
+    if sims.is_none_or(|s| s.len() != specs.len()) {
+        return by_meaning;
+    }
+    let words = lexical(query, specs, names);
+    let top = words.iter().copied().fold(0.0, f64::max);
+    if top <= 0.0 {
+        return by_meaning;
+    }
+    by_meaning
+        .iter()
+        .zip(&words)
+        .map(|(m, w)| (m + w / top) / 2.0)
+        .collect()
+}
+
 /// A tool scoring under this share of the best one is not offered: a small model
 /// chooses better among fewer. On the ROS suite, 0.3 keeps every expected tool (in both
 /// halves) with 9.8 tools offered per request instead of 12.1; 0.4 loses two.
@@ -326,6 +355,19 @@ const RELATIVE_FLOOR: f64 = 0.3;
 /// The same floor for scores by meaning: a tool more than 0.2 below the best one's
 /// similarity (two `TEMPERATURE`s) is not offered.
 const MEANING_FLOOR: f64 = 0.135;
+
+/// By meaning, the share of the best score by words at which a tool is offered
+/// whatever its meaning: the words point at it as strongly as at the best.
+const WORDS_BAR: f64 = 0.8;
+
+/// Each score as a share of the best one (all 0 when none is above 0).
+fn share_of_best(scores: &[f64]) -> Vec<f64> {
+    let top = scores.iter().copied().fold(0.0, f64::max);
+    if top <= 0.0 {
+        return vec![0.0; scores.len()];
+    }
+    scores.iter().map(|s| s / top).collect()
+}
 
 /// Indices of the tools to offer: the best scoring within `budget` tokens as measured
 /// by `cost`, best first, then the always-on ones. When everything fits, all tools in
@@ -339,6 +381,7 @@ pub fn select(
     budget: usize,
     cost: impl Fn(&ToolSpec) -> usize,
 ) -> Vec<usize> {
+    let sims = sims.filter(|s| s.len() == specs.len());
     let costs: Vec<usize> = specs.iter().map(&cost).collect();
     if costs.iter().sum::<usize>() <= budget {
         return (0..specs.len()).collect();
@@ -347,11 +390,22 @@ pub fn select(
         .filter(|&i| always_on.contains(&specs[i].name))
         .collect();
     let mut used: usize = always.iter().map(|&i| costs[i]).sum();
-    let mut ranked: Vec<(f64, usize)> = scores(query, specs, names, sims)
-        .into_iter()
+    let by_meaning = scores(query, specs, names, sims);
+    // By meaning, a tool the words point at strongly is offered too, ranked by both
+    // ("dock the robot": the encoder puts `base_dock`'s examples far, the word
+    // "dock" in its name does not).
+    let (ranking, words) = match sims {
+        Some(_) => (
+            blended(query, specs, names, sims),
+            share_of_best(&lexical(query, specs, names)),
+        ),
+        None => (by_meaning.clone(), vec![0.0; specs.len()]),
+    };
+    let mut ranked: Vec<(f64, usize)> = ranking
+        .iter()
         .enumerate()
-        .filter(|(i, sc)| !always.contains(i) && *sc > 0.0)
-        .map(|(i, sc)| (sc, i))
+        .filter(|(i, sc)| !always.contains(i) && **sc > 0.0)
+        .map(|(i, sc)| (*sc, i))
         .collect();
     ranked.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
     if tracing::enabled!(target: "ferrosa::select", tracing::Level::DEBUG) {
@@ -361,13 +415,16 @@ pub fn select(
             .collect();
         tracing::debug!(target: "ferrosa::select", ranked = ?named, "retrieval");
     }
-    let top = ranked.first().map_or(0.0, |r| r.0);
-    let floor = if sims.is_some() {
-        MEANING_FLOOR
-    } else {
-        RELATIVE_FLOOR
-    };
-    ranked.retain(|r| r.0 >= floor * top);
+    match sims {
+        Some(_) => {
+            let top = by_meaning.iter().copied().fold(0.0, f64::max);
+            ranked.retain(|(_, i)| by_meaning[*i] >= MEANING_FLOOR * top || words[*i] >= WORDS_BAR);
+        }
+        None => {
+            let top = ranked.first().map_or(0.0, |r| r.0);
+            ranked.retain(|r| r.0 >= RELATIVE_FLOOR * top);
+        }
+    }
     let mut chosen: Vec<usize> = Vec::new();
     for (_, i) in ranked {
         if used + costs[i] <= budget {
@@ -394,8 +451,17 @@ const FALLBACK_SHARE: f64 = 0.3;
 /// (`Run::settled`).
 pub fn beyond(candidates: &[f64], done: &[f64]) -> Vec<bool> {
     let bar = done.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-    candidates.iter().map(|p| *p > bar + 1e-9).collect()
+    candidates
+        .iter()
+        .map(|p| *p > bar + FOLLOW_MARGIN)
+        .collect()
 }
+
+/// How much more (in log share) the request must point at a tool than at those that
+/// answered it for the tool to follow: a near tie is no second request ("what is the
+/// background_r parameter?": the parameter's value, not the node's parameter list
+/// after it).
+const FOLLOW_MARGIN: f64 = 0.2;
 
 /// The least share a tool is held at (a tool the request does not meet at all).
 const PRIOR_FLOOR: f64 = 1e-3;
@@ -424,7 +490,7 @@ pub fn prior(
     candidates: &[&str],
     fallback: &str,
 ) -> Vec<f64> {
-    let scored = scores(query, specs, names, sims);
+    let scored = blended(query, specs, names, sims);
     let score_of = |name: &str| {
         specs
             .iter()
@@ -434,12 +500,17 @@ pub fn prior(
     let top = specs
         .iter()
         .zip(&scored)
-        .filter(|(s, _)| s.name != fallback)
+        .filter(|(s, _)| s.name != fallback && s.name != STOP_TOOL)
         .map(|(_, sc)| *sc)
         .fold(0.0, f64::max);
     candidates
         .iter()
         .map(|&c| match (c == fallback, top > 0.0) {
+            // The stop is taken without the model when the operator's words ask for it
+            // (`stop_intent`); the model's own choice of it gets no push from how much
+            // a request looks like "halt the robot" ("dock the robot" does).
+            (false, true) if c == STOP_TOOL => FALLBACK_SHARE.ln(),
+            (false, false) if c == STOP_TOOL => PRIOR_FLOOR.ln(),
             // By meaning, the answer has examples of its own (small talk): it is held at
             // its share when that is above the floor.
             (true, true) if sims.is_some() => (score_of(c) / top).max(FALLBACK_SHARE).ln(),
@@ -551,6 +622,30 @@ mod tests {
         // A request no tool meets: the answer is all the prior allows.
         let p = prior("hello", &s, &[], None, &["ros_node_list", "reply"], "reply");
         assert_eq!(p, [PRIOR_FLOOR.ln(), 0.0]);
+    }
+
+    #[test]
+    fn by_meaning_the_prior_is_weighed_with_the_words() {
+        let s = specs();
+        let cands = ["ros_topic_list", "ros_node_list", "calc_eval"];
+        // The encoder leans a little to the node list; the words say topics.
+        let mut sims = vec![0.2; s.len()];
+        sims[0] = 0.50;
+        sims[1] = 0.52;
+        let p = prior("which topics exist?", &s, &[], Some(&sims), &cands, "reply");
+        assert!(p[0] > p[1], "{p:?}");
+        // Offered: the tools near by meaning, ranked by both; not the rest.
+        let offered = select("which topics exist?", &s, &[], Some(&sims), &[], 20, |_| 10);
+        assert_eq!(offered, [0, 1]);
+        // A tool far by meaning that the words point at as strongly as at the best is
+        // offered too.
+        let mut far = sims.clone();
+        far[5] = -0.5;
+        let offered = select("move the turtle", &s, &[], Some(&far), &[], 40, |_| 10);
+        assert!(offered.contains(&5), "{offered:?}");
+        // Words that meet no tool leave the meaning as it is.
+        let p = prior("xyzzy", &s, &[], Some(&sims), &cands, "reply");
+        assert!(p[1] > p[0] && p[0] > p[2], "{p:?}");
     }
 
     #[test]

@@ -281,17 +281,20 @@ pub fn build_with(
     Ok(agent)
 }
 
-/// Tool choice by meaning (`FERROSA_TOOL_CHOICE=meaning`): the sentence encoder and the
-/// prompt file's examples. Not yet the default: on the turtle suite's tune half it
-/// passed fewer cases than the word tables, and on the arm's as many (README,
-/// Understanding requests). Without the encoder's files it says so once and tool
-/// choice reads words.
+/// Tool choice by meaning, the default: the sentence encoder, the tools' examples and
+/// the prompt file's (README, Understanding requests). `FERROSA_TOOL_CHOICE=words`
+/// reads words alone, as before the encoder. Without the encoder's files it says so
+/// once and tool choice reads words.
 fn meaning(models_dir: &Path, prompt: &RobotPrompt) -> Option<Arc<Meaning>> {
-    if !std::env::var("FERROSA_TOOL_CHOICE").is_ok_and(|v| v.trim() == "meaning") {
+    if std::env::var("FERROSA_TOOL_CHOICE").is_ok_and(|v| v.trim() == "words") {
         return None;
     }
     match crate::embed::shared(models_dir) {
-        Ok(encoder) => Some(Arc::new(Meaning::new(encoder, prompt.examples.clone()))),
+        Ok(encoder) => Some(Arc::new(Meaning::new(
+            encoder,
+            prompt.examples.clone(),
+            &prompt.render(),
+        ))),
         Err(e) => {
             static SAID: std::sync::Once = std::sync::Once::new();
             SAID.call_once(|| eprintln!("ferrosa: tool choice reads words, not meaning: {e}"));
