@@ -335,15 +335,14 @@ fn blended(
     if sims.is_none_or(|s| s.len() != specs.len()) {
         return by_meaning;
     }
-    let words = lexical(query, specs, names);
-    let top = words.iter().copied().fold(0.0, f64::max);
-    if top <= 0.0 {
+    let words = share_of_best(&lexical(query, specs, names));
+    if words.iter().all(|w| *w <= 0.0) {
         return by_meaning;
     }
     by_meaning
         .iter()
         .zip(&words)
-        .map(|(m, w)| (m + w / top) / 2.0)
+        .map(|(m, w)| (m + w) / 2.0)
         .collect()
 }
 

@@ -266,13 +266,7 @@ impl Filter {
         // The robot's own names first: every ROS 2 node's parameter and type
         // description services (and the logging and parameter-event topics) say
         // nothing of this robot, and would otherwise fill the names shown.
-        let mut shown: Vec<(bool, &str)> = kept
-            .iter()
-            .zip(&kept_names)
-            .map(|(v, n)| (infrastructure(v), *n))
-            .collect();
-        shown.sort_by_key(|(infra, _)| *infra);
-        let shown: Vec<&str> = shown.into_iter().map(|(_, n)| n).collect();
+        let shown = own_first(kept.iter().copied().zip(kept_names.iter().copied()));
         let mut out = json!({"summary": summary(key, &shown), "count": kept.len(), key: kept, "filters": self.echo});
         let filtered = self.pattern.is_some() || self.namespace.is_some();
         if kept.is_empty() && !items.is_empty() && filtered {
@@ -296,10 +290,18 @@ impl Filter {
     }
 }
 
+/// The names of listed items (item, name), the robot's own first and the client
+/// library's (`infrastructure`) after them, each group in the order given.
+pub(super) fn own_first<'a>(items: impl Iterator<Item = (&'a Value, &'a str)>) -> Vec<&'a str> {
+    let mut named: Vec<(bool, &str)> = items.map(|(v, n)| (infrastructure(v), n)).collect();
+    named.sort_by_key(|(infra, _)| *infra);
+    named.into_iter().map(|(_, n)| n).collect()
+}
+
 /// Whether a listed item is the ROS 2 client library's own, on every node whatever the
 /// robot: its type is of `rcl_interfaces` (parameters, `/rosout`, `/parameter_events`)
 /// or `type_description_interfaces`.
-pub(super) fn infrastructure(item: &Value) -> bool {
+fn infrastructure(item: &Value) -> bool {
     // `typed` joins a name's types with ", ".
     item["type"].as_str().is_some_and(|types| {
         types.split(", ").all(|t| {

@@ -72,12 +72,8 @@ impl Tool for NodeInfo {
         // Each list by name, the node's own before what the client library gives
         // every node (parameter and type description services, `/rosout`).
         let said = |items: &[Value], field: &str, noun: &str| -> String {
-            let mut named: Vec<(bool, &str)> = items
-                .iter()
-                .filter_map(|v| Some((super::base::infrastructure(v), v[field].as_str()?)))
-                .collect();
-            named.sort_by_key(|(infra, _)| *infra);
-            let names: Vec<&str> = named.into_iter().map(|(_, n)| n).collect();
+            let names =
+                super::base::own_first(items.iter().filter_map(|v| Some((v, v[field].as_str()?))));
             super::base::summary(noun, &names)
         };
         let summary = format!(
