@@ -23,16 +23,27 @@
 //!    per turn; and what the remote path adds to each completion: its wall time here less
 //!    the server's own prompt and generation time.
 //!
+//! 5. This build against main at 2065ce7 (before the answer step), side by side in one
+//!    run: `VERSUS`, 33 requests of nine kinds (listing, state, count, field,
+//!    definition, parameter, motion, two-step, small talk), typed into each build's
+//!    `ferrosa chat` one at a time (`common/versus.rs`), each request's time to its
+//!    first call and to its answer and the p50 / p95 of each; this build a second time
+//!    with every tool listed once (`FERROSA_TOOL_LISTING=all`). The baseline binary comes
+//!    from `scripts/build-baseline.sh`; without it the part says so and is skipped.
+//!
 //! The sim speaks DDS, so the bench re-runs itself in a network namespace with only
 //! loopback (`unshare -n`, as root), under a time limit. Settings: FERROSA_BENCH_RUNS (3),
 //! FERROSA_BENCH_TURNS (40), FERROSA_BENCH_THREADS (physical cores), FERROSA_BENCH_PARTS
-//! (the parts to run, e.g. `2` or `1,4`; all by default; 4 needs 1). Output: markdown on
+//! (the parts to run, e.g. `2` or `1,4`; all by default; 4 needs 1), FERROSA_BENCH_BASELINE
+//! (the baseline binary of part 5). Output: markdown on
 //! stdout, target/bench/agent.json, target/bench/agent.svg.
 
 #[path = "common/chart.rs"]
 mod chart;
 #[path = "common/header.rs"]
 mod header;
+#[path = "common/versus.rs"]
+mod versus;
 
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -51,7 +62,7 @@ use header::Spread;
 use serde::Serialize;
 
 /// The whole bench, inside the namespace, must end within this.
-const LIMIT_S: u32 = 1500;
+const LIMIT_S: u32 = 3600;
 
 /// What an operator asks a turtle robot: listing, pose, topics, status, motion.
 const REQUESTS: [&str; 5] = [
@@ -61,6 +72,57 @@ const REQUESTS: [&str; 5] = [
     "what is the battery level?",
     "move the turtle forward 1 meter",
 ];
+
+/// Part 5's requests, by kind: none of them is in a suite, and each kind has several
+/// wordings, so a build fitted to one wording gains little here.
+const VERSUS: [(&str, &str); 33] = [
+    ("listing", "show me every node that is running"),
+    ("listing", "what services are offered here?"),
+    ("listing", "give me the list of topics"),
+    ("listing", "what actions does the robot offer?"),
+    ("state", "where is the turtle right now?"),
+    ("state", "which way is the turtle facing?"),
+    ("state", "what charge does the battery hold?"),
+    ("state", "any faults on the robot?"),
+    ("count", "how many nodes are up?"),
+    ("count", "count the services"),
+    ("count", "how many topics exist on this robot?"),
+    ("count", "how many parameters does the turtlesim node have?"),
+    ("field", "what is the turtle's x coordinate?"),
+    ("field", "how fast is the turtle going?"),
+    ("field", "what is the battery percentage?"),
+    ("field", "what is the background red value?"),
+    ("definition", "what fields does a turtlesim/msg/Pose have?"),
+    (
+        "definition",
+        "what is inside a geometry_msgs/msg/Twist message?",
+    ),
+    (
+        "definition",
+        "describe the turtlesim/srv/Spawn service type",
+    ),
+    ("definition", "what does the /turtle1/pose topic carry?"),
+    (
+        "parameter",
+        "show the parameters the turtlesim node exposes",
+    ),
+    ("parameter", "what is background_g set to?"),
+    ("parameter", "set background_r to 100"),
+    ("parameter", "read the background blue value"),
+    ("motion", "drive the turtle forward half a meter"),
+    ("motion", "turn the turtle 90 degrees to the left"),
+    ("motion", "teleport the turtle to x 3 y 3"),
+    ("motion", "put the pen up"),
+    ("two-step", "move forward 1 meter and then tell me the pose"),
+    ("two-step", "list the nodes and then the topics"),
+    ("small talk", "hi there!"),
+    ("small talk", "thank you, that will be all"),
+    ("small talk", "what are you?"),
+];
+
+/// The build part 5 measures this one against: main before the answer step
+/// (`scripts/build-baseline.sh` builds it into `target/bench/baseline-2065ce7/`).
+const BASELINE_REV: &str = "2065ce7";
 
 /// The long chat's turn.
 const SMALL_TALK: &str = "hello, are you there?";
@@ -141,7 +203,7 @@ fn main() {
     let runs = header::env_usize("FERROSA_BENCH_RUNS", 3).max(1);
     let turns = header::env_usize("FERROSA_BENCH_TURNS", 40).max(2);
     let threads = header::env_usize("FERROSA_BENCH_THREADS", ferrosa::backend::physical_cores());
-    let parts = std::env::var("FERROSA_BENCH_PARTS").unwrap_or_else(|_| "1,2,3,4".into());
+    let parts = std::env::var("FERROSA_BENCH_PARTS").unwrap_or_else(|_| "1,2,3,4,5".into());
     let part = |n: &str| parts.split(',').any(|p| p.trim() == n);
     let args = AgentArgs {
         model: ModelArgs {
@@ -167,6 +229,7 @@ fn main() {
         copy_bias: ferrosa::ui::agent::DEFAULT_COPY_BIAS,
         pick: Default::default(),
         language: None,
+        verbose: false,
     };
     header::print(
         "ferrosa agent benchmark",
@@ -245,10 +308,12 @@ fn main() {
     } else {
         Vec::new()
     };
-    println!("## Cold start: the first request of a new agent (\"{}\"), ms, min / **median** / max over {runs}", REQUESTS[0]);
-    println!();
-    println!("| prompt cache | agent built | first token | first call | total | prompt tokens restored | answer (last run) |");
-    println!("|---|---|---|---|---|---|---|");
+    if !cold.is_empty() {
+        println!("## Cold start: the first request of a new agent (\"{}\"), ms, min / **median** / max over {runs}", REQUESTS[0]);
+        println!();
+        println!("| prompt cache | agent built | first token | first call | total | prompt tokens restored | answer (last run) |");
+        println!("|---|---|---|---|---|---|---|");
+    }
     for c in &cold {
         println!(
             "| {} | {} | {} | {} | {} | {} | {} |",
@@ -340,10 +405,14 @@ fn main() {
         }
     };
 
+    // 5. This build and the baseline side by side, each as its own chat process.
+    drop(link);
+    let versus = part("5").then(|| side_by_side(&root)).flatten();
+
     let out = root.join("target").join("bench");
     let _ = std::fs::create_dir_all(&out);
     let file = out.join("agent.json");
-    let json = serde_json::json!({"requests": rows, "memory": memory, "first": first.map(|f| f.timings), "cold_start": cold, "remote": remote});
+    let json = serde_json::json!({"requests": rows, "memory": memory, "first": first.map(|f| f.timings), "cold_start": cold, "remote": remote, "versus": versus});
     std::fs::write(&file, serde_json::to_string_pretty(&json).expect("json")).expect("write json");
     let mut latency = chart::Bars::new("ms (median)", &["total", "first token", "tools"]);
     for r in &rows {
@@ -379,7 +448,110 @@ fn main() {
         Ok(()) => eprintln!("wrote {} and {}", file.display(), svg.display()),
         Err(e) => eprintln!("wrote {}; chart failed: {e}", file.display()),
     }
-    drop(link);
+}
+
+/// Part 5: `VERSUS` through the baseline's chat and this build's, one after the other
+/// (never two models at once), each request's time to its first call and to its answer,
+/// and the p50 / p95 of each by build; `None` when the baseline is not built.
+fn side_by_side(root: &std::path::Path) -> Option<serde_json::Value> {
+    let baseline = std::env::var_os("FERROSA_BENCH_BASELINE")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| root.join(format!("target/bench/baseline-{BASELINE_REV}/ferrosa")));
+    if !baseline.exists() {
+        println!(
+            "## This build against {BASELINE_REV}: skipped (no {}: scripts/build-baseline.sh builds it)",
+            baseline.display()
+        );
+        println!();
+        return None;
+    }
+    let this = PathBuf::from(env!("CARGO_BIN_EXE_ferrosa"));
+    let requests: Vec<&str> = VERSUS.iter().map(|(_, q)| *q).collect();
+    // Each binary runs where it finds its own model catalog.
+    let run = |bin: &std::path::Path, domain: u32, env: &[(&str, &str)]| {
+        let home = bin
+            .parent()
+            .filter(|d| d.join("models/catalog.toml").exists())
+            .unwrap_or(root);
+        versus::chat(bin, home, SMALL_TALK, &requests, domain, 900, env)
+            .unwrap_or_else(|e| panic!("{e}"))
+    };
+    let old = run(&baseline, 61, &[]);
+    let new = run(&this, 62, &[]);
+    let listed = run(&this, 63, &[("FERROSA_TOOL_LISTING", "all")]);
+    let ms = |v: Option<f64>| v.map_or("–".to_string(), |v| format!("{v:.0}"));
+    println!(
+        "## This build against {BASELINE_REV}: {} requests on the sim, each after /clear (ms)",
+        requests.len()
+    );
+    println!();
+    println!("\"listed\": this build with every tool listed once (`FERROSA_TOOL_LISTING=all`).");
+    println!();
+    println!("| kind | request | {BASELINE_REV} first call | {BASELINE_REV} answer | this first call | this answer | listed first call | listed answer | listed calls | listed answer |");
+    println!("|---|---|---|---|---|---|---|---|---|---|");
+    for ((((kind, q), o), n), l) in VERSUS.iter().zip(&old).zip(&new).zip(&listed) {
+        println!(
+            "| {kind} | {q} | {} | {:.0} | {} | {:.0} | {} | {:.0} | {} | {} |",
+            ms(o.first_call_ms),
+            o.answer_ms,
+            ms(n.first_call_ms),
+            n.answer_ms,
+            ms(l.first_call_ms),
+            l.answer_ms,
+            l.calls.join(" → "),
+            l.answer
+                .chars()
+                .take(80)
+                .collect::<String>()
+                .replace('|', "\\|")
+                .replace('\n', " "),
+        );
+    }
+    println!();
+    println!("| build | requests | first call p50 | first call p95 | answer p50 | answer p95 | answer mean | one-step answer p50 | two-step answer p50 |");
+    println!("|---|---|---|---|---|---|---|---|---|");
+    let summary = |name: &str, runs: &[versus::Timed]| {
+        let calls: Vec<f64> = runs.iter().filter_map(|r| r.first_call_ms).collect();
+        let answers: Vec<f64> = runs.iter().map(|r| r.answer_ms).collect();
+        let by_steps = |two: bool| -> Vec<f64> {
+            VERSUS
+                .iter()
+                .zip(runs)
+                .filter(|((kind, _), _)| (*kind == "two-step") == two && *kind != "small talk")
+                .map(|(_, r)| r.answer_ms)
+                .collect()
+        };
+        let mean = answers.iter().sum::<f64>() / answers.len().max(1) as f64;
+        println!(
+            "| {name} | {} | {:.0} | {:.0} | {:.0} | {:.0} | {mean:.0} | {:.0} | {:.0} |",
+            runs.len(),
+            versus::quantile(&calls, 0.5),
+            versus::quantile(&calls, 0.95),
+            versus::quantile(&answers, 0.5),
+            versus::quantile(&answers, 0.95),
+            versus::quantile(&by_steps(false), 0.5),
+            versus::quantile(&by_steps(true), 0.5),
+        );
+        serde_json::json!({
+            "first_call_p50": versus::quantile(&calls, 0.5),
+            "first_call_p95": versus::quantile(&calls, 0.95),
+            "answer_p50": versus::quantile(&answers, 0.5),
+            "answer_p95": versus::quantile(&answers, 0.95),
+            "answer_mean": mean,
+            "requests": runs,
+        })
+    };
+    let old = summary(BASELINE_REV, &old);
+    let new = summary("this build", &new);
+    let listed = summary("this build, listed", &listed);
+    println!();
+    let kinds: Vec<_> = VERSUS
+        .iter()
+        .map(|(k, q)| serde_json::json!({"kind": k, "request": q}))
+        .collect();
+    Some(
+        serde_json::json!({"baseline": BASELINE_REV, "kinds": kinds, BASELINE_REV: old, "this": new, "listed": listed}),
+    )
 }
 
 #[derive(Debug, Serialize)]

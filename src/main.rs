@@ -318,6 +318,9 @@ struct AgentOpts {
     /// (en, es, fr, de, it, pt).
     #[arg(long, default_value = "auto", value_parser = parse_language)]
     lang: LanguageArg,
+    /// Show what the model writes as it writes it, and each call's arguments and result.
+    #[arg(short, long)]
+    verbose: bool,
 }
 
 /// `--lang`: `None` for auto.
@@ -361,6 +364,7 @@ impl AgentOpts {
             copy_bias: self.copy_bias,
             pick: self.pick.into(),
             language: self.lang,
+            verbose: self.verbose,
         }
     }
 }
@@ -693,6 +697,7 @@ fn main() -> ExitCode {
                 copy_bias,
                 pick: pick.into(),
                 language: lang,
+                verbose: false,
             },
             suite,
             decoding,

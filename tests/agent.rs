@@ -520,7 +520,7 @@ fn deny_listed_names_are_refused_on_every_kind_of_call_and_hidden_from_listings(
         answer("Denied."),
     ];
     let mut a = agent(&script, vec![ros_like(&runs)], policy, 8192);
-    let (r, events) = ask(&mut a, "read /secret/keys every way you can");
+    let (r, events) = ask(&mut a, "read or set /secret/keys every way you can");
     assert_eq!(runs.load(Ordering::SeqCst), 0, "a denied call ran");
     for s in &r.steps[..6] {
         assert!(
@@ -750,6 +750,47 @@ fn many_tools_are_narrowed_to_the_relevant_ones() {
         );
         assert!(narrowed < full);
     }
+}
+
+#[test]
+fn every_request_reads_one_listing_of_the_tools_so_the_prompt_before_it_stays_cached() {
+    let script = [
+        answer("one"),
+        answer("two"),
+        answer("three"),
+        answer("four"),
+    ];
+    let runs = Arc::new(AtomicUsize::new(0));
+    let mut a = agent(&script, vec![ros_like(&runs)], Policy::default(), 1 << 16);
+    // Few tools offered per request; all of them listed.
+    a.config.tool_budget_tokens = 3000;
+    a.config.listing_budget_tokens = 1 << 20;
+    let all = a.registry().specs();
+    let before_request = a.prompt_tokens_with("", &all);
+    let (first, _) = ask(&mut a, "what is the mean of 3, 5 and 10?");
+    a.clear();
+    let (second, _) = ask(&mut a, "list the ROS topics");
+    assert_ne!(first.tools_offered, second.tools_offered);
+    assert!(second.tools_offered.len() < all.len());
+    // The second request evaluates its own words only: everything up to them (the
+    // system prompt and the listing of every tool) comes from the cache.
+    let reused = second.timings.reused_tokens[0];
+    assert!(
+        reused + 8 >= before_request,
+        "{reused} tokens reused of the {before_request} before the request"
+    );
+    // Listing what each request is offered instead, the listing itself is evaluated
+    // again whenever the offer changes.
+    a.config.listing_budget_tokens = 0;
+    a.clear();
+    let (_, _) = ask(&mut a, "what is the mean of 3, 5 and 10?");
+    a.clear();
+    let (narrow, _) = ask(&mut a, "list the ROS topics");
+    assert!(
+        narrow.timings.reused_tokens[0] + 8 < before_request / 2,
+        "{:?}",
+        narrow.timings
+    );
 }
 
 #[test]

@@ -306,6 +306,7 @@ fn stack(setup: &Setup, script: &[String]) -> Stack {
         copy_bias: 0.0,
         pick: ferrosa::agent::config::Pick::Likeliest,
         language: None,
+        verbose: false,
     };
     let operator = Arc::new(Operator {
         approves: setup.approves,

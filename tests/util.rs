@@ -132,6 +132,7 @@ pub fn agent_args(robot: ferrosa::ui::agent::Robot, yes: bool) -> ferrosa::ui::a
         copy_bias: ferrosa::ui::agent::DEFAULT_COPY_BIAS,
         pick: Default::default(),
         language: None,
+        verbose: false,
     }
 }
 

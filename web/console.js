@@ -77,15 +77,69 @@ function partialString(s) {
   return out;
 }
 
+// ---- calls as the operator follows them -------------------------------------------
+
+// One line per call in the answer's bubble ("→ ros_topic_echo /turtle1/pose"), with a
+// spinner and its time while it runs, its time or its refusal once it is back; the
+// arguments and results in full are in the trace beside.
+const FRAMES = "⠋⠙⠹⠸⠼⠴⠦⠧⠇⠏";
+const running = new Set();     // {took, since} of the calls not back yet
+let ticker = null;
+
+function argsLine(args) {
+  const entries = Object.entries(args || {});
+  const value = (v) => (typeof v === "string" ? v : JSON.stringify(v));
+  if (entries.length === 1) return ` ${value(entries[0][1])}`;
+  return entries.map(([k, v]) => ` ${k}=${value(v)}`).join("");
+}
+
+function callLine(r, d) {
+  const li = el("li", "step");
+  const took = el("span", "took muted", "");
+  li.append(el("span", "call", `→ ${d.name}${argsLine(d.arguments)}`), " ", took);
+  r.steps.append(li);
+  const line = { li, took, since: performance.now() };
+  if (d.decision.decision === "refused") {
+    li.classList.add("refused");
+    took.textContent = `refused: ${d.decision.reason || ""}`;
+  } else {
+    running.add(line);
+    if (!ticker) ticker = setInterval(tick, 100);
+  }
+  return line;
+}
+
+function tick() {
+  const frame = FRAMES[Math.floor(performance.now() / 100) % FRAMES.length];
+  for (const line of running) {
+    line.took.textContent = `${frame} ${((performance.now() - line.since) / 1000).toFixed(1)} s`;
+  }
+  if (running.size === 0) {
+    clearInterval(ticker);
+    ticker = null;
+  }
+}
+
+function callDone(line, d) {
+  running.delete(line);
+  if (line.li.classList.contains("refused")) return;
+  const took = d.ms < 100 ? `${Math.round(d.ms)} ms` : `${(d.ms / 1000).toFixed(1)} s`;
+  line.took.textContent = d.ok ? `· ${took}` : `✗ ${took}: ${(d.output && d.output.error) || "failed"}`;
+  if (!d.ok) line.li.classList.add("failed");
+}
+
 // ---- conversation and trace ------------------------------------------------------
 
 function onRequest(d) {
   const list = $("messages");
   list.append(el("li", "user", d.text));
-  const bubble = el("li", "agent writing", "…");
+  const bubble = el("li", "agent writing");
   bubble.dataset.run = d.run;
+  const steps = el("ul", "steps");
+  const text = el("div", "text", "…");
+  bubble.append(steps, text);
   list.append(bubble);
-  runs.set(d.run, { bubble, raw: "", calls: new Map(), answered: false });
+  runs.set(d.run, { bubble, steps, text, raw: "", calls: new Map(), lines: new Map(), answered: false });
   scrollDown(list);
   setBusy(true);
 }
@@ -109,7 +163,7 @@ function onAgent(d) {
     case "token": {
       r.raw += d.text;
       const shown = answerSoFar(r.raw);
-      if (shown !== null && !r.answered) r.bubble.textContent = shown || "…";
+      if (shown !== null && !r.answered) r.text.textContent = shown || "…";
       break;
     }
     case "tool_call": {
@@ -127,9 +181,12 @@ function onAgent(d) {
       if (d.decision.reason) details.append(el("div", "muted", "reason"), el("pre", "reason", d.decision.reason));
       li.append(details);
       r.calls.set(li.dataset.key, li);
+      if (d.name !== "reply") r.lines.set(li.dataset.key, callLine(r, d));
       break;
     }
     case "tool_result": {
+      const line = r.lines.get(`${d.run}/${d.step}/${d.index}`);
+      if (line) callDone(line, d);
       const li = r.calls.get(`${d.run}/${d.step}/${d.index}`);
       if (!li) break;
       li.dataset.ok = d.ok;
@@ -142,7 +199,7 @@ function onAgent(d) {
     case "answer":
       if (live && $("speak").checked) speak(d.text);
       r.answered = true;
-      r.bubble.textContent = d.text;
+      r.text.textContent = d.text;
       r.bubble.classList.remove("writing");
       r.bubble.classList.add("answered");
       break;
@@ -159,7 +216,7 @@ function onDone(d) {
   r.bubble.classList.remove("writing");
   if (d.error) {
     r.bubble.classList.add("failed");
-    r.bubble.textContent = `The agent failed: ${d.error}`;
+    r.text.textContent = `The agent failed: ${d.error}`;
     return;
   }
   const secs = (d.timings.total_ms / 1000).toFixed(1);

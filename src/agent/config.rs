@@ -57,6 +57,14 @@ pub struct AgentConfig {
     pub history_tokens: usize,
     /// Tokens the tool specs may take before tools are selected per query.
     pub tool_budget_tokens: usize,
+    /// Tokens the system prompt's tool listing may take with every tool in it. Within
+    /// it, every request's prompt lists all the tools in one order (the grammar still
+    /// holds each step to the tools it is offered), so the prompt before the request is
+    /// the same each time and the KV and prompt caches keep it: a request evaluates its
+    /// own words, not a listing of its own. Beyond it, or at 0 (the default until it
+    /// passes what the offered listing passes: README, The agent), a prompt lists the
+    /// tools its request is offered.
+    pub listing_budget_tokens: usize,
     /// Tools always offered when selecting.
     pub always_on: Vec<String>,
     /// Characters of a tool's output shown to the model.
@@ -88,6 +96,7 @@ impl AgentConfig {
             history_tokens: 768,
             asked_actuation_only: true,
             tool_budget_tokens: 1500,
+            listing_budget_tokens: 0,
             always_on: vec![ANSWER_TOOL.to_string(), STOP_TOOL.to_string()],
             output_chars: 1500,
             copy_bias: 0.0,

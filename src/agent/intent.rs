@@ -62,14 +62,23 @@ fn target_words(call: &ToolCall) -> Vec<String> {
 pub struct Intent {
     clauses: Vec<Clause>,
     asked: Vec<Act>,
+    /// The numbers the request writes in clauses that ask for something.
+    numbers: Vec<f64>,
 }
 
 impl Intent {
     pub fn new(query: &str) -> Intent {
         let clauses = clauses(query);
+        let numbers = clauses
+            .iter()
+            .filter(|c| c.mood == Mood::Asked)
+            .flat_map(|c| c.words.iter())
+            .filter_map(|w| w.parse::<f64>().ok())
+            .collect();
         Intent {
             asked: asked_acts(&clauses),
             clauses,
+            numbers,
         }
     }
 
@@ -92,12 +101,35 @@ impl Intent {
         })
     }
 
+    /// A tool that changes a setting (`ros_param_set`: its own name's act is `Set`) is
+    /// asked for by a request to change something, or one that writes the number the
+    /// call sets ("make the gripper force 20"), not by one that names the
+    /// setting: "read the background blue value" asks for nothing to change. `own`: the
+    /// acts the tool's name names; `call`: the call, once written (before, any number
+    /// the request writes may be the one).
+    fn asks_own_setting(&self, own: &[Act], call: Option<&ToolCall>) -> bool {
+        if !own.contains(&Act::Set) || self.asked.contains(&Act::Set) {
+            return true;
+        }
+        match call {
+            None => !self.numbers.is_empty(),
+            Some(c) => c
+                .arguments
+                .get("value")
+                .and_then(Value::as_f64)
+                .is_some_and(|v| self.numbers.iter().any(|n| (n - v).abs() < 1e-9)),
+        }
+    }
+
     /// Whether some call of `spec` could be asked for by this request (tools that
     /// cannot leave the grammar).
     pub fn may_ask_for(&self, spec: &ToolSpec, observing: &BTreeSet<String>) -> bool {
         let own = name_words(&spec.name);
         let acts = acts_of(&own);
         if is_generic(spec) {
+            if !self.asks_own_setting(&acts, None) {
+                return false;
+            }
             return !self.asked.is_empty() || self.asking_words().any(|w| w.len() > 3);
         }
         if acts.is_empty() {
@@ -111,6 +143,9 @@ impl Intent {
     pub fn asks_for(&self, call: &ToolCall, spec: &ToolSpec, observing: &BTreeSet<String>) -> bool {
         if !is_generic(spec) {
             return self.may_ask_for(spec, observing);
+        }
+        if !self.asks_own_setting(&acts_of(&name_words(&spec.name)), Some(call)) {
+            return false;
         }
         let target = target_words(call);
         let target_acts = acts_of(&target);
@@ -197,6 +232,28 @@ mod tests {
         // A robot's own tool: its own words ask for it.
         let raise =
             |q: &str| Intent::new(q).asks_for(&call("eels_raise_head", json!({})), &act[3], &obs);
+        // A setting changes when the request asks for a change, not when it names it.
+        let param = spec(
+            "ros_param_set",
+            json!({"node": {"type": "string"}, "name": {"type": "string"}, "value": {}}),
+        );
+        let set = |q: &str| {
+            Intent::new(q).asks_for(
+                &call(
+                    "ros_param_set",
+                    json!({"node": "/sim", "name": "max_speed", "value": 2}),
+                ),
+                &param,
+                &obs,
+            )
+        };
+        assert!(set("change max_speed to 2"));
+        assert!(set("make max_speed 2"));
+        assert!(!set("make max_speed 3"));
+        assert!(set("ajusta la velocidad max_speed a 2"));
+        assert!(!set("read the max speed"));
+        assert!(!set("what is max_speed?"));
+        assert!(!Intent::new("show me the max speed setting").may_ask_for(&param, &obs));
         assert!(raise("raise the head by 10 degrees"));
         assert!(!raise("what is the head angle?"));
     }

@@ -36,6 +36,11 @@ use crate::strategy::turn::Engine;
 use crate::tool::exec::Outcome;
 use crate::tool::{Decision, ToolCall, ToolSpec};
 
+/// With every tool listed (`Agent::listed`), how many of the tools a request is
+/// offered the request names after its words, best first: the listing is the same for
+/// every request, and a small model reads what is near the request most.
+const HINTED: usize = 3;
+
 /// What the model's turn came to.
 enum Thought {
     /// Calls to make.
@@ -616,11 +621,24 @@ impl Run<'_> {
     ) -> Result<TurnResult, DecodeError> {
         // The request as the model reads it: with a note of the answer's language when
         // that is not the prompt's.
-        let first = match self.language.note() {
+        let mut first = match self.language.note() {
             Some(note) => format!("{}\n{note}", self.parts[0]),
             None => self.parts[0].clone(),
         };
-        let messages = self.agent.context(&first, &self.scratch, &self.offered)?;
+        let listed = self.agent.listed(&self.offered);
+        if listed.len() > self.offered.len() {
+            let fit: Vec<&str> = self
+                .offered
+                .iter()
+                .map(|s| s.name.as_str())
+                .filter(|n| !self.agent.config.always_on.iter().any(|a| a == n))
+                .take(HINTED)
+                .collect();
+            if !fit.is_empty() {
+                first = format!("{first}\n(Tools that fit: {}.)", fit.join(", "));
+            }
+        }
+        let messages = self.agent.context(&first, &self.scratch, &listed)?;
         // The grammar takes each tool's arguments as the robot can take them now
         // (`Tool::live_parameters`), name arguments held to the names that exist
         // (`bound`).
@@ -657,9 +675,7 @@ impl Run<'_> {
         let candidates: Vec<&str> = allowed_specs.iter().map(|s| s.name.as_str()).collect();
         let pick = fresh.then_some((self.parts[self.part].as_str(), candidates.as_slice()));
         let mut pipeline = self.agent.pipeline(&sources, pick, robot_names);
-        let req = self
-            .agent
-            .request(&messages, &self.offered, Some(&allowed_specs));
+        let req = self.agent.request(&messages, &listed, Some(&allowed_specs));
         let cancel = self.agent.cancel.clone();
         let start = self.start;
         self.step_first_token = None;

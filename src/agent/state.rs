@@ -222,6 +222,31 @@ impl Agent {
         self.names.as_ref().map(|n| n()).unwrap_or_default()
     }
 
+    /// The tools a prompt lists when its request is offered `offered`: every tool, in
+    /// the registry's order, when their specs fit `config.listing_budget_tokens` (the
+    /// prompt before the request is then the same for every request); else `offered`.
+    pub(super) fn listed(&self, offered: &[ToolSpec]) -> Vec<ToolSpec> {
+        let all = self.retrievable();
+        let budget = self.config.listing_budget_tokens;
+        let cost = || {
+            all.iter()
+                .map(|s| self.tokens(&Envelope::describe_tool(s)))
+                .sum::<usize>()
+        };
+        if budget > 0 && all.len() > offered.len() && cost() <= budget {
+            all
+        } else {
+            offered.to_vec()
+        }
+    }
+
+    /// Whether every request's prompt lists every tool (`listed`): then the prompt
+    /// before a request is the same for all of them, and warming it once serves all.
+    pub fn lists_every_tool(&self) -> bool {
+        let all = self.retrievable().len();
+        all > 0 && self.listed(&[]).len() == all
+    }
+
     /// Which tools to offer for `query`, by the token cost of their specs.
     pub fn offered_tools(&self, query: &str) -> Vec<ToolSpec> {
         let (specs, names) = (self.retrievable(), self.robot_names());
@@ -293,12 +318,12 @@ impl Agent {
         if self.session.cache().is_none() {
             return Ok(None);
         }
-        let offered = self.offered_tools(query);
+        let listed = self.listed(&self.offered_tools(query));
         let messages = [
             ChatMessage::new(Role::System, self.system.clone()),
             ChatMessage::new(Role::User, query),
         ];
-        let req = self.request(&messages, &offered, None);
+        let req = self.request(&messages, &listed, None);
         let (tokens, stable) =
             render_prompt_split(self.backend.as_ref(), &with_tools(&req), req.envelope)
                 .map_err(AgentError::Decode)?;

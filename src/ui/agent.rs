@@ -12,13 +12,14 @@ use std::sync::Arc;
 use anyhow::Context;
 use serde_json::json;
 
+use super::progress::View;
 use super::robot;
 pub use super::robot::{connect, Robot, RobotLink};
 use super::term::{clean, Input, TerminalConfirm};
 use crate::agent::meaning::Meaning;
 use crate::agent::prompt::RobotPrompt;
 use crate::agent::trace::Trace;
-use crate::agent::{Agent, AgentConfig, AnswerMode, Event, NameSource};
+use crate::agent::{Agent, AgentConfig, AnswerMode, NameSource};
 use crate::decode::Decoding;
 use crate::estop::EStop;
 use crate::ros::ros2::Ros2Options;
@@ -48,6 +49,9 @@ pub struct AgentArgs {
     pub pick: crate::agent::config::Pick,
     /// The language answers are written in; `None`: each request's own.
     pub language: Option<crate::agent::language::Language>,
+    /// Show the model's text as it writes it and each call's arguments and result
+    /// (`progress`).
+    pub verbose: bool,
 }
 
 /// `ferrosa sim`: the robot alone, until Ctrl-C.
@@ -256,6 +260,11 @@ pub fn build_with(
     config.copy_bias = args.copy_bias;
     config.pick = args.pick;
     config.language = args.language;
+    // Every tool listed once for every request: opt-in until it passes what the
+    // listing of each request's own tools passes (README, The agent, Context).
+    if std::env::var("FERROSA_TOOL_LISTING").is_ok_and(|v| v.trim() == "all") {
+        config.listing_budget_tokens = LISTING_BUDGET_TOKENS;
+    }
     let cache = args.model.prompt_cache(&resolved, model.as_ref());
     let remote = args.model.connect(&resolved, model.as_ref())?;
     let sampler = config.sampler;
@@ -350,52 +359,12 @@ fn install_ctrl_c(flag: Arc<AtomicBool>, estop: Option<Arc<EStop>>) {
     });
 }
 
-fn show(e: &Event, stream: bool) {
-    let mut err = std::io::stderr();
-    match e {
-        Event::Token { text } if stream => {
-            let _ = write!(err, "{}", clean(text));
-            let _ = err.flush();
-        }
-        Event::ToolCall {
-            name,
-            arguments,
-            decision,
-            ..
-        } => {
-            let d = serde_json::to_value(decision).unwrap_or_default();
-            let _ = writeln!(
-                err,
-                "\n→ {} {} [{}]",
-                clean(name),
-                clean(&arguments.to_string()),
-                clean(d["decision"].as_str().unwrap_or_default())
-            );
-        }
-        Event::ToolResult {
-            name,
-            output,
-            ms,
-            ok,
-            ..
-        } => {
-            let text = clean(&output.to_string());
-            let short: String = text.chars().take(300).collect();
-            let mark = if *ok { "←" } else { "✗" };
-            let _ = writeln!(err, "{mark} {} ({ms:.0} ms): {short}", clean(name));
-        }
-        Event::Error { message } => {
-            let _ = writeln!(err, "\n! {}", clean(message));
-        }
-        _ => {}
-    }
-}
-
 pub fn ask(args: &AgentArgs, query: &str, as_json: bool) -> anyhow::Result<()> {
     let mut run = start(args)?;
+    let mut view = View::new(args.verbose);
     let result = run.agent.ask(query, &mut |e| {
         if !as_json {
-            show(e, true);
+            view.event(e);
         }
     })?;
     if as_json {
@@ -416,11 +385,21 @@ pub fn ask(args: &AgentArgs, query: &str, as_json: bool) -> anyhow::Result<()> {
         });
         println!("{}", serde_json::to_string_pretty(&out)?);
     } else {
-        eprintln!();
+        if args.verbose {
+            eprintln!();
+        }
         println!("{}", clean(&result.answer));
     }
     Ok(())
 }
+
+/// The listing budget `FERROSA_TOOL_LISTING=all` sets (the sim's 33 tools take about
+/// 4,000 tokens).
+const LISTING_BUDGET_TOKENS: usize = 5000;
+
+/// The request the chat prepares the prompt with: any does, the listing is the same for
+/// every request.
+const CHAT_WARM: &str = "hello";
 
 const CHAT_HELP: &str = "/stop engages the e-stop (also while a run goes on; so does Ctrl-C), /reset releases it, /call NAME {json} runs one tool call through the policy, /tools lists the tools, /clear forgets the conversation, /trace shows the trace file, /quit leaves.";
 
@@ -436,6 +415,27 @@ pub fn chat(args: &AgentArgs) -> anyhow::Result<()> {
         "ferrosa chat: {} tools. {CHAT_HELP}",
         agent.registry().len()
     );
+    // Every request's prompt starts the same (the robot prompt and the tools' listing):
+    // have it ready before the operator's first request, restored from the prompt cache
+    // or, on the first start, evaluated and kept there.
+    if args.model.prompt_cache && agent.lists_every_tool() {
+        super::progress::begin(
+            "preparing the robot prompt (the first start evaluates it, later ones restore it)"
+                .into(),
+        );
+        let ready = agent.warm(CHAT_WARM);
+        let took = super::progress::hold();
+        match ready {
+            Ok(_) if took.is_some_and(|t| t.as_secs() >= 2) => {
+                eprintln!(
+                    "robot prompt ready ({:.0} s, kept for later starts)",
+                    took.unwrap_or_default().as_secs_f64()
+                );
+            }
+            Ok(_) => {}
+            Err(e) => eprintln!("the robot prompt was not prepared ahead: {e}"),
+        }
+    }
     loop {
         if let Some(e) = estop.engaged_by() {
             eprintln!(
@@ -449,7 +449,7 @@ pub fn chat(args: &AgentArgs) -> anyhow::Result<()> {
             break;
         };
         cancel.store(false, Ordering::SeqCst);
-        if !chat_command(agent, line.trim()) {
+        if !chat_command(agent, line.trim(), args.verbose) {
             break;
         }
     }
@@ -457,7 +457,8 @@ pub fn chat(args: &AgentArgs) -> anyhow::Result<()> {
 }
 
 /// One REPL line: a command, or a request for the agent. `false` to leave.
-fn chat_command(agent: &mut Agent, q: &str) -> bool {
+fn chat_command(agent: &mut Agent, q: &str, verbose: bool) -> bool {
+    let mut view = View::new(verbose);
     match q {
         "" => {}
         "/quit" | "/exit" => return false,
@@ -500,9 +501,11 @@ fn chat_command(agent: &mut Agent, q: &str) -> bool {
             }
         }
         _ if q.starts_with('/') => eprintln!("unknown command {}; {CHAT_HELP}", clean(q)),
-        _ => match agent.ask(q, &mut |e| show(e, true)) {
+        _ => match agent.ask(q, &mut |e| view.event(e)) {
             Ok(r) => {
-                eprintln!();
+                if verbose {
+                    eprintln!();
+                }
                 println!("{}", clean(&r.answer));
             }
             Err(e) => eprintln!("error: {e}"),

@@ -23,6 +23,7 @@ pub mod eval;
 pub mod generate;
 pub mod mcp;
 pub mod models;
+pub mod progress;
 pub mod robot;
 pub mod secret;
 pub mod speech;

@@ -98,6 +98,7 @@ pub struct TerminalConfirm {
 
 impl Confirm for TerminalConfirm {
     fn confirm(&self, call: &ToolCall) -> bool {
+        let _ = super::progress::hold();
         eprint!(
             "\nallow {} {}? [y/N] ",
             clean(&call.name),
