@@ -94,12 +94,14 @@ impl Agent {
             );
         }
         let language = language::Language::for_request(self.config.language, query);
+        let listed = self.listed(&offered);
         run::Run {
             agent: self,
             query,
             events,
             start,
             offered,
+            listed,
             guards,
             scratch: Vec::new(),
             records: Vec::new(),

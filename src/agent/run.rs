@@ -58,6 +58,8 @@ pub(super) struct Run<'a> {
     pub events: &'a mut dyn FnMut(&Event),
     pub start: Instant,
     pub offered: Vec<ToolSpec>,
+    /// The tools every step's prompt lists (`Agent::listed`): the offered ones, or all.
+    pub listed: Vec<ToolSpec>,
     pub guards: Guards,
     /// This run's calls and results, as the model reads them.
     pub scratch: Vec<ChatMessage>,
@@ -625,8 +627,7 @@ impl Run<'_> {
             Some(note) => format!("{}\n{note}", self.parts[0]),
             None => self.parts[0].clone(),
         };
-        let listed = self.agent.listed(&self.offered);
-        if listed.len() > self.offered.len() {
+        if self.listed.len() > self.offered.len() {
             let fit: Vec<&str> = self
                 .offered
                 .iter()
@@ -638,7 +639,7 @@ impl Run<'_> {
                 first = format!("{first}\n(Tools that fit: {}.)", fit.join(", "));
             }
         }
-        let messages = self.agent.context(&first, &self.scratch, &listed)?;
+        let messages = self.agent.context(&first, &self.scratch, &self.listed)?;
         // The grammar takes each tool's arguments as the robot can take them now
         // (`Tool::live_parameters`), name arguments held to the names that exist
         // (`bound`).
@@ -675,7 +676,9 @@ impl Run<'_> {
         let candidates: Vec<&str> = allowed_specs.iter().map(|s| s.name.as_str()).collect();
         let pick = fresh.then_some((self.parts[self.part].as_str(), candidates.as_slice()));
         let mut pipeline = self.agent.pipeline(&sources, pick, robot_names);
-        let req = self.agent.request(&messages, &listed, Some(&allowed_specs));
+        let req = self
+            .agent
+            .request(&messages, &self.listed, Some(&allowed_specs));
         let cancel = self.agent.cancel.clone();
         let start = self.start;
         self.step_first_token = None;

@@ -243,8 +243,7 @@ impl Agent {
     /// Whether every request's prompt lists every tool (`listed`): then the prompt
     /// before a request is the same for all of them, and warming it once serves all.
     pub fn lists_every_tool(&self) -> bool {
-        let all = self.retrievable().len();
-        all > 0 && self.listed(&[]).len() == all
+        !self.listed(&[]).is_empty()
     }
 
     /// Which tools to offer for `query`, by the token cost of their specs.
