@@ -28,7 +28,8 @@
 //!    definition, parameter, motion, two-step, small talk), typed into each build's
 //!    `ferrosa chat` one at a time (`common/versus.rs`), each request's time to its
 //!    first call and to its answer and the p50 / p95 of each; this build a second time
-//!    with every tool listed once (`FERROSA_TOOL_LISTING=all`). The baseline binary comes
+//!    with each request's prompt listing only its offered tools (`--listing offered`).
+//!    The baseline binary comes
 //!    from `scripts/build-baseline.sh`; without it the part says so and is skipped.
 //!
 //! The sim speaks DDS, so the bench re-runs itself in a network namespace with only
@@ -230,6 +231,7 @@ fn main() {
         pick: Default::default(),
         language: None,
         verbose: false,
+        listing: ferrosa::ui::agent::Listing::All,
     };
     header::print(
         "ferrosa agent benchmark",
@@ -468,28 +470,28 @@ fn side_by_side(root: &std::path::Path) -> Option<serde_json::Value> {
     let this = PathBuf::from(env!("CARGO_BIN_EXE_ferrosa"));
     let requests: Vec<&str> = VERSUS.iter().map(|(_, q)| *q).collect();
     // Each binary runs where it finds its own model catalog.
-    let run = |bin: &std::path::Path, domain: u32, env: &[(&str, &str)]| {
+    let run = |bin: &std::path::Path, domain: u32, extra: &[&str]| {
         let home = bin
             .parent()
             .filter(|d| d.join("models/catalog.toml").exists())
             .unwrap_or(root);
-        versus::chat(bin, home, SMALL_TALK, &requests, domain, 900, env)
+        versus::chat(bin, home, SMALL_TALK, &requests, domain, 900, extra)
             .unwrap_or_else(|e| panic!("{e}"))
     };
     let old = run(&baseline, 61, &[]);
     let new = run(&this, 62, &[]);
-    let listed = run(&this, 63, &[("FERROSA_TOOL_LISTING", "all")]);
+    let offered = run(&this, 63, &["--listing", "offered"]);
     let ms = |v: Option<f64>| v.map_or("–".to_string(), |v| format!("{v:.0}"));
     println!(
         "## This build against {BASELINE_REV}: {} requests on the sim, each after /clear (ms)",
         requests.len()
     );
     println!();
-    println!("\"listed\": this build with every tool listed once (`FERROSA_TOOL_LISTING=all`).");
+    println!("\"this\": this build as it starts (every tool listed once); \"offered\": the same with `--listing offered` (each request's prompt lists the tools offered it).");
     println!();
-    println!("| kind | request | {BASELINE_REV} first call | {BASELINE_REV} answer | this first call | this answer | listed first call | listed answer | listed calls | listed answer |");
+    println!("| kind | request | {BASELINE_REV} first call | {BASELINE_REV} answer | offered first call | offered answer | this first call | this answer | this calls | this answer |");
     println!("|---|---|---|---|---|---|---|---|---|---|");
-    for ((((kind, q), o), n), l) in VERSUS.iter().zip(&old).zip(&new).zip(&listed) {
+    for ((((kind, q), o), n), l) in VERSUS.iter().zip(&old).zip(&offered).zip(&new) {
         println!(
             "| {kind} | {q} | {} | {:.0} | {} | {:.0} | {} | {:.0} | {} | {} |",
             ms(o.first_call_ms),
@@ -542,15 +544,15 @@ fn side_by_side(root: &std::path::Path) -> Option<serde_json::Value> {
         })
     };
     let old = summary(BASELINE_REV, &old);
+    let offered = summary("this build, --listing offered", &offered);
     let new = summary("this build", &new);
-    let listed = summary("this build, listed", &listed);
     println!();
     let kinds: Vec<_> = VERSUS
         .iter()
         .map(|(k, q)| serde_json::json!({"kind": k, "request": q}))
         .collect();
     Some(
-        serde_json::json!({"baseline": BASELINE_REV, "kinds": kinds, BASELINE_REV: old, "this": new, "listed": listed}),
+        serde_json::json!({"baseline": BASELINE_REV, "kinds": kinds, BASELINE_REV: old, "this": new, "offered": offered}),
     )
 }
 

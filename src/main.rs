@@ -321,6 +321,11 @@ struct AgentOpts {
     /// Show what the model writes as it writes it, and each call's arguments and result.
     #[arg(short, long)]
     verbose: bool,
+    /// Which tools a request's prompt lists: all (once, in one order: the prompt before
+    /// the request stays cached; a robot whose tools do not fit gets `offered`) or
+    /// offered (those retrieval offers the request).
+    #[arg(long, value_enum, default_value_t = ui::agent::Listing::All)]
+    listing: ui::agent::Listing,
 }
 
 /// `--lang`: `None` for auto.
@@ -365,6 +370,7 @@ impl AgentOpts {
             pick: self.pick.into(),
             language: self.lang,
             verbose: self.verbose,
+            listing: self.listing,
         }
     }
 }
@@ -425,6 +431,9 @@ enum EvalCommand {
         /// Policy file (TOML): deny-list, limits, time limit, as for `ask`.
         #[arg(long)]
         policy: Option<PathBuf>,
+        /// Which tools a request's prompt lists (see `chat --help`).
+        #[arg(long, value_enum, default_value_t = ui::agent::Listing::All)]
+        listing: ui::agent::Listing,
     },
     /// Speech recognition on spoken operator requests: each spoken by espeak-ng voices
     /// at several speeds, transcribed, scored by word error rate.
@@ -670,6 +679,7 @@ fn main() -> ExitCode {
                     prompt,
                     tools,
                     policy,
+                    listing,
                 },
         } => ui::eval::ros(&ui::eval::RosArgs {
             retrieval,
@@ -698,6 +708,7 @@ fn main() -> ExitCode {
                 pick: pick.into(),
                 language: lang,
                 verbose: false,
+                listing,
             },
             suite,
             decoding,

@@ -495,6 +495,33 @@ fn rclpy_sees_and_drives_the_sim() {
     assert!((0.95..2.2).contains(&(x - CENTER)), "x = {x}");
 }
 
+/// Every number an answer states is one a result or the request holds: nothing is
+/// invented.
+fn assert_states_only_results(r: &ferrosa::agent::RunResult, request: &str, why: &str) {
+    let held: String = r
+        .steps
+        .iter()
+        .map(|s| s.output.to_string())
+        .chain([request.to_string()])
+        .collect();
+    let numbers = |t: &str| -> Vec<String> {
+        t.split(|c: char| !c.is_ascii_digit() && c != '.')
+            .map(|w| w.trim_matches('.'))
+            .filter(|w| w.chars().any(|c| c.is_ascii_digit()))
+            .map(str::to_string)
+            .collect()
+    };
+    let known = numbers(&held);
+    for n in numbers(&r.answer) {
+        let value: f64 = n.parse().unwrap_or(f64::NAN);
+        let found = known
+            .iter()
+            .any(|k| k == &n || k.parse::<f64>().is_ok_and(|v| (v - value).abs() < 0.005))
+            || held.contains(&n);
+        assert!(found, "{n} is in no result: {why}");
+    }
+}
+
 /// The operator at the console: approves what they are asked about, and remembers it.
 #[derive(Default)]
 struct Approver(std::sync::Mutex<Vec<String>>);
@@ -507,7 +534,9 @@ impl ferrosa::tool::Confirm for Approver {
 }
 
 /// The agent with the real default model on the sim, as an operator uses it: a
-/// greeting (no call), a count, a status report, a request whose call fails, a Spanish
+/// greeting (no call), a count, a field, a type's definition, a parameter, two questions
+/// in one request (each answer stating the asked fact and no number the results lack), a
+/// status report, a request whose call fails, a Spanish
 /// request, a two-step request and a Spanish motion request after confirmation, with
 /// the default tool pick (weighed). One model load for all of them.
 #[test]
@@ -547,6 +576,59 @@ fn the_agent_serves_operator_requests_with_the_real_model() {
         .filter(|w| !w.is_empty())
         .collect();
     assert!(said.contains(&count.to_string().as_str()), "{why}");
+
+    // A field: the value asked for, as the result gave it, and no number the results
+    // and the request do not hold.
+    let q = "what is the turtle's x position right now?";
+    let (r, why) = ask(q);
+    let read = r
+        .steps
+        .iter()
+        .find(|s| s.ok && (s.name == "turtle_pose" || s.name == "ros_topic_echo"))
+        .unwrap_or_else(|| panic!("{why}"));
+    let x = if read.name == "turtle_pose" {
+        read.output["x"].as_f64()
+    } else {
+        read.output["messages"][0]["x"].as_f64()
+    };
+    let x = format!("{:.3}", x.unwrap_or_else(|| panic!("{why}")));
+    assert!(r.answer.contains(&x[..x.len() - 1]), "{why}");
+    assert_states_only_results(&r, q, &why);
+
+    // A definition: the fields of the type, by name.
+    let q = "which fields does a turtlesim/srv/Spawn request carry?";
+    let (r, why) = ask(q);
+    ok(&r.steps, "ros_interface_show").unwrap_or_else(|| panic!("{why}"));
+    for field in ["x", "y", "theta", "name"] {
+        let words: Vec<&str> = r
+            .answer
+            .split(|c: char| !c.is_alphanumeric() && c != '_')
+            .collect();
+        assert!(words.contains(&field), "{field}: {why}");
+    }
+    assert_states_only_results(&r, q, &why);
+
+    // A parameter: its value as read.
+    let q = "tell me the value of background_b on /turtlesim";
+    let (r, why) = ask(q);
+    let param = ok(&r.steps, "ros_param_get").unwrap_or_else(|| panic!("{why}"));
+    let value = param.output["value"].to_string();
+    assert!(r.answer.contains(&value), "{why}");
+    assert_states_only_results(&r, q, &why);
+
+    // Two questions in one request: each answered, each from its own listing.
+    let q = "show me the nodes, then show me the services";
+    let (r, why) = ask(q);
+    let nodes = ok(&r.steps, "ros_node_list").unwrap_or_else(|| panic!("{why}"));
+    let services = ok(&r.steps, "ros_service_list").unwrap_or_else(|| panic!("{why}"));
+    assert!(r.answer.contains("/turtlesim"), "{why}");
+    let listed = services.output["count"].as_u64().unwrap_or_default();
+    assert!(
+        listed > 0 && r.answer.contains(&listed.to_string()),
+        "{why}"
+    );
+    assert!(nodes.output["count"].as_u64() == Some(1), "{why}");
+    assert_states_only_results(&r, q, &why);
 
     // A status report: battery, diagnostics and nodes in one call; the answer states
     // the battery's charge as read.

@@ -307,6 +307,7 @@ fn stack(setup: &Setup, script: &[String]) -> Stack {
         pick: ferrosa::agent::config::Pick::Likeliest,
         language: None,
         verbose: false,
+        listing: ferrosa::ui::agent::Listing::All,
     };
     let operator = Arc::new(Operator {
         approves: setup.approves,

@@ -133,6 +133,7 @@ pub fn agent_args(robot: ferrosa::ui::agent::Robot, yes: bool) -> ferrosa::ui::a
         pick: Default::default(),
         language: None,
         verbose: false,
+        listing: ferrosa::ui::agent::Listing::All,
     }
 }
 

@@ -39,19 +39,20 @@ pub fn chat(
     requests: &[&str],
     domain: u32,
     limit_s: u32,
-    env: &[(&str, &str)],
+    extra: &[&str],
 ) -> Result<Vec<Timed>, String> {
     let dir = tempfile::tempdir().map_err(|e| e.to_string())?;
     let traces = dir.path().join("trace");
     let mut child = Command::new("timeout")
         .args(["-k", "5", &limit_s.to_string()])
         .arg(bin)
-        .args(["chat", "--robot", "sim", "--yes", "--trace-dir"])
+        .args(["chat", "--robot", "sim", "--yes"])
+        .args(extra)
+        .arg("--trace-dir")
         .arg(&traces)
         .current_dir(root)
         .env("ROS_DOMAIN_ID", domain.to_string())
         .env("FERROSA_CACHE_DIR", dir.path().join("cache"))
-        .envs(env.iter().copied())
         .stdin(Stdio::piped())
         .stdout(Stdio::null())
         .stderr(Stdio::piped())

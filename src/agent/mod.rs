@@ -72,7 +72,7 @@ impl Agent {
     ) -> Result<RunResult, AgentError> {
         self.cancel.store(false, Ordering::SeqCst);
         let start = Instant::now();
-        let offered = self.offered_tools(query);
+        let mut offered = self.offered_tools(query);
         let queries: Vec<String> = self
             .memory
             .queries()
@@ -84,6 +84,18 @@ impl Agent {
         let asked = self.config.asked_actuation_only.then(|| self.asked.clone());
         let guards = guard::Guards::standard(query, &said, asked);
         let parts = plan::parts(query, &intent::vocabulary(&offered));
+        // Each part is offered what it would be offered alone, beside what the whole
+        // request is: "turn, then tell me where it points" needs the pose tool, which
+        // the whole request's words point at less than at the turn.
+        if parts.len() > 1 {
+            for part in &parts {
+                for spec in self.offered_tools(part) {
+                    if !offered.iter().any(|s| s.name == spec.name) {
+                        offered.push(spec);
+                    }
+                }
+            }
+        }
         let engine = self.engine();
         if let Some(t) = &mut self.trace {
             t.record(
@@ -109,6 +121,7 @@ impl Agent {
             answer: String::new(),
             last_observation: String::new(),
             grounds: Vec::new(),
+            earlier_grounds: Vec::new(),
             copy_from: queries,
             answer_only: false,
             step_first_token: None,

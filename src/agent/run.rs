@@ -71,6 +71,9 @@ pub(super) struct Run<'a> {
     /// The summaries of the calls of the part being worked that succeeded, each with its
     /// tool, in the order they ran: what an answer is held to (`ground`).
     pub grounds: Vec<(String, String)>,
+    /// The same of the parts before: what a part answered without a call of its own
+    /// is held to ("move 1 m, then tell me where it is" answered from the move's pose).
+    pub earlier_grounds: Vec<(String, String)>,
     /// What argument values may be copied from: what the operator said, what tools
     /// returned.
     pub copy_from: Vec<String>,
@@ -184,6 +187,12 @@ impl Run<'_> {
             let decisions = self.decide(&calls, verdicts);
             let done = self.act_and_observe(step, &calls, decisions);
             if done && self.part + 1 < self.parts.len() {
+                // The part's answer is its result, kept for the run's answer: "the
+                // nodes, then the services" states both.
+                let said = self.held("");
+                if !said.is_empty() && !self.partial_answers.contains(&said) {
+                    self.partial_answers.push(said);
+                }
                 self.next_part();
             }
         }
@@ -196,7 +205,8 @@ impl Run<'_> {
         let part = self.parts[self.part].clone();
         self.guards.next_part(&part);
         self.answer_only = false;
-        self.grounds.clear();
+        let done = std::mem::take(&mut self.grounds);
+        self.earlier_grounds.extend(done);
         if let Some(t) = &mut self.agent.trace {
             t.record("next_part", json!({ "part": self.part, "text": part }));
         }
@@ -238,14 +248,20 @@ impl Run<'_> {
     /// What the part's answer is held to: of the part's calls that succeeded, the latest
     /// of those whose tool the part's words meet best (`select::grounding`). A call the
     /// request did not ask for (the pose read after the battery) does not replace the
-    /// result the operator asked for.
+    /// result the operator asked for. A part with no result of its own is held to those
+    /// of the parts before it.
     fn ground(&self) -> Option<&str> {
-        let tools: Vec<&str> = self.grounds.iter().map(|(t, _)| t.as_str()).collect();
+        let grounds = if self.grounds.is_empty() {
+            &self.earlier_grounds
+        } else {
+            &self.grounds
+        };
+        let tools: Vec<&str> = grounds.iter().map(|(t, _)| t.as_str()).collect();
         let priors = self
             .agent
             .prior(&self.parts[self.part], &tools, &self.agent.robot_names());
         let i = super::select::grounding(&priors)?;
-        Some(self.grounds[i].1.as_str())
+        Some(grounds[i].1.as_str())
     }
 
     /// Once a call of the part succeeded, the part's next step may answer, or call a
@@ -661,6 +677,18 @@ impl Run<'_> {
             .as_ref()
             .map(|m| move |name: &str| m.name_similarity(&part, name));
         let near = near.as_ref().map(|f| f as &dyn Fn(&str) -> f64);
+        // Which tools take a name the part writes, as the robot has them (before `bind`
+        // adds a written name the robot lacks to every argument of its kind).
+        let taking: Vec<String> = {
+            let takes =
+                super::select::takes_written(&self.parts[self.part], &allowed_specs, &self.offered);
+            allowed_specs
+                .iter()
+                .zip(takes)
+                .filter(|(_, t)| *t)
+                .map(|(s, _)| s.name.clone())
+                .collect()
+        };
         let mut allowed_specs =
             bound::bind(&allowed_specs, robot_names, &self.parts[self.part], near);
         // A tool every call of which the guards would refuse is not written.
@@ -674,7 +702,15 @@ impl Run<'_> {
         // A part's first step: nothing since the operator's words but the part itself.
         let fresh = self.scratch.last().is_none_or(|m| m.role == Role::User);
         let candidates: Vec<&str> = allowed_specs.iter().map(|s| s.name.as_str()).collect();
-        let pick = fresh.then_some((self.parts[self.part].as_str(), candidates.as_slice()));
+        let takes: Vec<bool> = candidates
+            .iter()
+            .map(|c| taking.iter().any(|t| t == c))
+            .collect();
+        let pick = fresh.then_some((
+            self.parts[self.part].as_str(),
+            candidates.as_slice(),
+            takes.as_slice(),
+        ));
         let mut pipeline = self.agent.pipeline(&sources, pick, robot_names);
         let req = self
             .agent

@@ -445,6 +445,76 @@ pub const PRIOR_WEIGHT: f64 = 8.0;
 /// or less.
 const FALLBACK_SHARE: f64 = 0.3;
 
+/// The share a tool's prior is cut to when the request writes a name of the robot's
+/// whole ("background_r", "/turtle1/pose") that another candidate takes as an argument
+/// now and this one cannot: the tool would drop what the operator named.
+const DROPS_WRITTEN_SHARE: f64 = 0.5;
+
+/// The robot's names a tool takes now and does not declare: the string values
+/// (`enum`, `const`) of its live schema (`Tool::live_parameters`: the topics, nodes,
+/// parameters it can be given) that its declared one lacks.
+fn live_values(live: &ToolSpec, declared: Option<&ToolSpec>) -> Vec<String> {
+    fn walk(v: &serde_json::Value, out: &mut Vec<String>) {
+        match v {
+            serde_json::Value::Object(map) => {
+                for (k, x) in map {
+                    match (k.as_str(), x) {
+                        ("enum", serde_json::Value::Array(items)) => {
+                            out.extend(items.iter().filter_map(|i| i.as_str()).map(str::to_string))
+                        }
+                        ("const", serde_json::Value::String(c)) => out.push(c.clone()),
+                        _ => walk(x, out),
+                    }
+                }
+            }
+            serde_json::Value::Array(items) => items.iter().for_each(|i| walk(i, out)),
+            _ => {}
+        }
+    }
+    let mut values = Vec::new();
+    walk(&live.parameters, &mut values);
+    let mut fixed = Vec::new();
+    if let Some(d) = declared {
+        walk(&d.parameters, &mut fixed);
+    }
+    values.retain(|v| !fixed.contains(v));
+    values
+}
+
+/// Per tool of `live` (the candidates as the robot can take them now; `declared`, the
+/// tools as declared), whether it takes a name `part` writes whole in the shape of a ROS
+/// name (`bound::written_names`) among its live values. A request that names a
+/// parameter or a topic asks for a tool that can be given it.
+pub fn takes_written(part: &str, live: &[ToolSpec], declared: &[ToolSpec]) -> Vec<bool> {
+    let bare = |n: &str| n.trim_start_matches('/').to_string();
+    let written: Vec<String> = super::bound::written_names(part)
+        .iter()
+        .map(|w| bare(w))
+        .collect();
+    live.iter()
+        .map(|spec| {
+            !written.is_empty()
+                && live_values(spec, declared.iter().find(|d| d.name == spec.name))
+                    .iter()
+                    .any(|v| written.contains(&bare(v)))
+        })
+        .collect()
+}
+
+/// Cut the priors of the candidates that cannot take a name the request writes when
+/// another can (`takes`, from `takes_written`, in the candidates' order); the answer
+/// and the stop tool, which take no names, keep theirs.
+pub fn hold_to_written(prior: &mut [f64], candidates: &[&str], takes: &[bool], fallback: &str) {
+    if takes.len() != prior.len() || !takes.iter().any(|t| *t) {
+        return;
+    }
+    for ((p, name), takes) in prior.iter_mut().zip(candidates).zip(takes) {
+        if !takes && *name != fallback && *name != STOP_TOOL {
+            *p += DROPS_WRITTEN_SHARE.ln();
+        }
+    }
+}
+
 /// Which candidates (by their priors) the request points at more than at every tool
 /// whose call already answered it (`done`, their priors): what may follow a result
 /// (`Run::settled`).

@@ -376,15 +376,16 @@ impl Agent {
     }
 
     /// The strategies of a step's turn: the tool choice `config.pick` names (on the
-    /// first step of a request or of a part, `pick`: the part's text and the tools the
-    /// step may call; after a result the question is whether to answer, which neither
+    /// first step of a request or of a part, `pick`: the part's text, the tools the
+    /// step may call and which of them take a name the part writes
+    /// (`select::takes_written`); after a result the question is whether to answer, which neither
     /// a content-free request nor the retrieval says anything about) and the copy bias
     /// (with its array guard), each when on. `names`: the robot's names as the turn read
     /// them.
     pub(super) fn pipeline(
         &self,
         sources: &[&str],
-        pick: Option<(&str, &[&str])>,
+        pick: Option<(&str, &[&str], &[bool])>,
         names: &[(String, String)],
     ) -> Pipeline {
         let mut p = Pipeline::new();
@@ -393,9 +394,11 @@ impl Agent {
             Some(_) if self.config.pick == Pick::Calibrated => {
                 p = p.with(Calibrated { lists: false });
             }
-            Some((part, candidates)) if self.config.pick == Pick::Weighed => {
+            Some((part, candidates, takes)) if self.config.pick == Pick::Weighed => {
+                let mut prior = self.prior(part, candidates, names);
+                select::hold_to_written(&mut prior, candidates, takes, ANSWER_TOOL);
                 p = p.with(Weighed {
-                    prior: self.prior(part, candidates, names),
+                    prior,
                     weight: select::PRIOR_WEIGHT,
                 });
             }

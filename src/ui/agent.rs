@@ -14,7 +14,7 @@ use serde_json::json;
 
 use super::progress::View;
 use super::robot;
-pub use super::robot::{connect, Robot, RobotLink};
+pub use super::robot::{connect, Listing, Robot, RobotLink};
 use super::term::{clean, Input, TerminalConfirm};
 use crate::agent::meaning::Meaning;
 use crate::agent::prompt::RobotPrompt;
@@ -52,6 +52,8 @@ pub struct AgentArgs {
     /// Show the model's text as it writes it and each call's arguments and result
     /// (`progress`).
     pub verbose: bool,
+    /// Which tools a request's prompt lists.
+    pub listing: Listing,
 }
 
 /// `ferrosa sim`: the robot alone, until Ctrl-C.
@@ -260,9 +262,7 @@ pub fn build_with(
     config.copy_bias = args.copy_bias;
     config.pick = args.pick;
     config.language = args.language;
-    // Every tool listed once for every request: opt-in until it passes what the
-    // listing of each request's own tools passes (README, The agent, Context).
-    if std::env::var("FERROSA_TOOL_LISTING").is_ok_and(|v| v.trim() == "all") {
+    if args.listing == Listing::All {
         config.listing_budget_tokens = LISTING_BUDGET_TOKENS;
     }
     let cache = args.model.prompt_cache(&resolved, model.as_ref());
@@ -393,8 +393,8 @@ pub fn ask(args: &AgentArgs, query: &str, as_json: bool) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// The listing budget `FERROSA_TOOL_LISTING=all` sets (the sim's 33 tools take about
-/// 4,000 tokens).
+/// The listing budget `--listing all` sets: a robot whose tools take more is listed
+/// the tools offered for each request (the sim's 33 tools take about 4,000 tokens).
 const LISTING_BUDGET_TOKENS: usize = 5000;
 
 /// The request the chat prepares the prompt with: any does, the listing is the same for

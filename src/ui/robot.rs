@@ -24,6 +24,18 @@ pub fn estop_topic_source() -> String {
     format!("a ROS node on {ESTOP_TOPIC}")
 }
 
+/// Which tools a request's prompt lists (`AgentConfig::listing_budget_tokens`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Listing {
+    /// Every tool, in one order, once: the prompt before the request is the same for
+    /// every request and stays in the cache (the request is followed by the names of
+    /// the tools that fit it; each step may still call only those).
+    All,
+    /// Only the tools offered for the request: a shorter prompt, evaluated anew for
+    /// each request.
+    Offered,
+}
+
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum Robot {
     None,

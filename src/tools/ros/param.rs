@@ -153,7 +153,7 @@ pub struct ParamSetArgs {
     pub value: ParamInput,
 }
 
-#[derive(Deserialize, JsonSchema)]
+#[derive(Deserialize, JsonSchema, Clone)]
 #[serde(untagged)]
 pub enum ParamInput {
     Bool(bool),
@@ -162,6 +162,26 @@ pub enum ParamInput {
 }
 
 pub struct ParamSet(pub(super) Ros);
+
+/// A value written as text for a parameter of another type (`kind`, ROS 2's parameter
+/// type: 1 bool, 2 integer, 3 double) read as that type when it is one ("100" for an
+/// integer, "true" for a bool); else as given, for the node to judge.
+fn coerced(value: &ParamInput, kind: u64) -> ParamInput {
+    let ParamInput::Text(text) = value else {
+        return value.clone();
+    };
+    let t = text.trim();
+    match kind {
+        1 if t.eq_ignore_ascii_case("true") => ParamInput::Bool(true),
+        1 if t.eq_ignore_ascii_case("false") => ParamInput::Bool(false),
+        2 | 3 => t
+            .parse::<f64>()
+            .ok()
+            .filter(|n| n.is_finite())
+            .map_or_else(|| value.clone(), ParamInput::Number),
+        _ => value.clone(),
+    }
+}
 
 impl Tool for ParamSet {
     type Args = ParamSetArgs;
@@ -183,7 +203,7 @@ impl Tool for ParamSet {
         .await?
         .response;
         let kind = current["values"][0]["type"].as_u64().unwrap_or(0);
-        let value = match (&a.value, kind) {
+        let value = match (&coerced(&a.value, kind), kind) {
             (ParamInput::Bool(b), _) => json!({"type": 1, "bool_value": b}),
             (ParamInput::Number(n), 2) if n.fract() == 0.0 => {
                 json!({"type": 2, "integer_value": *n as i64})
@@ -262,4 +282,29 @@ fn by_node(ros: &Ros, more: &[(&str, Value)]) -> Option<Value> {
     }
     branches.push(branch(json!({"type": "string"}), json!({"type": "string"})));
     Some(json!({ "anyOf": branches }))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn number(v: ParamInput) -> Option<f64> {
+        match v {
+            ParamInput::Number(n) => Some(n),
+            _ => None,
+        }
+    }
+
+    #[test]
+    fn a_number_written_as_text_keeps_the_parameters_type() {
+        let text = |t: &str| ParamInput::Text(t.into());
+        assert_eq!(number(coerced(&text(" 100 "), 2)), Some(100.0));
+        assert_eq!(number(coerced(&text("0.25"), 3)), Some(0.25));
+        assert!(matches!(coerced(&text("TRUE"), 1), ParamInput::Bool(true)));
+        // Text for a text parameter, or text that is no number, stays as written: the
+        // node says what it takes.
+        assert!(matches!(coerced(&text("100"), 4), ParamInput::Text(t) if t == "100"));
+        assert!(matches!(coerced(&text("blue"), 2), ParamInput::Text(t) if t == "blue"));
+        assert!(matches!(coerced(&text("inf"), 2), ParamInput::Text(_)));
+    }
 }
