@@ -19,7 +19,7 @@ pub fn answer_spec() -> ToolSpec {
         // Bounded, so a model that rambles still ends its answer (see `tidy`). No braces
         // or angle brackets: a small model that "closes" the call inside the string
         // (`}}]</tool_call>`) is steered to close the string instead.
-        json!({"type": "object", "properties": {"text": {"type": "string", "description": "What to say: the asked facts from the tools' results, or, to small talk, a short kind sentence such as \"Glad to help. What should I check or do next?\"", "maxLength": ANSWER_CHARS, "pattern": "^[^{}<>]*[^{}<>:\\s]$"}}, "required": ["text"]}),
+        json!({"type": "object", "properties": {"text": {"type": "string", "maxLength": ANSWER_CHARS, "pattern": "^[^{}<>]*[^{}<>:\\s]$"}}, "required": ["text"]}),
     )
     .expect("static spec is valid")
     .called_alone()

@@ -739,4 +739,54 @@ mod tests {
         assert_eq!(grounding(&[0.0, 0.5f64.ln(), 0.0]), Some(2));
         assert_eq!(grounding(&[]), None);
     }
+
+    #[test]
+    fn a_written_name_holds_the_pick_to_the_tools_that_take_it() {
+        let declared = vec![
+            spec(
+                "ros_param_list",
+                "List a node's parameters.",
+                json!({"node": {"type": "string"}}),
+            ),
+            spec(
+                "ros_param_get",
+                "Read one parameter.",
+                json!({"node": {"type": "string"}, "name": {"type": "string"}}),
+            ),
+            spec("reply", "Give the final answer.", json!({})),
+        ];
+        // As the robot takes them now: the node's parameters are known.
+        let mut live = declared.clone();
+        live[1].parameters = json!({"type": "object", "properties": {
+            "node": {"type": "string", "const": "/arm_controller"},
+            "name": {"anyOf": [{"type": "string", "enum": ["max_speed", "payload_kg"]}, {"type": "string"}]}
+        }});
+        let takes = takes_written("how large is payload_kg on the arm?", &live, &declared);
+        assert_eq!(takes, [false, true, false]);
+        let names = ["ros_param_list", "ros_param_get", "reply"];
+        let mut prior = vec![0.0, -0.1, -1.2];
+        hold_to_written(&mut prior, &names, &takes, "reply");
+        assert!(prior[1] > prior[0], "{prior:?}");
+        // The answer keeps its share; so does every tool when no name is written, or
+        // when the written one is no value the robot has.
+        assert_eq!(prior[2], -1.2);
+        assert_eq!(
+            takes_written("how large is the payload?", &live, &declared),
+            [false; 3]
+        );
+        assert_eq!(
+            takes_written("read payload_lbs", &live, &declared),
+            [false; 3]
+        );
+        // A value the tool declares (not one of the robot's names) does not count.
+        let fixed = vec![spec(
+            "ros_log_read",
+            "Logs.",
+            json!({"level": {"type": "string", "enum": ["info_level"]}}),
+        )];
+        assert_eq!(
+            takes_written("show info_level logs", &fixed, &fixed),
+            [false]
+        );
+    }
 }
