@@ -61,6 +61,32 @@ pub use event::Event;
 pub use outcome::{AgentError, Finish, RunResult, StepRecord, Timings};
 pub use state::{Agent, NameSource};
 
+/// What a run's arguments may copy from among the operator's words (`queries`, this
+/// session's, the current one last): the current request whole, and the earlier ones
+/// without their numbers. A name said before ("echo it") is still there to copy; an
+/// amount said before is not: "turn 60 degrees" after "turn 90 degrees" copied 90, and
+/// "go back half a meter" after "rotate 30 degrees" drove 3 m.
+fn copy_sources(queries: &[String]) -> Vec<String> {
+    let Some((current, earlier)) = queries.split_last() else {
+        return Vec::new();
+    };
+    let is_number = |w: &str| {
+        w.trim_matches(|c: char| !c.is_ascii_alphanumeric())
+            .parse::<f64>()
+            .is_ok()
+    };
+    earlier
+        .iter()
+        .map(|q| {
+            q.split_whitespace()
+                .filter(|w| !is_number(w))
+                .collect::<Vec<_>>()
+                .join(" ")
+        })
+        .chain([current.clone()])
+        .collect()
+}
+
 impl Agent {
     /// Answer `query`: reason, act and observe until an answer, the step limit or
     /// cancellation. Tool failures are observations; only a broken model runtime is an
@@ -122,7 +148,7 @@ impl Agent {
             last_observation: String::new(),
             grounds: Vec::new(),
             earlier_grounds: Vec::new(),
-            copy_from: queries,
+            copy_from: copy_sources(&queries),
             answer_only: false,
             step_first_token: None,
             stop_withdrawn: false,
@@ -132,5 +158,31 @@ impl Agent {
             language,
         }
         .run()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::copy_sources;
+
+    #[test]
+    fn numbers_said_before_are_not_copied_names_are() {
+        let q = |v: &[&str]| v.iter().map(|s| s.to_string()).collect::<Vec<_>>();
+        let sources = copy_sources(&q(&[
+            "lift the arm 40 cm, then wait 2.5 s",
+            "echo /arm2/state",
+            "now lower it",
+        ]));
+        assert_eq!(
+            sources,
+            [
+                "lift the arm cm, then wait s",
+                "echo /arm2/state",
+                "now lower it"
+            ]
+        );
+        // The current request keeps its own numbers.
+        assert_eq!(copy_sources(&q(&["open it 15 mm"])), ["open it 15 mm"]);
+        assert!(copy_sources(&[]).is_empty());
     }
 }
