@@ -61,9 +61,9 @@ pub struct AgentConfig {
     /// it, every request's prompt lists all the tools in one order (the grammar still
     /// holds each step to the tools it is offered), so the prompt before the request is
     /// the same each time and the KV and prompt caches keep it: a request evaluates its
-    /// own words, not a listing of its own. Beyond it, or at 0 (the default until it
-    /// passes what the offered listing passes: README, The agent), a prompt lists the
-    /// tools its request is offered.
+    /// own words, not a listing of its own. Beyond it, or at 0 (this struct's default;
+    /// the command line's `--listing all` sets a budget), a prompt lists the tools its
+    /// request is offered.
     pub listing_budget_tokens: usize,
     /// Tools always offered when selecting.
     pub always_on: Vec<String>,

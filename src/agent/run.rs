@@ -190,9 +190,7 @@ impl Run<'_> {
                 // The part's answer is its result, kept for the run's answer: "the
                 // nodes, then the services" states both.
                 let said = self.held("");
-                if !said.is_empty() && !self.partial_answers.contains(&said) {
-                    self.partial_answers.push(said);
-                }
+                self.keep_partial(said);
                 self.next_part();
             }
         }
@@ -213,13 +211,18 @@ impl Run<'_> {
         self.scratch.push(ChatMessage::new(Role::User, part));
     }
 
+    /// Keep a part's answer (not the last part's) for the run's answer, once.
+    fn keep_partial(&mut self, said: String) {
+        if !said.is_empty() && !self.partial_answers.contains(&said) {
+            self.partial_answers.push(said);
+        }
+    }
+
     /// The model answered: the run's answer when this is the last part, else the
     /// part's, kept for the answer.
     fn answered(&mut self, text: String) -> Thought {
         if self.part + 1 < self.parts.len() {
-            if !text.is_empty() {
-                self.partial_answers.push(text);
-            }
+            self.keep_partial(text);
             return Thought::NextPart;
         }
         let mut said = std::mem::take(&mut self.partial_answers);
@@ -677,9 +680,11 @@ impl Run<'_> {
             .as_ref()
             .map(|m| move |name: &str| m.name_similarity(&part, name));
         let near = near.as_ref().map(|f| f as &dyn Fn(&str) -> f64);
-        // Which tools take a name the part writes, as the robot has them (before `bind`
-        // adds a written name the robot lacks to every argument of its kind).
-        let taking: Vec<String> = {
+        // A part's first step: nothing since the operator's words but the part itself.
+        let fresh = self.scratch.last().is_none_or(|m| m.role == Role::User);
+        // On it, which tools take a name the part writes, as the robot has them (before
+        // `bind` adds a written name the robot lacks to every argument of its kind).
+        let taking: Vec<String> = if fresh {
             let takes =
                 super::select::takes_written(&self.parts[self.part], &allowed_specs, &self.offered);
             allowed_specs
@@ -688,6 +693,8 @@ impl Run<'_> {
                 .filter(|(_, t)| *t)
                 .map(|(s, _)| s.name.clone())
                 .collect()
+        } else {
+            Vec::new()
         };
         let mut allowed_specs =
             bound::bind(&allowed_specs, robot_names, &self.parts[self.part], near);
@@ -699,8 +706,6 @@ impl Run<'_> {
                 .is_none_or(|declared| self.guards.keeps(declared, b))
         });
         let sources: Vec<&str> = self.copy_from.iter().map(String::as_str).collect();
-        // A part's first step: nothing since the operator's words but the part itself.
-        let fresh = self.scratch.last().is_none_or(|m| m.role == Role::User);
         let candidates: Vec<&str> = allowed_specs.iter().map(|s| s.name.as_str()).collect();
         let takes: Vec<bool> = candidates
             .iter()
