@@ -72,9 +72,9 @@ pub fn folded_words(text: &str) -> Vec<String> {
 }
 
 /// Number words and their values. Small numbers only: larger ones are written in digits
-/// in every language an operator uses here. Words that are also common English words
-/// ("due", "null", "sept", "half-life") are left out: they would make numbers of text
-/// that names none.
+/// in every language an operator uses here, and the fractions said of an amount ("half
+/// a meter"). Words that are also common English words ("due", "null", "sept") are left
+/// out: they would make numbers of text that names none.
 const NUMBER_WORDS: &[(&str, f64)] = &[
     // English
     ("zero", 0.0),
@@ -106,6 +106,8 @@ const NUMBER_WORDS: &[(&str, f64)] = &[
     ("eighty", 80.0),
     ("ninety", 90.0),
     ("dozen", 12.0),
+    ("half", 0.5),
+    ("quarter", 0.25),
     ("hundred", 100.0),
     ("thousand", 1000.0),
     // Spanish and Portuguese (folded)
@@ -135,6 +137,8 @@ const NUMBER_WORDS: &[(&str, f64)] = &[
     ("cien", 100.0),
     ("ciento", 100.0),
     ("cem", 100.0),
+    ("medio", 0.5),
+    ("meio", 0.5),
     // French
     ("un", 1.0),
     ("une", 1.0),
@@ -147,6 +151,7 @@ const NUMBER_WORDS: &[(&str, f64)] = &[
     ("dix", 10.0),
     ("vingt", 20.0),
     ("trente", 30.0),
+    ("demi", 0.5),
     // German
     ("eins", 1.0),
     ("ein", 1.0),
@@ -165,6 +170,10 @@ const NUMBER_WORDS: &[(&str, f64)] = &[
     ("dreissig", 30.0),
     ("neunzig", 90.0),
     ("hundert", 100.0),
+    ("halb", 0.5),
+    ("halbe", 0.5),
+    ("halben", 0.5),
+    ("viertel", 0.25),
     // Italian
     ("uno", 1.0),
     ("quattro", 4.0),
@@ -173,6 +182,7 @@ const NUMBER_WORDS: &[(&str, f64)] = &[
     ("venti", 20.0),
     ("novanta", 90.0),
     ("cento", 100.0),
+    ("mezzo", 0.5),
 ];
 
 /// The value of a number written as a word ("three hours", "drei Meter"); `w` is one
@@ -254,7 +264,11 @@ pub fn word_start(text: &[u8], p: usize) -> bool {
     };
     let before = p.checked_sub(1).map(|i| text[i]);
     if alnum(b) {
-        return before.is_none_or(|c| !alnum(c));
+        // A number's decimals ("5" of "0.5") are not a number of their own.
+        let decimals = b.is_ascii_digit()
+            && before == Some(b'.')
+            && p.checked_sub(2).is_some_and(|i| text[i].is_ascii_digit());
+        return before.is_none_or(|c| !alnum(c)) && !decimals;
     }
     matches!(b, b'/' | b'~' | b'-')
         && before.is_none_or(|c| c.is_ascii_whitespace() || b"\"'([{,:=".contains(&c))
@@ -347,6 +361,7 @@ mod tests {
             assert!(!n.iter().any(|&x| same_number(x, absent)), "{absent}");
         }
         assert_eq!(numbers("three hours, drei Meter, tres metros"), [3.0; 3]);
+        assert_eq!(numbers("half a lap, einen halben Meter"), [0.5, 1.0, 0.5]);
     }
 
     #[test]
@@ -372,6 +387,9 @@ mod tests {
         assert!(word_start(b"$400", 1) && !word_start(b"ab", 1));
         assert!(word_start(b"echo /turtle1/pose", 5) && !word_start(b"echo /turtle1/pose", 13));
         assert!(word_start(b"b = -7", 4) && !word_start(b"3-7", 1));
+        assert!(
+            !word_start(b"go 0.5 m", 5) && word_start(b"go 0.5 m", 3) && word_start(b"end. 5", 5)
+        );
         assert!(word_end(b"New York, NY", 8) && !word_end(b"New York", 5));
         assert!(!number_end(b"400,000", 3) && number_end(b"5, 10", 1) && number_end(b"5.", 1));
         assert!(number_end(b"5,10 and 15", 1) && number_end(b"1,5 and 10", 1));

@@ -565,6 +565,14 @@ fn the_agent_serves_operator_requests_with_the_real_model() {
     // A greeting is answered without a call, so with nothing invented from one.
     let (r, why) = ask("hi there, glad to meet you");
     assert!(r.steps.is_empty(), "{why}");
+    // It is the agent's own greeting (`data/replies`), not the model's words; thanks in
+    // German get the German line, though three words show too little of a language.
+    assert!(r.answer.starts_with("Hello!"), "{why}");
+    let (r, why) = ask("vielen Dank, tschüss");
+    assert!(
+        r.steps.is_empty() && r.answer.starts_with("Gern geschehen"),
+        "{why}"
+    );
 
     // A count is answered with the count the listing gave.
     let (r, why) = ask("how many topics does this robot have at the moment?");

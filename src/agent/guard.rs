@@ -96,7 +96,10 @@ impl Guards {
     /// when asked for. `said` is what the operator said this session.
     pub fn standard(query: &str, said: &[&str], asked: Option<Asked>) -> Guards {
         let mut guards: Vec<Box<dyn Guard>> = vec![
-            Box::new(Grounded(Grounding::new(said.iter().copied()))),
+            Box::new(Grounded {
+                grounding: Grounding::new(said.iter().copied()),
+                numbers: !crate::lexicon::numbers(query).is_empty(),
+            }),
             Box::new(NoRepeat::default()),
             Box::new(FollowError::default()),
         ];
@@ -167,18 +170,39 @@ impl Guards {
     }
 }
 
-/// Grounding of optional arguments against what the operator said and tools returned.
-struct Grounded(Grounding);
+/// Grounding of optional arguments against what the operator said and tools returned,
+/// and of the numbers a tool computes from.
+struct Grounded {
+    grounding: Grounding,
+    /// Whether the request or a result of this run spells a number.
+    numbers: bool,
+}
 
 impl Guard for Grounded {
     fn name(&self) -> &'static str {
         "grounded"
     }
 
+    /// A tool that computes from numbers the operator gives (`takes_given_numbers`) is
+    /// not offered while nothing said or returned spells one: a small model calls it on
+    /// a greeting with numbers of its own ("1, 2, 3, … 32"), and its result is about
+    /// nothing anyone asked.
+    fn narrow(&self, offered: &[ToolSpec]) -> Option<Vec<String>> {
+        if self.numbers {
+            return None;
+        }
+        let kept: Vec<String> = offered
+            .iter()
+            .filter(|s| !takes_given_numbers(&s.parameters))
+            .map(|s| s.name.clone())
+            .collect();
+        (kept.len() < offered.len()).then_some(kept)
+    }
+
     fn check(&mut self, calls: &mut [ToolCall], offered: &[ToolSpec]) -> Vec<Verdict> {
         for c in calls.iter_mut() {
             if let Some(spec) = offered.iter().find(|s| s.name == c.name) {
-                let dropped = self.0.settle(c, spec);
+                let dropped = self.grounding.settle(c, spec);
                 if !dropped.is_empty() {
                     tracing::debug!(tool = %c.name, ?dropped, "ungrounded arguments dropped");
                 }
@@ -188,8 +212,37 @@ impl Guard for Grounded {
     }
 
     fn observe(&mut self, _: &ToolCall, _: Came, shown: &str) {
-        self.0.add(shown);
+        self.grounding.add(shown);
+        self.numbers |= !crate::lexicon::numbers(shown).is_empty();
     }
+}
+
+/// Whether a tool's arguments (`schema`) need numbers only the operator can give: a
+/// required list of numbers, or a required number with no default, no choices and no
+/// range to pick within (the data a computation runs on, not an amount of an act, which
+/// a tool bounds).
+fn takes_given_numbers(schema: &Value) -> bool {
+    let numeric = |p: &Value| {
+        let is = |t: &str| match p.get("type") {
+            Some(Value::String(s)) => s == t,
+            Some(Value::Array(a)) => a.iter().any(|x| x == t),
+            _ => false,
+        };
+        is("number") || is("integer")
+    };
+    let Some(required) = schema.get("required").and_then(Value::as_array) else {
+        return false;
+    };
+    required.iter().filter_map(Value::as_str).any(|name| {
+        let Some(p) = schema.get("properties").and_then(|ps| ps.get(name)) else {
+            return false;
+        };
+        if p.get("default").is_some() || p.get("enum").is_some() || p.get("const").is_some() {
+            return false;
+        }
+        let ranged = p.get("minimum").is_some() && p.get("maximum").is_some();
+        (numeric(p) && !ranged) || p.get("items").is_some_and(numeric)
+    })
 }
 
 /// Calls already made this run (name and arguments). Small models repeat a call after it
@@ -578,6 +631,46 @@ mod tests {
         assert_eq!(g.narrow(&offered), None);
         // A call that ran (or was refused) names no next step.
         g.observe(&c, Came::Ran, "see ros_topic_list");
+        assert_eq!(g.narrow(&offered), None);
+    }
+
+    #[test]
+    fn a_tool_that_computes_from_given_numbers_waits_for_one() {
+        let with = |name: &str, parameters: Value| ToolSpec::new(name, "", parameters).unwrap();
+        let offered = [
+            with(
+                "fit_line",
+                json!({"type": "object", "required": ["xs"],
+                    "properties": {"xs": {"type": "array", "items": {"type": "number"}}}}),
+            ),
+            with(
+                "scale",
+                json!({"type": "object", "required": ["factor"],
+                    "properties": {"factor": {"type": "number"}}}),
+            ),
+            // An amount the tool bounds (a guess within its range is a choice) and a
+            // number with a default are not data.
+            with(
+                "lift",
+                json!({"type": "object", "required": ["mm"],
+                    "properties": {"mm": {"type": "number", "minimum": 0, "maximum": 80}}}),
+            ),
+            with(
+                "sample",
+                json!({"type": "object", "required": ["n"],
+                    "properties": {"n": {"type": "integer", "default": 3}}}),
+            ),
+            spec("reply"),
+        ];
+        let names = |v: &[&str]| Some(v.iter().map(|s| s.to_string()).collect::<Vec<_>>());
+        let g = Guards::standard("good evening, anyone home?", &[], None);
+        assert_eq!(g.narrow(&offered), names(&["lift", "sample", "reply"]));
+        for q in ["fit a line through 4 and 9", "double eleven"] {
+            assert_eq!(Guards::standard(q, &[], None).narrow(&offered), None, "{q}");
+        }
+        // A number a tool returned is given too.
+        let mut g = Guards::standard("scale what the sensor reads", &[], None);
+        g.observe(&call("sample", json!({})), Came::Ran, "{\"reading\": 0.25}");
         assert_eq!(g.narrow(&offered), None);
     }
 

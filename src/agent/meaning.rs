@@ -60,6 +60,15 @@ impl Meaning {
             .fold(f64::NEG_INFINITY, f64::max)
     }
 
+    /// The cosine between `query` and the nearest of `sentences` (-inf when none).
+    pub fn nearest(&self, query: &str, sentences: &[String]) -> f64 {
+        let q = self.vector(query);
+        sentences
+            .iter()
+            .map(|s| f64::from(cosine(&q, &self.vector(s))))
+            .fold(f64::NEG_INFINITY, f64::max)
+    }
+
     fn vector(&self, text: &str) -> Arc<Vec<f32>> {
         let mut cache = self.cache.lock().unwrap_or_else(|e| e.into_inner());
         if let Some(v) = cache.get(text) {

@@ -27,6 +27,7 @@
 //! - `meaning`: how near a request is to each tool's description and examples, by the
 //!   sentence encoder
 //! - `select`: choosing tools when their specs exceed the budget
+//! - `small_talk`: the agent's own reply to a request it made no call for
 //! - `bound`: name arguments held to the names the robot has and the operator wrote
 //! - `event`: the typed event stream every front end consumes
 //! - `trace`: JSONL session traces
@@ -47,6 +48,7 @@ pub mod plan;
 pub mod prompt;
 mod run;
 pub mod select;
+mod small_talk;
 mod state;
 pub mod trace;
 

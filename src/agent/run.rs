@@ -26,6 +26,7 @@ use super::facts;
 use super::guard::{Came, Guards, Verdict};
 use super::language::{Language, Phrase};
 use super::memory::truncate_output;
+use super::small_talk;
 use super::{Agent, AgentError, Event, Finish, RunResult, StepRecord, Timings};
 use crate::backend::BackendError;
 use crate::chat::{ChatMessage, Role};
@@ -239,6 +240,20 @@ impl Run<'_> {
     /// result given in place of a reply is led by a word in the run's language.
     fn held(&self, said: &str) -> String {
         let ground = self.ground();
+        // No call this run: the agent's own reply (`small_talk`) when it can read the
+        // request by meaning.
+        if ground.is_none() && self.records.is_empty() {
+            if let Some(meaning) = &self.agent.meaning {
+                let registry = self.agent.exec.registry();
+                let tools = small_talk::Tools {
+                    each: registry
+                        .tools()
+                        .map(|t| (t.spec().name.as_str(), t.effect()))
+                        .collect(),
+                };
+                return small_talk::reply(meaning, self.query, self.agent.config.language, &tools);
+            }
+        }
         let grounded = facts::grounded(said, ground, self.query);
         match ground {
             Some(summary) if grounded == summary || self.language.differs(&grounded) => {

@@ -408,9 +408,10 @@ pub fn select(
         .collect();
     ranked.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
     if tracing::enabled!(target: "ferrosa::select", tracing::Level::DEBUG) {
-        let named: Vec<(&str, f64)> = ranked
+        // Each tool's score, and its similarity by meaning when read.
+        let named: Vec<(&str, f64, Option<f64>)> = ranked
             .iter()
-            .map(|(sc, i)| (specs[*i].name.as_str(), *sc))
+            .map(|(sc, i)| (specs[*i].name.as_str(), *sc, sims.map(|s| s[*i])))
             .collect();
         tracing::debug!(target: "ferrosa::select", ranked = ?named, "retrieval");
     }
@@ -560,11 +561,32 @@ pub fn prior(
     fallback: &str,
 ) -> Vec<f64> {
     let scored = blended(query, specs, names, sims);
+    if tracing::enabled!(target: "ferrosa::select", tracing::Level::DEBUG) {
+        let of = |c: &str| specs.iter().position(|s| s.name == c);
+        let each: Vec<(&str, Option<f64>, Option<f64>)> = candidates
+            .iter()
+            .map(|&c| {
+                (
+                    c,
+                    of(c).map(|i| scored[i]),
+                    of(c).and_then(|i| sims.map(|s| s[i])),
+                )
+            })
+            .collect();
+        tracing::debug!(target: "ferrosa::select", ?each, "prior: score, similarity");
+    }
     let score_of = |name: &str| {
         specs
             .iter()
             .position(|s| s.name == name)
             .map_or(0.0, |i| scored[i])
+    };
+    let by_meaning = scores(query, specs, names, sims);
+    let meaning_of = |name: &str| {
+        specs
+            .iter()
+            .position(|s| s.name == name)
+            .map_or(0.0, |i| by_meaning[i])
     };
     let top = specs
         .iter()
@@ -581,8 +603,11 @@ pub fn prior(
             (false, true) if c == STOP_TOOL => FALLBACK_SHARE.ln(),
             (false, false) if c == STOP_TOOL => PRIOR_FLOOR.ln(),
             // By meaning, the answer has examples of its own (small talk): it is held at
-            // its share when that is above the floor.
-            (true, true) if sims.is_some() => (score_of(c) / top).max(FALLBACK_SHARE).ln(),
+            // its share when that is above the floor. Its share by meaning alone: it has
+            // no words of its own for a request's to meet, so blended (the mean with
+            // words) it stayed below any tool one word of the request met, however far
+            // that tool's meaning: thanks and farewells went to an echo.
+            (true, true) if sims.is_some() => (meaning_of(c) / top).max(FALLBACK_SHARE).ln(),
             (true, true) => FALLBACK_SHARE.ln(),
             (true, false) => 0.0,
             (false, true) => (score_of(c) / top).max(PRIOR_FLOOR).ln(),
