@@ -40,9 +40,16 @@ pub fn bind(
 ) -> Vec<ToolSpec> {
     let written = written_names(request);
     let given = given_fields(request);
+    // Every name the robot has, by key: those given and those the tools' arguments
+    // suggest (a node's parameters).
+    let mut every: Vec<(String, String)> = names.to_vec();
+    for spec in specs {
+        suggested_names(&spec.parameters, &mut every);
+    }
     let (names, met) = pointing(names, &[request], &written, near);
     let held = Held {
         names: &names,
+        every: &every,
         met: &met,
         written: &written,
         request,
@@ -119,6 +126,8 @@ fn require_given(schema: &mut Value, given: &BTreeSet<String>, depth: usize) -> 
 struct Held<'a> {
     /// The robot's names the words point at (all of a key's when they point at none).
     names: &'a [(String, String)],
+    /// Every name the robot has (key, name), pointed at or not.
+    every: &'a [(String, String)],
     /// The keys of which the words point at some name.
     met: &'a BTreeSet<String>,
     /// The names the request writes.
@@ -188,7 +197,8 @@ fn bind_object(object: &mut Value, h: &Held, taken: &[(String, String)]) -> bool
             continue;
         }
         // A written name the robot holds under a longer spelling ("teleport_absolute",
-        // "turtle1/pose") is that name, not a missing one.
+        // "turtle1/pose") is that name, not a missing one; nor is one the robot has
+        // under another key ("background_r", a parameter, is no missing service).
         let missing: Vec<&str> = written
             .iter()
             .map(String::as_str)
@@ -197,6 +207,10 @@ fn bind_object(object: &mut Value, h: &Held, taken: &[(String, String)]) -> bool
                 !held
                     .iter()
                     .any(|h| h.trim_start_matches('/') == w || h.ends_with(&format!("/{w}")))
+                    && !h
+                        .every
+                        .iter()
+                        .any(|(k, n)| k != key && n.trim_start_matches('/') == w)
             })
             .collect();
         // A ROS name written (with its slash) that the robot lacks, under no other key
@@ -230,6 +244,24 @@ fn bind_object(object: &mut Value, h: &Held, taken: &[(String, String)]) -> bool
         prop["enum"] = json!(open);
     }
     true
+}
+
+/// Each (key, name) a property of `schema` suggests (`suggested`), at any depth.
+fn suggested_names(schema: &Value, out: &mut Vec<(String, String)>) {
+    match schema {
+        Value::Object(map) => {
+            if let Some(Value::Object(props)) = map.get("properties") {
+                for (key, prop) in props {
+                    for n in suggested(prop).unwrap_or_default() {
+                        out.push((key.clone(), n));
+                    }
+                }
+            }
+            map.values().for_each(|v| suggested_names(v, out));
+        }
+        Value::Array(items) => items.iter().for_each(|v| suggested_names(v, out)),
+        _ => {}
+    }
 }
 
 /// The names a property suggests, when it is a choice of known names or any other
@@ -744,6 +776,36 @@ mod tests {
         assert_eq!(
             bound[0].parameters["properties"]["topic"]["enum"],
             json!(["/wrist/force"])
+        );
+    }
+
+    #[test]
+    fn a_name_the_robot_has_as_a_parameter_is_no_missing_service() {
+        let specs = [
+            spec(
+                "param_get",
+                json!({"type": "object", "properties": {
+                    "name": {"anyOf": [{"type": "string", "enum": ["max_grip", "speed_scale"]},
+                                       {"type": "string"}]}},
+                  "required": ["name"]}),
+            ),
+            spec(
+                "service_info",
+                json!({"type": "object", "properties": {"service": {"type": "string"}},
+                  "required": ["service"]}),
+            ),
+        ];
+        let names = [("service".to_string(), "/gripper/calibrate".to_string())];
+        let bound = bind(&specs, &names, "what is speed_scale now?", None);
+        assert_eq!(
+            bound[1].parameters["properties"]["service"]["enum"],
+            json!(["/gripper/calibrate"])
+        );
+        // A name the robot has under no key stays possible for a service.
+        let bound = bind(&specs, &names, "describe gripper/home", None);
+        assert_eq!(
+            bound[1].parameters["properties"]["service"]["enum"],
+            json!(["/gripper/calibrate", "gripper/home"])
         );
     }
 

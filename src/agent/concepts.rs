@@ -46,6 +46,47 @@ pub enum Act {
     Fence,
 }
 
+/// A direction a motion is asked in. By REP 103 (x forward, z up), a linear amount
+/// forward and a turn counter-clockwise (to the left) are positive; backward and
+/// clockwise (to the right) are negative.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Direction {
+    Forward,
+    Backward,
+    Left,
+    Right,
+}
+
+/// The signs a request's words give a motion: of a linear amount and of a turn (`true`
+/// negative), each `None` unless the words name one direction of it and not the other.
+/// "Counter-clockwise" is read as its words, so the left list holds "counter".
+pub fn signs(request: &str) -> (Option<bool>, Option<bool>) {
+    let words = folded_words(request);
+    let table = &table().directions;
+    let is = |d: Direction, w: &str| table.get(&d).is_some_and(|set| set.contains(w));
+    // A right word just after a left one is its other half ("counter clockwise",
+    // "gegen den Uhrzeigersinn").
+    let says = |d: Direction| {
+        words.iter().enumerate().any(|(i, w)| {
+            is(d, w)
+                && !(d == Direction::Right
+                    && words[i.saturating_sub(2)..i]
+                        .iter()
+                        .any(|b| is(Direction::Left, b)))
+        })
+    };
+    let sign = |plus: Direction, minus: Direction| match (says(plus), says(minus)) {
+        (false, true) => Some(true),
+        (true, false) => Some(false),
+        _ => None,
+    };
+    (
+        sign(Direction::Forward, Direction::Backward),
+        sign(Direction::Left, Direction::Right),
+    )
+}
+
 /// The word files, one per language, compiled in.
 const FILES: &[(&str, &str)] = &[
     ("en", include_str!("../../data/words/en.toml")),
@@ -77,6 +118,8 @@ struct WordFile {
     contrast: Option<Section>,
     sequencer: Option<Section>,
     tell: Option<Section>,
+    #[serde(default)]
+    direction: BTreeMap<Direction, Section>,
 }
 
 /// The words of every language together.
@@ -104,6 +147,8 @@ struct Words {
     sequencers: BTreeSet<String>,
     /// Verbs that ask to be told, not to act ("explain how to move it").
     tell: BTreeSet<String>,
+    /// Whole words that name each direction of a motion (REP 103's signs).
+    directions: BTreeMap<Direction, BTreeSet<String>>,
 }
 
 impl Words {
@@ -122,6 +167,9 @@ impl Words {
             (&mut self.tell, file.tell),
         ] {
             into.extend(section.into_iter().flat_map(|s| s.words));
+        }
+        for (d, section) in file.direction {
+            self.directions.entry(d).or_default().extend(section.words);
         }
     }
 }

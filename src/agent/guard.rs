@@ -2,7 +2,11 @@
 //! order `Guards::standard` lists them. A guard may narrow the tools a step offers
 //! before the model is asked, and judge (or edit) the calls it made after.
 //!
-//! - `Grounded`: optional arguments nobody asked for are dropped (`strategy::ground`).
+//! - `Grounded`: optional arguments nobody asked for (a filter, a number neither said,
+//!   returned nor the default) are dropped (`strategy::ground`); a tool that computes
+//!   from numbers the operator gives is not offered before one is said or returned.
+//! - `Signed`: a motion's amount takes the sign the request's direction words name
+//!   (REP 103: backward and clockwise are negative).
 //! - `NoRepeat`: a call already made this run (whether it succeeded, was refused or
 //!   failed) is not made again; a turn of nothing but repeats leaves the next step only
 //!   the answer; a tool whose calls failed or were refused twice is offered no more
@@ -25,7 +29,7 @@ use std::sync::Arc;
 
 use serde_json::Value;
 
-use super::concepts::{acts_of, asked_acts, clauses, Act};
+use super::concepts::{acts_of, asked_acts, clauses, signs, Act};
 use super::intent::{is_generic, name_words, Intent, TARGET_KEYS};
 use crate::strategy::ground::Grounding;
 use crate::strategy::Strategy;
@@ -97,12 +101,13 @@ impl Guards {
     pub fn standard(query: &str, said: &[&str], asked: Option<Asked>) -> Guards {
         let mut guards: Vec<Box<dyn Guard>> = vec![
             Box::new(Grounded {
-                grounding: Grounding::new(said.iter().copied()),
+                grounding: Grounding::new(said.iter().copied()).with_numbers(),
                 numbers: !crate::lexicon::numbers(query).is_empty(),
             }),
             Box::new(NoRepeat::default()),
             Box::new(FollowError::default()),
         ];
+        guards.push(Box::new(Signed(signs(query))));
         if let Some(asked) = asked {
             let actuators = asked.actuators.clone();
             guards.push(Box::new(AskedFor {
@@ -243,6 +248,91 @@ fn takes_given_numbers(schema: &Value) -> bool {
         let ranged = p.get("minimum").is_some() && p.get("maximum").is_some();
         (numeric(p) && !ranged) || p.get("items").is_some_and(numeric)
     })
+}
+
+/// The sign of a motion's amount, from the request's direction words (`concepts::signs`,
+/// REP 103): a small model writes "turn right 90 degrees" as +90 (to the left) and
+/// "backward 1 meter" as +1. An amount is signed when its parameter says what a
+/// negative value means ("negative drives backward", "positive is counter-clockwise")
+/// or it is a twist's `linear/x` or `angular/z`; it is given the sign the words name.
+struct Signed((Option<bool>, Option<bool>));
+
+impl Guard for Signed {
+    fn name(&self) -> &'static str {
+        "signed"
+    }
+
+    fn check(&mut self, calls: &mut [ToolCall], offered: &[ToolSpec]) -> Vec<Verdict> {
+        let (linear, angular) = self.0;
+        if linear.is_some() || angular.is_some() {
+            for c in calls.iter_mut() {
+                let schema = offered
+                    .iter()
+                    .find(|s| s.name == c.name)
+                    .map(|s| &s.parameters);
+                let before = c.arguments.clone();
+                sign_amounts(&mut c.arguments, schema, "", self.0);
+                if c.arguments != before {
+                    tracing::debug!(tool = %c.name, from = %before, to = %c.arguments, "signed by the request's direction");
+                }
+            }
+        }
+        vec![Verdict::Pass; calls.len()]
+    }
+
+    fn next_part(&mut self, part: &str) {
+        self.0 = signs(part);
+    }
+}
+
+/// Give each signed amount in `value` (at `path`, its schema `schema` when known) the
+/// sign `negative` names, (linear, angular).
+fn sign_amounts(
+    value: &mut Value,
+    schema: Option<&Value>,
+    path: &str,
+    negative: (Option<bool>, Option<bool>),
+) {
+    match value {
+        Value::Object(map) => {
+            for (k, v) in map.iter_mut() {
+                let sub = schema
+                    .and_then(|s| s.get("properties"))
+                    .and_then(|p| p.get(k));
+                sign_amounts(v, sub, &format!("{path}/{k}"), negative);
+            }
+        }
+        Value::Number(n) => {
+            let about = schema
+                .and_then(|s| s.get("description"))
+                .and_then(Value::as_str)
+                .unwrap_or_default()
+                .to_lowercase();
+            let which = if about.contains("backward") || path.ends_with("linear/x") {
+                negative.0
+            } else if about.contains("counter-clockwise")
+                || about.contains("counterclockwise")
+                || path.ends_with("angular/z")
+            {
+                negative.1
+            } else {
+                None
+            };
+            if let (Some(neg), Some(x)) = (which, n.as_f64()) {
+                if x != 0.0 && (x < 0.0) != neg {
+                    let flipped = if neg { -x.abs() } else { x.abs() };
+                    if let Some(f) = serde_json::Number::from_f64(flipped) {
+                        *n = if n.is_f64() || flipped.fract() != 0.0 {
+                            f
+                        } else {
+                            serde_json::Number::from(flipped as i64)
+                        };
+                    }
+                }
+            }
+        }
+        _ => {}
+    }
 }
 
 /// Calls already made this run (name and arguments). Small models repeat a call after it
@@ -672,6 +762,75 @@ mod tests {
         let mut g = Guards::standard("scale what the sensor reads", &[], None);
         g.observe(&call("sample", json!({})), Came::Ran, "{\"reading\": 0.25}");
         assert_eq!(g.narrow(&offered), None);
+    }
+
+    #[test]
+    fn a_motion_takes_the_sign_its_direction_words_name() {
+        let with = |name: &str, parameters: Value| ToolSpec::new(name, "", parameters).unwrap();
+        let offered = [
+            with(
+                "base_drive",
+                json!({"type": "object", "properties": {
+                    "meters": {"type": "number", "description": "How far; negative drives backward."}}}),
+            ),
+            with(
+                "base_turn",
+                json!({"type": "object", "properties": {
+                    "deg": {"type": "number", "description": "Positive is counter-clockwise."}}}),
+            ),
+            with("publish", json!({"type": "object", "properties": {}})),
+        ];
+        let signed = |q: &str, name: &str, args: Value| {
+            let mut calls = [call(name, args)];
+            Guards::standard(q, &[q], None).check(&mut calls, &offered);
+            calls[0].arguments.clone()
+        };
+        assert_eq!(
+            signed(
+                "reverse the base by two meters",
+                "base_drive",
+                json!({"meters": 2})
+            ),
+            json!({"meters": -2})
+        );
+        assert_eq!(
+            signed("drive ahead 2.5 m", "base_drive", json!({"meters": -2.5})),
+            json!({"meters": 2.5})
+        );
+        assert_eq!(
+            signed("spin 45 degrees clockwise", "base_turn", json!({"deg": 45})),
+            json!({"deg": -45})
+        );
+        assert_eq!(
+            signed(
+                "spin 45 degrees counter-clockwise",
+                "base_turn",
+                json!({"deg": -45})
+            ),
+            json!({"deg": 45})
+        );
+        assert_eq!(
+            signed(
+                "gira a la derecha 30 grados",
+                "base_turn",
+                json!({"deg": 30})
+            ),
+            json!({"deg": -30})
+        );
+        // A twist by its fields; words that name no direction, or both, leave it.
+        let twist = json!({"message": {"linear": {"x": 0.3}, "angular": {"z": 0.5}}});
+        assert_eq!(
+            signed("back up and veer right", "publish", twist.clone()),
+            json!({"message": {"linear": {"x": -0.3}, "angular": {"z": -0.5}}})
+        );
+        assert_eq!(
+            signed("spin 45 degrees", "base_turn", json!({"deg": -45})),
+            json!({"deg": -45})
+        );
+        assert_eq!(
+            signed("45 left, then right", "base_turn", json!({"deg": 45})),
+            json!({"deg": 45})
+        );
     }
 
     fn asked(actuators: &[&str]) -> Asked {

@@ -75,8 +75,14 @@ impl Grounding {
             Value::Number(_) if is_open(prop, &["integer", "number"]) => match &self.numbers {
                 None => true,
                 Some(said) => {
-                    said.iter().any(|r| r.spells(value) == Some(true))
-                        || default().is_some_and(|d| d.is(value))
+                    // A direction said in words is a sign ("back 2 m" is -2).
+                    let magnitude = value.as_f64().map(|x| serde_json::json!(x.abs()));
+                    said.iter().any(|r| {
+                        r.spells(value) == Some(true)
+                            || magnitude
+                                .as_ref()
+                                .is_some_and(|m| r.spells(m) == Some(true))
+                    }) || default().is_some_and(|d| d.is(value))
                 }
             },
             _ => true,

@@ -24,7 +24,7 @@ pub fn package(graph: Arc<dyn RosGraph>, turtle: &str) -> Package {
         .with(Rotate(t()))
         .with(Pose(t()))
         .with(Teleport(t()))
-        .with(Pen(t()))
+        .with(Pen(t(), Default::default()))
         .with(Reset(t()))
 }
 
@@ -282,34 +282,75 @@ impl Tool for Teleport {
 #[derive(Deserialize, JsonSchema)]
 pub struct PenArgs {
     /// Pen colour, red 0-255.
+    #[serde(default)]
     #[schemars(range(min = 0, max = 255))]
-    pub r: u8,
+    pub r: Option<u8>,
     /// Green 0-255.
+    #[serde(default)]
     #[schemars(range(min = 0, max = 255))]
-    pub g: u8,
+    pub g: Option<u8>,
     /// Blue 0-255.
+    #[serde(default)]
     #[schemars(range(min = 0, max = 255))]
-    pub b: u8,
-    /// Line width 1-10 (default 3).
+    pub b: Option<u8>,
+    /// Line width 1-10.
     #[serde(default)]
     #[schemars(range(min = 1, max = 10))]
     pub width: Option<u8>,
-    /// True lifts the pen (no drawing).
+    /// true: pen up (lifted, draws nothing); false: pen down (draws).
     #[serde(default)]
     pub off: Option<bool>,
 }
 
-pub struct Pen(Turtle);
+/// The pen as last set: turtlesim's set_pen takes every field at once, so what a call
+/// leaves out keeps its value (turtlesim starts with 179, 184, 255, width 3, down).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct PenState {
+    r: u8,
+    g: u8,
+    b: u8,
+    width: u8,
+    off: bool,
+}
+
+impl Default for PenState {
+    fn default() -> Self {
+        PenState {
+            r: 179,
+            g: 184,
+            b: 255,
+            width: 3,
+            off: false,
+        }
+    }
+}
+
+impl PenState {
+    fn with(self, a: &PenArgs) -> PenState {
+        PenState {
+            r: a.r.unwrap_or(self.r),
+            g: a.g.unwrap_or(self.g),
+            b: a.b.unwrap_or(self.b),
+            width: a.width.unwrap_or(self.width),
+            off: a.off.unwrap_or(self.off),
+        }
+    }
+}
+
+pub struct Pen(Turtle, std::sync::Mutex<PenState>);
 
 impl Tool for Pen {
     type Args = PenArgs;
     const NAME: &'static str = "turtle_pen";
     const EFFECT: Effect = Effect::Actuates;
     fn description(&self) -> String {
-        "Set the turtle's pen colour (r, g, b), width, or lift it.".into()
+        "Set the turtle's pen: colour (r, g, b), width, or off to lift it (pen up) or put it down. Fields left out keep their value.".into()
     }
     async fn call(&self, a: PenArgs, cx: &ToolContext) -> Result<Value, ToolError> {
-        let req = json!({"r": a.r, "g": a.g, "b": a.b, "width": a.width.unwrap_or(3), "off": a.off.unwrap_or(false) as u8});
+        let last = *self.1.lock().unwrap_or_else(|e| e.into_inner());
+        let pen = last.with(&a);
+        let req =
+            json!({"r": pen.r, "g": pen.g, "b": pen.b, "width": pen.width, "off": pen.off as u8});
         self.0
             .call(
                 &format!("/{}/set_pen", self.0.name),
@@ -318,6 +359,7 @@ impl Tool for Pen {
                 cx,
             )
             .await?;
+        *self.1.lock().unwrap_or_else(|e| e.into_inner()) = pen;
         Ok(json!({"pen": req}))
     }
 }
@@ -337,5 +379,23 @@ impl Tool for Reset {
             .await?;
         tokio::time::sleep(Duration::from_millis(100)).await;
         Ok(json!({"reset": true, "pose": self.0.pose().await?}))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_pen_call_keeps_what_it_leaves_out() {
+        let args = |v: Value| serde_json::from_value::<PenArgs>(v).unwrap();
+        let red = PenState::default().with(&args(json!({"r": 255, "g": 0, "b": 0})));
+        assert_eq!(
+            (red.r, red.g, red.b, red.width, red.off),
+            (255, 0, 0, 3, false)
+        );
+        let up = red.with(&args(json!({"off": true})));
+        assert_eq!(up, PenState { off: true, ..red });
+        assert_eq!(up.with(&args(json!({"off": false}))), red);
     }
 }
