@@ -297,9 +297,16 @@ pub struct PenArgs {
     #[serde(default)]
     #[schemars(range(min = 1, max = 10))]
     pub width: Option<u8>,
-    /// true: pen up (lifted, draws nothing); false: pen down (draws).
+    /// up: lifted, draws nothing; down: draws.
     #[serde(default)]
-    pub off: Option<bool>,
+    pub pen: Option<PenPosition>,
+}
+
+#[derive(Deserialize, JsonSchema, Clone, Copy, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum PenPosition {
+    Up,
+    Down,
 }
 
 /// The pen as last set: turtlesim's set_pen takes every field at once, so what a call
@@ -332,7 +339,7 @@ impl PenState {
             g: a.g.unwrap_or(self.g),
             b: a.b.unwrap_or(self.b),
             width: a.width.unwrap_or(self.width),
-            off: a.off.unwrap_or(self.off),
+            off: a.pen.map_or(self.off, |p| p == PenPosition::Up),
         }
     }
 }
@@ -344,7 +351,7 @@ impl Tool for Pen {
     const NAME: &'static str = "turtle_pen";
     const EFFECT: Effect = Effect::Actuates;
     fn description(&self) -> String {
-        "Set the turtle's pen: colour (r, g, b), width, or off to lift it (pen up) or put it down. Fields left out keep their value.".into()
+        "Set the turtle's pen: colour (r, g, b), width, or lift it (pen up) or put it down. Fields left out keep their value.".into()
     }
     async fn call(&self, a: PenArgs, cx: &ToolContext) -> Result<Value, ToolError> {
         let last = *self.1.lock().unwrap_or_else(|e| e.into_inner());
@@ -394,8 +401,8 @@ mod tests {
             (red.r, red.g, red.b, red.width, red.off),
             (255, 0, 0, 3, false)
         );
-        let up = red.with(&args(json!({"off": true})));
+        let up = red.with(&args(json!({"pen": "up"})));
         assert_eq!(up, PenState { off: true, ..red });
-        assert_eq!(up.with(&args(json!({"off": false}))), red);
+        assert_eq!(up.with(&args(json!({"pen": "down"}))), red);
     }
 }
