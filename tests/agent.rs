@@ -274,7 +274,9 @@ fn a_timeout_is_an_observation_not_a_hang() {
     ];
     let mut a = agent(&script, vec![Package::new("t").with(Sleepy)], policy, 8192);
     let started = std::time::Instant::now();
-    let (r, _) = ask(&mut a, "read the slow sensor");
+    // The request gives the number the tool takes (a tool that takes numbers only the
+    // operator gives is not offered before one is said).
+    let (r, _) = ask(&mut a, "read the slow sensor, waiting up to 30 seconds");
     assert!(
         started.elapsed() < Duration::from_secs(20),
         "the timeout did not cut the call"
