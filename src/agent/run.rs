@@ -720,6 +720,16 @@ impl Run<'_> {
                 .find(|s| s.name == b.name)
                 .is_none_or(|declared| self.guards.keeps(declared, b))
         });
+        // An answer with no call before it is the agent's own (`small_talk`): the model's
+        // text would be thrown away, so it writes one character of it, not up to
+        // `ANSWER_CHARS` (a thank-you took 9.6 s writing a reply nobody read).
+        if self.records.is_empty() && self.ground().is_none() && self.agent.meaning.is_some() {
+            for spec in allowed_specs.iter_mut().filter(|s| s.name == ANSWER_TOOL) {
+                if let Some(text) = spec.parameters.pointer_mut("/properties/text") {
+                    text["maxLength"] = serde_json::json!(1);
+                }
+            }
+        }
         let sources: Vec<&str> = self.copy_from.iter().map(String::as_str).collect();
         let candidates: Vec<&str> = allowed_specs.iter().map(|s| s.name.as_str()).collect();
         let takes: Vec<bool> = candidates
