@@ -239,10 +239,9 @@ impl Run<'_> {
     /// language is replaced by the result as one that states none of its facts is, and a
     /// result given in place of a reply is led by a word in the run's language.
     fn held(&self, said: &str) -> String {
-        let ground = self.ground();
-        // No call this run: the agent's own reply (`small_talk`) when it can read the
-        // request by meaning.
-        if ground.is_none() && self.records.is_empty() {
+        // No call this run (so no result to hold it to): the agent's own reply
+        // (`small_talk`) when it can read the request by meaning.
+        if self.records.is_empty() {
             if let Some(meaning) = &self.agent.meaning {
                 let registry = self.agent.exec.registry();
                 let tools = small_talk::Tools {
@@ -254,6 +253,7 @@ impl Run<'_> {
                 return small_talk::reply(meaning, self.query, self.agent.config.language, &tools);
             }
         }
+        let ground = self.ground();
         let grounded = facts::grounded(said, ground, self.query);
         match ground {
             Some(summary) if grounded == summary || self.language.differs(&grounded) => {
@@ -723,7 +723,7 @@ impl Run<'_> {
         // An answer with no call before it is the agent's own (`small_talk`): the model's
         // text would be thrown away, so it writes one character of it, not up to
         // `ANSWER_CHARS` (a thank-you took 9.6 s writing a reply nobody read).
-        if self.records.is_empty() && self.ground().is_none() && self.agent.meaning.is_some() {
+        if self.records.is_empty() && self.agent.meaning.is_some() {
             for spec in allowed_specs.iter_mut().filter(|s| s.name == ANSWER_TOOL) {
                 if let Some(text) = spec.parameters.pointer_mut("/properties/text") {
                     text["maxLength"] = serde_json::json!(1);

@@ -319,19 +319,20 @@ pub fn scores(
         .collect()
 }
 
-/// Each tool's score for weighing the model's choice (`prior`): by meaning, the mean of
+/// Each tool's score for weighing the model's choice (`prior`), from its scores by meaning
+/// (`scores`): with similarities, the mean of
 /// its share by meaning and its share of the best score by words. The two err apart:
 /// the encoder takes "ângulo" for a unit conversion, the words miss "pinza"; on the tune
 /// halves of both robots' suites the mean chose better than either (README,
 /// Understanding requests). Which tools are offered stays by meaning alone (`select`):
 /// fewer tools, a shorter prompt.
-fn blended(
+fn blend(
+    by_meaning: Vec<f64>,
     query: &str,
     specs: &[ToolSpec],
     names: &[(String, String)],
     sims: Option<&[f64]>,
 ) -> Vec<f64> {
-    let by_meaning = scores(query, specs, names, sims);
     if sims.is_none_or(|s| s.len() != specs.len()) {
         return by_meaning;
     }
@@ -395,7 +396,7 @@ pub fn select(
     // "dock" in its name does not).
     let (ranking, words) = match sims {
         Some(_) => (
-            blended(query, specs, names, sims),
+            blend(by_meaning.clone(), query, specs, names, sims),
             share_of_best(&lexical(query, specs, names)),
         ),
         None => (by_meaning.clone(), vec![0.0; specs.len()]),
@@ -560,34 +561,24 @@ pub fn prior(
     candidates: &[&str],
     fallback: &str,
 ) -> Vec<f64> {
-    let scored = blended(query, specs, names, sims);
+    let by_meaning = scores(query, specs, names, sims);
+    let scored = blend(by_meaning.clone(), query, specs, names, sims);
+    let at = |name: &str| specs.iter().position(|s| s.name == name);
     if tracing::enabled!(target: "ferrosa::select", tracing::Level::DEBUG) {
-        let of = |c: &str| specs.iter().position(|s| s.name == c);
         let each: Vec<(&str, Option<f64>, Option<f64>)> = candidates
             .iter()
             .map(|&c| {
                 (
                     c,
-                    of(c).map(|i| scored[i]),
-                    of(c).and_then(|i| sims.map(|s| s[i])),
+                    at(c).map(|i| scored[i]),
+                    at(c).and_then(|i| sims.map(|s| s[i])),
                 )
             })
             .collect();
         tracing::debug!(target: "ferrosa::select", ?each, "prior: score, similarity");
     }
-    let score_of = |name: &str| {
-        specs
-            .iter()
-            .position(|s| s.name == name)
-            .map_or(0.0, |i| scored[i])
-    };
-    let by_meaning = scores(query, specs, names, sims);
-    let meaning_of = |name: &str| {
-        specs
-            .iter()
-            .position(|s| s.name == name)
-            .map_or(0.0, |i| by_meaning[i])
-    };
+    let score_of = |name: &str| at(name).map_or(0.0, |i| scored[i]);
+    let meaning_of = |name: &str| at(name).map_or(0.0, |i| by_meaning[i]);
     let top = specs
         .iter()
         .zip(&scored)
