@@ -11,6 +11,8 @@
 //! - `json`: the one incremental reader of JSON text (where a turn stands)
 //! - `clock`: wall-clock time as calendar fields
 //! - `dirs`: the platform's directories ferrosa keeps files in (cache, data)
+//! - `store`: what the robot keeps across sessions (one SQLite file): taught places,
+//!   stated facts, a log of past requests
 //! - `estop`: the emergency stop, one latch every part shares
 //! - `fence`: names off limits (the deny-list), canonical ROS names, redaction
 //! - `limits`: motion limits (speeds, teleports, parameters) on encoded messages
@@ -56,6 +58,7 @@ pub mod remote;
 pub mod ros;
 pub mod speech;
 pub mod stop_intent;
+pub mod store;
 pub mod strategy;
 pub mod tool;
 pub mod tools;

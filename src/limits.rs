@@ -13,6 +13,8 @@
 //!   speed past the limits;
 //! - `turtlesim/srv/TeleportRelative`: `linear` at most `teleport_max` m, `angular` at
 //!   most π; `TeleportAbsolute`: finite coordinates inside `workspace` when one is set;
+//! - `nav2_msgs/action/NavigateToPose` goals: the goal position inside `workspace` when
+//!   one is set;
 //! - parameters set through `rcl_interfaces/srv/SetParameters` whose names match a rule's
 //!   pattern: numeric values within its bounds;
 //! - everywhere: no NaN, no infinity.
@@ -134,6 +136,9 @@ impl Motion {
                 self.teleport_relative(&mut out, &mut changes)
             }
             "turtlesim/srv/TeleportAbsolute_Request" => self.teleport_absolute(&out),
+            "nav2_msgs/action/NavigateToPose_Goal" => {
+                self.teleport_absolute(&out["pose"]["pose"]["position"])
+            }
             "rcl_interfaces/srv/SetParameters_Request"
             | "rcl_interfaces/srv/SetParametersAtomically_Request" => {
                 self.parameters(&mut out, &mut changes)
@@ -517,5 +522,9 @@ mod tests {
             panic!()
         };
         assert_eq!(out["parameters"][0]["value"]["double_value"], json!(1.0));
+        let nav = |x: f64| json!({"pose": {"header": {"frame_id": "map"}, "pose": {"position": {"x": x, "y": 2.0, "z": 0.0}}}, "behavior_tree": ""});
+        let ty = "nav2_msgs/action/NavigateToPose_Goal";
+        assert_eq!(m.check(ty, &nav(3.0)), Verdict::Within);
+        assert!(matches!(m.check(ty, &nav(12.5)), Verdict::Refused(w) if w.contains("workspace")));
     }
 }

@@ -23,6 +23,7 @@ const ALLOWED: &[(&str, &[&str])] = &[
     ("limits", &[]),
     ("clock", &[]),
     ("dirs", &[]),
+    ("store", &["clock", "dirs", "lexicon"]),
     ("metrics", &[]),
     ("speech", &["dirs"]),
     ("backend", &["chat", "clock", "metrics"]),
@@ -41,7 +42,7 @@ const ALLOWED: &[(&str, &[&str])] = &[
     (
         "tools",
         &[
-            "tool", "ros", "lexicon", "clock", "chat", "estop", "fence", "limits",
+            "tool", "ros", "lexicon", "clock", "chat", "estop", "fence", "limits", "store",
         ],
     ),
     (
@@ -59,6 +60,7 @@ const ALLOWED: &[(&str, &[&str])] = &[
             "remote",
             "stop_intent",
             "embed",
+            "store",
         ],
     ),
     (
@@ -93,6 +95,7 @@ const ALLOWED: &[(&str, &[&str])] = &[
             "remote",
             "speech",
             "stop_intent",
+            "store",
         ],
     ),
 ];

@@ -30,6 +30,7 @@ mod eval;
 mod fence_params;
 mod mcp;
 mod parsers;
+mod places;
 mod prompt_cache;
 mod remote;
 mod ros;

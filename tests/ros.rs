@@ -115,7 +115,12 @@ fn sim_rotate_absolute_action_succeeds_and_cancels() {
         let action = "/turtle1/rotate_absolute";
         let ty = "turtlesim/action/RotateAbsolute";
         let g = graph.graph().await.unwrap();
-        let actions = g.actions();
+        // The turtle's own action (the sim also serves Nav2's /navigate_to_pose).
+        let actions: Vec<_> = g
+            .actions()
+            .into_iter()
+            .filter(|a| a.action.starts_with("/turtle1/"))
+            .collect();
         assert_eq!(actions.len(), 1, "{actions:?}");
         assert_eq!(
             (actions[0].action.as_str(), actions[0].type_name.as_str()),

@@ -334,9 +334,37 @@ fn held_to(
         out.extend(missing);
         out
     };
+    // Names that are words ("loading area", not `max_speed` or `/odom`) are said as
+    // words: when the request's point at none of them, what it says may be a name the
+    // robot lacks ("the kitchen"), so its words stay possible and the tool reports the
+    // name missing, rather than the grammar forcing one of the known names.
+    let worded = known.iter().all(|n| !n.contains(['/', '_']));
+    if met.is_empty() && worded {
+        out.extend(said_phrases(request));
+    }
     out.sort_unstable();
     out.dedup();
     out
+}
+
+/// Longest phrase of the request offered as a name it may say.
+const PHRASE_WORDS: usize = 2;
+
+/// Shortest word said alone that may be a name: shorter ones are the little words of
+/// a sentence ("the", "to", "la"), which stay possible beside another word.
+const NAME_WORD: usize = 4;
+
+/// The request's words and pairs of adjacent words, numbers left out: the names a
+/// request may say in words.
+fn said_phrases(request: &str) -> Vec<String> {
+    let words: Vec<String> = folded_words(request)
+        .into_iter()
+        .filter(|w| w.parse::<f64>().is_err())
+        .collect();
+    (1..=PHRASE_WORDS)
+        .flat_map(|n| words.windows(n).map(|w| w.join(" ")).collect::<Vec<_>>())
+        .filter(|p| p.contains(' ') || p.chars().count() >= NAME_WORD)
+        .collect()
 }
 
 /// Of the robot's `names` (key, name), per key, those the words of `sources` point at
@@ -565,6 +593,23 @@ mod tests {
         assert_eq!(bound[0].parameters, specs[0].parameters);
         // The robot gave no services: nothing to hold the argument to.
         assert_eq!(bound[1].parameters, specs[1].parameters);
+    }
+
+    #[test]
+    fn names_said_in_words_may_be_ones_the_robot_lacks() {
+        let known: Vec<String> = ["dock", "loading area", "Ladestation"]
+            .map(String::from)
+            .to_vec();
+        let held = |request: &str| held_to(&known, "place", &[], request, &[], None);
+        assert_eq!(held("back to the loading area"), ["loading area"]);
+        let open = held("take me to the greenhouse");
+        assert!(open.contains(&"greenhouse".to_string()), "{open:?}");
+        assert!(open.contains(&"the greenhouse".to_string()), "{open:?}");
+        assert!(open.contains(&"dock".to_string()), "{open:?}");
+        // Identifiers are not said in words: the known ones only.
+        let params: Vec<String> = ["gain_p", "max_speed"].map(String::from).to_vec();
+        let held = held_to(&params, "name", &[], "what is the greenhouse", &[], None);
+        assert_eq!(held, params);
     }
 
     #[test]

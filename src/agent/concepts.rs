@@ -42,6 +42,7 @@ pub enum Act {
     Call,
     Goal,
     Cancel,
+    Forget,
     Stop,
     Fence,
 }
@@ -470,6 +471,7 @@ mod tests {
             Act::Call,
             Act::Goal,
             Act::Cancel,
+            Act::Forget,
             Act::Stop,
             Act::Fence,
         ] {
@@ -478,7 +480,7 @@ mod tests {
                 "{act:?}"
             );
         }
-        assert_eq!(table.acts.len(), 15);
+        assert_eq!(table.acts.len(), 16);
     }
 
     #[test]

@@ -472,12 +472,53 @@ pub struct Asked {
     pub actuators: BTreeSet<String>,
     /// The words of all the other tools.
     pub observing: BTreeSet<String>,
+    /// The names each actuator's targets take now, where its live schema lists them
+    /// (a place's names and aliases): filled in per run (`with_known`).
+    pub known: BTreeMap<String, Vec<String>>,
+}
+
+impl Asked {
+    /// These, with the names the actuators' targets take now, read from `live` (each
+    /// actuator's arguments as the robot can take them: `Tool::live_parameters`).
+    pub fn with_known(mut self, live: impl Fn(&str) -> Option<Value>) -> Asked {
+        self.known = self
+            .actuators
+            .iter()
+            .filter_map(|name| {
+                let names = offered_names(&live(name)?);
+                (!names.is_empty()).then(|| (name.clone(), names))
+            })
+            .collect();
+        self
+    }
+}
+
+/// The names a schema's target properties offer as a choice beside any other
+/// (`{"anyOf": [{"enum": [...]}, {"type": "string"}]}`).
+fn offered_names(schema: &Value) -> Vec<String> {
+    let Some(props) = schema.get("properties").and_then(Value::as_object) else {
+        return Vec::new();
+    };
+    props
+        .iter()
+        .filter(|(k, _)| TARGET_KEYS.contains(&k.as_str()))
+        .filter_map(|(_, p)| p.get("anyOf")?.as_array()?.first()?.get("enum")?.as_array())
+        .flatten()
+        .filter_map(Value::as_str)
+        .map(str::to_string)
+        .collect()
 }
 
 /// Actuation the operator asked for (see `intent`).
 struct AskedFor {
     intent: Intent,
     asked: Asked,
+}
+
+impl AskedFor {
+    fn known(&self, tool: &str) -> &[String] {
+        self.asked.known.get(tool).map_or(&[], Vec::as_slice)
+    }
 }
 
 impl Guard for AskedFor {
@@ -501,9 +542,17 @@ impl Guard for AskedFor {
     /// kept only when the request asks for one of them: "upload the map to a server" asks
     /// nothing of `/clear`, `/kill` or `/spawn`, so the service call is not written (and
     /// refused).
+    ///
+    /// An actuator that names its act (`place_forget`) and takes one of the robot's
+    /// names is kept only when the request says one of them: "delete all files" names
+    /// no place to forget.
     fn keeps(&self, declared: &ToolSpec, bound: &ToolSpec) -> bool {
-        if !self.asked.actuators.contains(&bound.name) || !is_generic(declared) {
+        if !self.asked.actuators.contains(&bound.name) {
             return true;
+        }
+        if !is_generic(declared) {
+            let known = self.known(&bound.name);
+            return known.is_empty() || known.iter().any(|k| self.intent.says_name(k));
         }
         let Some(targets) = bound_targets(&bound.parameters) else {
             return true;
@@ -513,7 +562,12 @@ impl Guard for AskedFor {
                 name: bound.name.clone(),
                 arguments: serde_json::json!({ key: target }),
             };
-            self.intent.asks_for(&call, declared, &self.asked.observing)
+            self.intent.asks_for_known(
+                &call,
+                declared,
+                &self.asked.observing,
+                self.known(&bound.name),
+            )
         })
     }
 
@@ -525,7 +579,14 @@ impl Guard for AskedFor {
                 let effect = self.asked.effects.get(&c.name).copied();
                 let actuates = effect.is_some_and(|e| self.asked.policy.actuates(e, c));
                 let unasked = actuates
-                    && spec.is_some_and(|s| !self.intent.asks_for(c, s, &self.asked.observing));
+                    && spec.is_some_and(|s| {
+                        !self.intent.asks_for_known(
+                            c,
+                            s,
+                            &self.asked.observing,
+                            self.known(&c.name),
+                        )
+                    });
                 if unasked {
                     Verdict::Refuse(format!(
                         "the operator did not ask for {}: no word of the request points at it or at its target; do not act, answer instead",
@@ -845,6 +906,7 @@ mod tests {
                 .iter()
                 .map(|w| w.to_string())
                 .collect(),
+            known: BTreeMap::new(),
         }
     }
 

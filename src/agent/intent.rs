@@ -38,16 +38,32 @@ pub(super) fn name_words(name: &str) -> Vec<String> {
     folded_words(&name.replace(['_', '.'], " "))
 }
 
-/// String arguments that name a ROS thing (what a generic tool acts on).
-pub(super) const TARGET_KEYS: &[&str] = &["service", "topic", "action", "node", "name", "goal_id"];
+/// String arguments that name what a generic tool acts on: a ROS thing, or a place.
+pub(super) const TARGET_KEYS: &[&str] = &[
+    "service", "topic", "action", "node", "name", "goal_id", "place",
+];
 
-/// A tool that acts on a ROS thing its arguments name (a service call, a publish).
+/// A tool that acts on a thing its arguments name (a service call, a publish, a drive
+/// to a place). Not one whose name says it deletes (`place_forget`): naming what it
+/// deletes is not asking to delete it, the act must be asked for.
 pub(super) fn is_generic(spec: &ToolSpec) -> bool {
-    spec.parameters["properties"].as_object().is_some_and(|p| {
-        TARGET_KEYS
-            .iter()
-            .any(|k| p.get(*k).is_some_and(|v| v["type"] == "string"))
-    })
+    !acts_of(&name_words(&spec.name)).contains(&Act::Forget)
+        && spec.parameters["properties"].as_object().is_some_and(|p| {
+            TARGET_KEYS
+                .iter()
+                .any(|k| p.get(*k).is_some_and(|v| v["type"] == "string"))
+        })
+}
+
+/// Whether every target `call` names in words (no ROS name) is one of `known`, compared
+/// folded.
+fn targets_known(call: &ToolCall, known: &[String]) -> bool {
+    let known: Vec<Vec<String>> = known.iter().map(|k| folded_words(k)).collect();
+    TARGET_KEYS
+        .iter()
+        .filter_map(|k| call.arguments.get(*k).and_then(Value::as_str))
+        .filter(|t| !t.contains(['/', '_']))
+        .all(|t| known.contains(&folded_words(t)))
 }
 
 fn target_words(call: &ToolCall) -> Vec<String> {
@@ -88,6 +104,17 @@ impl Intent {
             .iter()
             .filter(|c| c.mood == Mood::Asked)
             .flat_map(|c| c.words.iter())
+    }
+
+    /// Whether a clause that asks for something says `name`'s words, side by side.
+    pub fn says_name(&self, name: &str) -> bool {
+        let name = folded_words(name);
+        !name.is_empty()
+            && self
+                .clauses
+                .iter()
+                .filter(|c| c.mood == Mood::Asked)
+                .any(|c| c.words.windows(name.len()).any(|w| w == name.as_slice()))
     }
 
     /// Whether the request uses one of `words` in a clause that asks for something.
@@ -141,21 +168,51 @@ impl Intent {
 
     /// Whether this call of an actuating tool is what the request asks for.
     pub fn asks_for(&self, call: &ToolCall, spec: &ToolSpec, observing: &BTreeSet<String>) -> bool {
+        self.asks_for_known(call, spec, observing, &[])
+    }
+
+    /// `asks_for`, knowing the names the tool's targets take (`known`: a place's names,
+    /// from its live schema). A target said in words that is none of them ("a cup" in
+    /// "make me a cup of coffee") is a name the robot lacks, not one that points at the
+    /// tool: the request must ask for the tool's own act ("go to the greenhouse").
+    pub fn asks_for_known(
+        &self,
+        call: &ToolCall,
+        spec: &ToolSpec,
+        observing: &BTreeSet<String>,
+        known: &[String],
+    ) -> bool {
         if !is_generic(spec) {
-            return self.may_ask_for(spec, observing);
+            // A tool that names its act (forgetting a place) and takes one of the
+            // robot's names is never asked for about a name the robot lacks.
+            return self.may_ask_for(spec, observing)
+                && (known.is_empty() || targets_known(call, known));
         }
         if !self.asks_own_setting(&acts_of(&name_words(&spec.name)), Some(call)) {
             return false;
         }
         let target = target_words(call);
         let target_acts = acts_of(&target);
-        target_acts.iter().any(|a| self.asked.contains(a))
-            || self.says(
-                &target
-                    .into_iter()
-                    .filter(|w| !observing.contains(w))
-                    .collect::<Vec<_>>(),
-            )
+        if target_acts.iter().any(|a| self.asked.contains(a)) {
+            return true;
+        }
+        // A request that asks for acts, none of them this tool's own or its target's,
+        // asks another tool to act on what it names: "forget the dock" does not ask to
+        // drive there.
+        let own = acts_of(&name_words(&spec.name));
+        let asks_own = own.iter().any(|a| self.asked.contains(a));
+        if !self.asked.is_empty() && !asks_own {
+            return false;
+        }
+        if !known.is_empty() && !targets_known(call, known) {
+            return asks_own;
+        }
+        self.says(
+            &target
+                .into_iter()
+                .filter(|w| !observing.contains(w))
+                .collect::<Vec<_>>(),
+        )
     }
 }
 
@@ -228,6 +285,35 @@ mod tests {
         assert!(!svc("call the reset service", "/kill"));
         assert!(!svc("list the running nodes", "/reset"));
         assert!(!svc("what services are there?", "/reset"));
+        // Naming the target while asking for another act asks another tool.
+        let go = spec("place_go", json!({"place": {"type": "string"}}));
+        let drive = |q: &str| {
+            Intent::new(q).asks_for(&call("place_go", json!({"place": "shed"})), &go, &obs)
+        };
+        assert!(drive("head over to the shed"));
+        assert!(drive("drive to the shed"));
+        assert!(!drive("forget the shed"));
+        assert!(!drive("where is the shed?"));
+        // A name the robot lacks points at nothing: only the tool's own act asks for it.
+        let known = ["dock".to_string(), "pond".to_string()];
+        let to = |q: &str, place: &str| {
+            let c = call("place_go", json!({ "place": place }));
+            Intent::new(q).asks_for_known(&c, &go, &obs, &known)
+        };
+        assert!(to("head over to the pond", "pond"));
+        assert!(!to("bake me a cake", "a cake"));
+        assert!(to("drive to the greenhouse", "the greenhouse"));
+        assert!(!to("take me to the greenhouse", "the greenhouse"));
+        let forget = spec("place_forget", json!({"name": {"type": "string"}}));
+        let drop = |q: &str, name: &str| {
+            let c = call("place_forget", json!({ "name": name }));
+            Intent::new(q).asks_for_known(&c, &forget, &obs, &known)
+        };
+        assert!(drop("forget the pond", "pond"));
+        assert!(!drop("delete the greenhouse", "greenhouse"));
+        assert!(!drop("go to the pond", "pond"));
+        assert!(Intent::new("please forget the loading area").says_name("Loading Area"));
+        assert!(!Intent::new("where is the loading area?").says_name("loading area"));
         assert!(!svc("don't reset anything", "/reset"));
         // A robot's own tool: its own words ask for it.
         let raise =

@@ -109,7 +109,12 @@ impl Agent {
             .chain([query.to_string()])
             .collect();
         let said: Vec<&str> = queries.iter().map(String::as_str).collect();
-        let asked = self.config.asked_actuation_only.then(|| self.asked.clone());
+        let asked = self.config.asked_actuation_only.then(|| {
+            let registry = self.exec.registry();
+            self.asked
+                .clone()
+                .with_known(|name| Some(registry.get(name)?.live_spec()?.parameters))
+        });
         let guards = guard::Guards::standard(query, &said, asked);
         let parts = plan::parts(query, &intent::vocabulary(&offered));
         // Each part is offered what it would be offered alone, beside what the whole

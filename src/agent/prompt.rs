@@ -49,6 +49,14 @@ pub struct RobotPrompt {
     /// the tool's own examples for tool choice (`meaning`).
     #[serde(default)]
     pub examples: BTreeMap<String, Vec<String>>,
+    /// Named places the robot can be sent to (`tools::place`), each with its frame,
+    /// coordinates, heading, aliases and description. Not part of the rendered prompt.
+    #[serde(default)]
+    pub places: Vec<crate::store::Place>,
+    /// The topic the robot's pose is read from when a place is taught; found by its
+    /// type on the graph when unset. Not part of the rendered prompt.
+    #[serde(default)]
+    pub pose_topic: Option<String>,
 }
 
 impl RobotPrompt {

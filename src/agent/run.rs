@@ -444,7 +444,14 @@ impl Run<'_> {
             return Ok(self.answered(held));
         }
         if turn.calls.is_empty() {
-            return Ok(self.answered(turn.prose));
+            // Prose with no call before it (no tool was left to write) is no answer the
+            // agent can stand behind: its own reply replaces it, as for a reply call.
+            let prose = if self.records.is_empty() && self.agent.meaning.is_some() {
+                self.held(&turn.prose)
+            } else {
+                turn.prose
+            };
+            return Ok(self.answered(prose));
         }
         if self.timings.first_call_token_ms.is_none() {
             self.timings.first_call_token_ms = self.step_first_token;

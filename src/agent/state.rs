@@ -97,6 +97,7 @@ impl Agent {
                 effects,
                 actuators,
                 observing,
+                known: BTreeMap::new(),
             },
             backend,
             grammars,

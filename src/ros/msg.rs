@@ -27,6 +27,7 @@ const BUNDLE: &[&str] = &[
     include_str!("interfaces/diagnostic_msgs.idl"),
     include_str!("interfaces/geometry_msgs.idl"),
     include_str!("interfaces/nav_msgs.idl"),
+    include_str!("interfaces/nav2_msgs.idl"),
     include_str!("interfaces/rcl_interfaces.idl"),
     include_str!("interfaces/rosgraph_msgs.idl"),
     include_str!("interfaces/sensor_msgs.idl"),

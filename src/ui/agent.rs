@@ -25,8 +25,9 @@ use crate::estop::EStop;
 use crate::ros::ros2::Ros2Options;
 use crate::ros::sim::Sim;
 use crate::ros::RosGraph;
+use crate::store::Store;
 use crate::tool::policy::{NoOperator, PolicyFile};
-use crate::tool::{Confirm, Policy, Registry};
+use crate::tool::{Confirm, Package, Policy, Registry};
 
 const TURTLESIM_PROMPT: &str = include_str!("../../prompts/turtlesim.toml");
 
@@ -103,6 +104,9 @@ pub fn tools_and_policy(
         Some(raw) => {
             let guarded = robot::guard(raw, &policy, args.robot);
             robot::add_ros_tools(&mut registry, guarded.clone(), args.robot);
+            if has_places(args, &prompt, guarded.as_ref()) {
+                registry.add(place_tools(args, &prompt, guarded.clone()));
+            }
             // Declared tools act through the same guarded graph, and may not take a
             // name a tool already has.
             for f in &files {
@@ -121,6 +125,54 @@ pub fn tools_and_policy(
         None => {}
     }
     Ok((registry, policy, prompt))
+}
+
+/// Whether the robot gets the place tools: its robot file names places or a pose topic,
+/// it is the sim, or it serves Nav2's `navigate_to_pose` as discovery first sees it.
+fn has_places(args: &AgentArgs, prompt: &RobotPrompt, graph: &dyn RosGraph) -> bool {
+    let navigates = || {
+        crate::ros::graph_now(graph).is_some_and(|g| {
+            g.actions().iter().any(|a| {
+                crate::ros::msg::normalize_type(&a.type_name) == crate::tools::place::NAVIGATE_TYPE
+            })
+        })
+    };
+    !prompt.places.is_empty() || prompt.pose_topic.is_some() || args.robot.is_sim() || navigates()
+}
+
+/// The place tools over `graph`: the robot file's places, and its memory in this
+/// machine's data directory (or why it has none, said once here and by the tools).
+fn place_tools(args: &AgentArgs, prompt: &RobotPrompt, graph: Arc<dyn RosGraph>) -> Package {
+    let store = match crate::store::default_path() {
+        None => Err("this machine has no data directory (set HOME or XDG_DATA_HOME)".to_string()),
+        Some(path) => Store::open(&path, &memory_key(args))
+            .map(Arc::new)
+            .map_err(|e| {
+                eprintln!("ferrosa: {e}");
+                e.to_string()
+            }),
+    };
+    crate::tools::place::package(
+        graph,
+        prompt.places.clone(),
+        store,
+        prompt.pose_topic.clone(),
+    )
+}
+
+/// Whose memory this is: the robot kind, and its robot file's name when one is given
+/// (places taught to one robot are not another's).
+pub fn memory_key(args: &AgentArgs) -> String {
+    let kind = match args.robot {
+        Robot::Sim | Robot::SimRos1 => "sim",
+        Robot::Ros2 => "ros2",
+        Robot::Ros1 => "ros1",
+        Robot::None => "none",
+    };
+    match args.prompt.as_ref().and_then(|p| p.file_stem()) {
+        Some(stem) => format!("{kind}/{}", stem.to_string_lossy()),
+        None => kind.to_string(),
+    }
 }
 
 /// The robot's prompt file: `--prompt`, else the sim's or the default robot's.

@@ -9,13 +9,16 @@
 //! `background_r/g/b`; the same kinematics in the same 11.09 × 11.09 arena, with a log
 //! line on `/rosout` when a turtle hits the wall. And what a field robot has for status
 //! questions: `/battery_state` (sensor_msgs/BatteryState, draining faster while moving)
-//! and `/diagnostics` (diagnostic_msgs/DiagnosticArray).
+//! and `/diagnostics` (diagnostic_msgs/DiagnosticArray). And what a Nav2 robot offers
+//! for going places: the `/navigate_to_pose` action (`navigate`), driving turtle1.
 //!
 //! Messages are built as JSON and encoded by `cdr`, the same codec the tools use.
 
+mod navigate;
 mod rotate;
 mod world;
 
+pub use navigate::{ACTION as NAVIGATE_ACTION, FRAME as NAVIGATE_FRAME};
 use world::{normalize_angle, Command, Shared, Turtle, World, INPUTS, PUBLISH_AFTER, STEP};
 pub use world::{ARENA, CENTER};
 
@@ -84,6 +87,7 @@ impl Sim {
             world: Mutex::new(World {
                 turtles: BTreeMap::new(),
                 rotations: BTreeMap::new(),
+                navigations: BTreeMap::new(),
                 battery: 0.87,
                 tasks: BTreeMap::new(),
             }),
@@ -110,6 +114,7 @@ impl Sim {
                 Turtle::at(CENTER, CENTER, 0.0),
             )?;
             tasks.push(status_publishers(&rt, &shared, &mut node)?);
+            tasks.extend(navigate::serve(&rt, &shared, &mut node)?);
         }
         tasks.push(rt.spawn(physics(shared.clone())));
         shared.log(
@@ -577,6 +582,7 @@ async fn handle(
                     .insert("turtle1".into(), Turtle::at(CENTER, CENTER, 0.0));
                 // Goals under way end (aborted) with the turtles they turned.
                 world.rotations.clear();
+                world.navigations.clear();
                 others
             };
             let turtle1_running = s.world.lock().expect("world").tasks.contains_key("turtle1");

@@ -87,6 +87,8 @@ pub(super) fn serve(
                     start: t.theta,
                     cancel: false,
                 };
+                // A rotation takes over from a navigation under way.
+                world.navigations.remove(&who);
                 world.rotations.insert(who.clone(), rotation).is_some()
             };
             if preempted {

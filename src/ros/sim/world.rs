@@ -110,6 +110,8 @@ pub(super) struct World {
     pub(super) turtles: BTreeMap<String, Turtle>,
     /// The `rotate_absolute` goal each turtle is turning toward.
     pub(super) rotations: BTreeMap<String, Rotation>,
+    /// The `navigate_to_pose` goal each turtle is driving to.
+    pub(super) navigations: BTreeMap<String, Navigation>,
     pub(super) battery: f64,
     pub(super) tasks: BTreeMap<String, Vec<JoinHandle<()>>>,
 }
@@ -142,5 +144,22 @@ pub(super) struct Rotation {
     pub id: GoalId,
     pub target: f64,
     pub start: f64,
+    pub cancel: bool,
+}
+
+/// Where a navigation goal ends: a point in the arena, and the heading to end at (none
+/// when the goal's orientation is no rotation at all, all zeros).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(super) struct Target {
+    pub x: f64,
+    pub y: f64,
+    pub yaw: Option<f64>,
+}
+
+/// The goal turtle1 is navigating to.
+#[derive(Debug, Clone)]
+pub(super) struct Navigation {
+    pub id: GoalId,
+    pub target: Target,
     pub cancel: bool,
 }
