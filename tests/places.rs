@@ -362,3 +362,84 @@ fn places_are_taught_kept_reached_and_stopped() {
     let said = refused(&exec, "place_forget", json!({"name": "home"}));
     assert!(said.contains("robot file"), "{said}");
 }
+
+/// The operator approves every call.
+struct Approves;
+
+impl ferrosa::tool::Confirm for Approves {
+    fn confirm(&self, _: &ToolCall) -> bool {
+        true
+    }
+}
+
+/// The real default model on the sim, as an operator teaches and uses a place: a spot
+/// remembered by name, the turtle sent elsewhere, then back by name (the pose read
+/// back); an agent built afresh on the same memory file names the place; a place the
+/// robot lacks is reported missing, and the turtle stays. One model load for the first
+/// agent, one for the second.
+#[test]
+#[ignore = "needs the model weights (or a ROS peer): cargo test --release -- --include-ignored"]
+fn places_are_taught_and_reached_with_the_real_model() {
+    use ferrosa::ui::agent::{build_with, connect};
+    if rerun_in_loopback_netns(
+        "places::places_are_taught_and_reached_with_the_real_model",
+        400,
+    ) {
+        return;
+    }
+    let data = tempfile::tempdir().unwrap();
+    std::env::set_var("XDG_DATA_HOME", data.path());
+    let link = connect(Robot::Sim, false).unwrap();
+    let graph = link.graph.clone().unwrap();
+    let sim = link.sim.as_ref().unwrap();
+    let args = crate::util::agent_args(Robot::Sim, false);
+    let build = || {
+        let agent =
+            build_with(&args, Arc::new(Approves), Some(graph.clone()), EStop::new()).unwrap();
+        graph.set_fence(agent.fence().clone());
+        agent
+    };
+    let rt = runtime();
+    let teleport = |x: f64, y: f64| {
+        rt.block_on(graph.call_service(
+            "/turtle1/teleport_absolute",
+            "turtlesim/srv/TeleportAbsolute",
+            json!({"x": x, "y": y, "theta": 0.0}),
+            Duration::from_secs(5),
+        ))
+        .unwrap();
+        std::thread::sleep(Duration::from_millis(300));
+    };
+    let mut agent = build();
+    let ok = |r: &ferrosa::agent::RunResult, name: &str| {
+        r.steps.iter().find(|s| s.name == name && s.ok).cloned()
+    };
+
+    teleport(2.5, 8.5);
+    let (r, why) = crate::util::ask_shown(&mut agent, "keep this spot in mind as the workbench");
+    let taught = ok(&r, "place_remember").unwrap_or_else(|| panic!("{why}"));
+    assert!(
+        taught.output["name"]
+            .as_str()
+            .unwrap()
+            .contains("workbench"),
+        "{why}"
+    );
+
+    teleport(8.0, 3.0);
+    let (r, why) = crate::util::ask_shown(&mut agent, "now drive back to the workbench");
+    ok(&r, "place_go").unwrap_or_else(|| panic!("{why}"));
+    let (x, y, _) = xy(sim);
+    assert!((x - 2.5).hypot(y - 8.5) < 0.1, "at ({x}, {y}): {why}");
+
+    let (r, why) = crate::util::ask_shown(&mut agent, "drive over to the greenhouse");
+    assert!(ok(&r, "place_go").is_none(), "{why}");
+    let (x2, y2, _) = xy(sim);
+    assert!((x2 - x).hypot(y2 - y) < 0.05, "it moved: {why}");
+    drop(agent);
+
+    let mut again = build();
+    let (r, why) = crate::util::ask_shown(&mut again, "list the places you can go to");
+    ok(&r, "place_list").unwrap_or_else(|| panic!("{why}"));
+    assert!(r.answer.contains("workbench"), "{why}");
+}

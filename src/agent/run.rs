@@ -655,6 +655,38 @@ impl Run<'_> {
         }
     }
 
+    /// The `allowed` tools (all offered when `None`) as the robot takes them now
+    /// (`Tool::live_parameters`), and those of them the guards would write, their name
+    /// arguments held to the names that exist (`bound`).
+    fn writable(
+        &self,
+        allowed: Option<&Vec<String>>,
+        robot_names: &[(String, String)],
+        near: Option<&dyn Fn(&str) -> f64>,
+    ) -> (Vec<ToolSpec>, Vec<ToolSpec>) {
+        let registry = self.agent.exec.registry();
+        let live: Vec<ToolSpec> = self
+            .offered
+            .iter()
+            .filter(|s| allowed.is_none_or(|names| names.contains(&s.name)))
+            .map(|s| {
+                registry
+                    .get(&s.name)
+                    .and_then(|t| t.live_spec())
+                    .unwrap_or_else(|| s.clone())
+            })
+            .collect();
+        let mut bound = bound::bind(&live, robot_names, &self.parts[self.part], near);
+        // A tool every call of which the guards would refuse is not written.
+        bound.retain(|b| {
+            self.offered
+                .iter()
+                .find(|s| s.name == b.name)
+                .is_none_or(|declared| self.guards.keeps(declared, b))
+        });
+        (live, bound)
+    }
+
     /// Decode one turn with `allowed` tools (all offered when `None`), tokens streamed
     /// as events as they come.
     fn turn(
@@ -684,24 +716,31 @@ impl Run<'_> {
         // The grammar takes each tool's arguments as the robot can take them now
         // (`Tool::live_parameters`), name arguments held to the names that exist
         // (`bound`).
-        let registry = self.agent.exec.registry();
-        let allowed_specs: Vec<ToolSpec> = self
-            .offered
-            .iter()
-            .filter(|s| allowed.as_ref().is_none_or(|names| names.contains(&s.name)))
-            .map(|s| {
-                registry
-                    .get(&s.name)
-                    .and_then(|t| t.live_spec())
-                    .unwrap_or_else(|| s.clone())
-            })
-            .collect();
         let part = self.parts[self.part].clone();
         let meaning = self.agent.meaning.clone();
         let near = meaning
             .as_ref()
             .map(|m| move |name: &str| m.name_similarity(&part, name));
         let near = near.as_ref().map(|f| f as &dyn Fn(&str) -> f64);
+        let (allowed_specs, bound_specs) = self.writable(allowed.as_ref(), robot_names, near);
+        // The act-first preference, when it leaves nothing the other guards would write
+        // (words that ask for an act no call of which the request asks for: "list the
+        // places you can go to"), is passed over, as `Guards::narrow` passes over a guard
+        // that leaves nothing.
+        let only_answer = bound_specs.iter().all(|s| s.name == ANSWER_TOOL);
+        let (allowed_specs, bound_specs) =
+            if only_answer && !self.answer_only && self.grounds.is_empty() {
+                let mut wider = self
+                    .guards
+                    .narrow_without(&self.offered, "act-first")
+                    .unwrap_or_else(|| self.offered.iter().map(|s| s.name.clone()).collect());
+                if self.stop_withdrawn {
+                    wider.retain(|n| n != STOP_TOOL);
+                }
+                self.writable(Some(&wider), robot_names, near)
+            } else {
+                (allowed_specs, bound_specs)
+            };
         // A part's first step: nothing since the operator's words but the part itself.
         let fresh = self.scratch.last().is_none_or(|m| m.role == Role::User);
         // On it, which tools take a name the part writes, as the robot has them (before
@@ -718,15 +757,7 @@ impl Run<'_> {
         } else {
             Vec::new()
         };
-        let mut allowed_specs =
-            bound::bind(&allowed_specs, robot_names, &self.parts[self.part], near);
-        // A tool every call of which the guards would refuse is not written.
-        allowed_specs.retain(|b| {
-            self.offered
-                .iter()
-                .find(|s| s.name == b.name)
-                .is_none_or(|declared| self.guards.keeps(declared, b))
-        });
+        let mut allowed_specs = bound_specs;
         // An answer with no call before it is the agent's own (`small_talk`): the model's
         // text would be thrown away, so it writes one character of it, not up to
         // `ANSWER_CHARS` (a thank-you took 9.6 s writing a reply nobody read).

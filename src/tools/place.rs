@@ -102,6 +102,10 @@ fn degrees(rad: f64) -> f64 {
     (rad.to_degrees() * 10.0).round() / 10.0
 }
 
+fn round2(v: f64) -> f64 {
+    (v * 100.0).round() / 100.0
+}
+
 fn round3(v: f64) -> f64 {
     (v * 1000.0).round() / 1000.0
 }
@@ -303,7 +307,16 @@ impl Tool for PlaceList {
     async fn call(&self, _: NoArgs, _: &ToolContext) -> Result<Value, ToolError> {
         let all = self.0.all()?;
         let places: Vec<Value> = all.iter().map(|(p, k)| shown(p, *k)).collect();
-        Ok(json!({"count": places.len(), "places": places}))
+        let each: Vec<String> = all
+            .iter()
+            .map(|(p, _)| format!("{} ({}, {})", p.name, round2(p.x), round2(p.y)))
+            .collect();
+        let summary = match each.len() {
+            0 => "no places are known yet".to_string(),
+            1 => format!("1 place: {}", each[0]),
+            n => format!("{n} places: {}", each.join(", ")),
+        };
+        Ok(json!({"summary": summary, "count": places.len(), "places": places}))
     }
 }
 
@@ -385,7 +398,10 @@ impl Tool for PlaceGo {
         });
         let name = &place.name;
         let summary = match outcome.status {
-            GoalStatus::Succeeded => format!("arrived at {name}"),
+            GoalStatus::Succeeded => match at {
+                Some((_, x, y, _)) => format!("arrived at {name}, ({}, {})", round2(x), round2(y)),
+                None => format!("arrived at {name}"),
+            },
             GoalStatus::Running => format!(
                 "still driving to {name} after {:.0} s{}; it goes on (robot_stop stops it)",
                 wait.as_secs_f64(),
