@@ -30,7 +30,7 @@ use std::sync::Arc;
 use serde_json::Value;
 
 use super::concepts::{acts_of, asked_acts, clauses, signs, Act};
-use super::intent::{is_generic, name_words, Intent, TARGET_KEYS};
+use super::intent::{is_generic, name_words, targets_known, Intent, TARGET_KEYS};
 use crate::strategy::ground::Grounding;
 use crate::strategy::Strategy;
 use crate::tool::{Effect, Policy, ToolCall, ToolSpec};
@@ -113,6 +113,7 @@ impl Guards {
             guards.push(Box::new(AskedFor {
                 intent: Intent::new(query),
                 asked,
+                called: false,
             }));
             guards.push(Box::new(ActFirst::new(query, actuators)));
         }
@@ -518,11 +519,26 @@ fn offered_names(schema: &Value) -> Vec<String> {
 struct AskedFor {
     intent: Intent,
     asked: Asked,
+    /// A call of this part was written: a name the robot lacks, said in words, is
+    /// asked for on the part's first step only ("mueve la tortuga 1 metro hacia
+    /// adelante" moved, then tried a place called "adelante").
+    called: bool,
 }
 
 impl AskedFor {
     fn known(&self, tool: &str) -> &[String] {
         self.asked.known.get(tool).map_or(&[], Vec::as_slice)
+    }
+
+    /// Whether the request asks for `call` of `spec` (see `intent`), this step.
+    /// `later`: another call of the part was written before this one.
+    fn asks(&self, call: &ToolCall, spec: &ToolSpec, later: bool) -> bool {
+        let known = self.known(&call.name);
+        if (self.called || later) && !known.is_empty() && !targets_known(call, known) {
+            return false;
+        }
+        self.intent
+            .asks_for_known(call, spec, &self.asked.observing, known)
     }
 }
 
@@ -567,31 +583,31 @@ impl Guard for AskedFor {
                 name: bound.name.clone(),
                 arguments: serde_json::json!({ key: target }),
             };
-            self.intent.asks_for_known(
-                &call,
-                declared,
-                &self.asked.observing,
-                self.known(&bound.name),
-            )
+            self.asks(&call, declared, false)
         })
     }
 
+    fn next_part(&mut self, _: &str) {
+        self.called = false;
+    }
+
     fn check(&mut self, calls: &mut [ToolCall], offered: &[ToolSpec]) -> Vec<Verdict> {
+        let verdicts = self.verdicts(calls, offered);
+        self.called |= !calls.is_empty();
+        verdicts
+    }
+}
+
+impl AskedFor {
+    fn verdicts(&self, calls: &[ToolCall], offered: &[ToolSpec]) -> Vec<Verdict> {
         calls
             .iter()
-            .map(|c| {
+            .enumerate()
+            .map(|(i, c)| {
                 let spec = offered.iter().find(|s| s.name == c.name);
                 let effect = self.asked.effects.get(&c.name).copied();
                 let actuates = effect.is_some_and(|e| self.asked.policy.actuates(e, c));
-                let unasked = actuates
-                    && spec.is_some_and(|s| {
-                        !self.intent.asks_for_known(
-                            c,
-                            s,
-                            &self.asked.observing,
-                            self.known(&c.name),
-                        )
-                    });
+                let unasked = actuates && spec.is_some_and(|s| !self.asks(c, s, i > 0));
                 if unasked {
                     Verdict::Refuse(format!(
                         "the operator did not ask for {}: no word of the request points at it or at its target; do not act, answer instead",

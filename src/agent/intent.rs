@@ -57,7 +57,7 @@ pub(super) fn is_generic(spec: &ToolSpec) -> bool {
 
 /// Whether every target `call` names in words (no ROS name) is one of `known`, compared
 /// folded.
-fn targets_known(call: &ToolCall, known: &[String]) -> bool {
+pub(super) fn targets_known(call: &ToolCall, known: &[String]) -> bool {
     let known: Vec<Vec<String>> = known.iter().map(|k| folded_words(k)).collect();
     TARGET_KEYS
         .iter()

@@ -183,7 +183,7 @@ impl Places {
         } else {
             let known: Vec<&str> = all.iter().map(|(p, _)| p.name.as_str()).collect();
             format!(
-                "no place called \"{query}\"; the known places are {}",
+                "no place called \"{query}\"; the known places are {} (place_list gives where each is)",
                 known.join(", ")
             )
         }))
