@@ -15,7 +15,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Mutex;
 use std::time::Duration;
 
-use rusqlite::{params, Connection, OpenFlags, OptionalExtension};
+use rusqlite::{params, Connection, OpenFlags};
 use serde::{Deserialize, Serialize};
 
 /// The file's name in the data directory.
@@ -182,10 +182,6 @@ impl Store {
             path: path.to_path_buf(),
             robot: robot.to_string(),
         })
-    }
-
-    pub fn path(&self) -> &Path {
-        &self.path
     }
 
     fn err(&self, e: rusqlite::Error) -> StoreError {
@@ -381,23 +377,6 @@ fn classify(path: &Path, e: &rusqlite::Error) -> StoreError {
     }
 }
 
-/// Whether the file at `path` exists and holds a table of ferrosa's memory (for
-/// commands that must not create one).
-pub fn exists(path: &Path) -> bool {
-    let Ok(conn) = Connection::open_with_flags(path, OpenFlags::SQLITE_OPEN_READ_ONLY) else {
-        return false;
-    };
-    conn.query_row(
-        "SELECT name FROM sqlite_master WHERE type = 'table' AND name = 'places'",
-        [],
-        |r| r.get::<_, String>(0),
-    )
-    .optional()
-    .ok()
-    .flatten()
-    .is_some()
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -454,7 +433,6 @@ mod tests {
         assert!(matches!(e, StoreError::NotADatabase(_)), "{e}");
         assert!(e.to_string().contains("move it aside"));
         assert_eq!(std::fs::read(&path).unwrap(), junk);
-        assert!(!exists(&path));
     }
 
     #[test]

@@ -499,8 +499,8 @@ impl Asked {
     }
 }
 
-/// The names a schema's target properties offer as a choice beside any other
-/// (`{"anyOf": [{"enum": [...]}, {"type": "string"}]}`).
+/// The names a schema's target properties suggest (`bound::suggested`: a choice of
+/// known names beside any other).
 fn offered_names(schema: &Value) -> Vec<String> {
     let Some(props) = schema.get("properties").and_then(Value::as_object) else {
         return Vec::new();
@@ -508,10 +508,8 @@ fn offered_names(schema: &Value) -> Vec<String> {
     props
         .iter()
         .filter(|(k, _)| TARGET_KEYS.contains(&k.as_str()))
-        .filter_map(|(_, p)| p.get("anyOf")?.as_array()?.first()?.get("enum")?.as_array())
+        .filter_map(|(_, p)| super::bound::suggested(p))
         .flatten()
-        .filter_map(Value::as_str)
-        .map(str::to_string)
         .collect()
 }
 

@@ -172,8 +172,8 @@ impl Intent {
     }
 
     /// `asks_for`, knowing the names the tool's targets take (`known`: a place's names,
-    /// from its live schema). A target said in words that is none of them ("a cup" in
-    /// "make me a cup of coffee") is a name the robot lacks, not one that points at the
+    /// from its live schema). A target said in words that is none of them ("a cake" in
+    /// "bake me a cake") is a name the robot lacks, not one that points at the
     /// tool: the request must ask for the tool's own act ("go to the greenhouse").
     pub fn asks_for_known(
         &self,
