@@ -518,8 +518,8 @@ struct AskedFor {
     intent: Intent,
     asked: Asked,
     /// A call of this part was written: a name the robot lacks, said in words, is
-    /// asked for on the part's first step only ("mueve la tortuga 1 metro hacia
-    /// adelante" moved, then tried a place called "adelante").
+    /// asked for on the part's first step only (a request to drive two metres ahead
+    /// drove, then tried a place called "ahead").
     called: bool,
 }
 
