@@ -468,7 +468,9 @@ impl Run<'_> {
             .zip(verdicts)
             .map(|(c, v)| match v {
                 Verdict::Skip => None,
-                Verdict::Refuse(why) => Some(Decision::Refused(why)),
+                Verdict::Refuse(why) => Some(Decision::Refused(
+                    self.agent.exec.policy().off_limits(c).unwrap_or(why),
+                )),
                 Verdict::Pass => Some(self.agent.exec.decide(c)),
             })
             .collect()

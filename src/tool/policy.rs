@@ -332,15 +332,23 @@ impl Policy {
         }
     }
 
+    /// Why `call` is refused when it names a name off limits (the deny-list), as the
+    /// model reads it. That reason comes before any other: the model is told the name is
+    /// out of reach, not that the operator did not ask for it.
+    pub fn off_limits(&self, call: &ToolCall) -> Option<String> {
+        let mut strings = Vec::new();
+        collect_strings(&call.arguments, &mut strings);
+        (strings.iter().any(|s| self.fence.denies(s)) || self.names_denied_parameter(call))
+            .then(|| {
+                "that name is off limits (the operator's deny-list); do not try it or anything like it again".into()
+            })
+    }
+
     /// The first of the fence, `limit` and `only` rules the call breaks, as the model
     /// reads it.
     fn rule_breach(&self, call: &ToolCall) -> Option<String> {
-        let mut strings = Vec::new();
-        collect_strings(&call.arguments, &mut strings);
-        if strings.iter().any(|s| self.fence.denies(s)) || self.names_denied_parameter(call) {
-            return Some(
-                "that name is off limits (the operator's deny-list); do not try it or anything like it again".into(),
-            );
+        if let Some(why) = self.off_limits(call) {
+            return Some(why);
         }
         for (re, limit) in &self.limits {
             if re.is_match(&call.name) && matches_when(&limit.when, &call.arguments) {
