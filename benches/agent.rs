@@ -232,6 +232,7 @@ fn main() {
         language: None,
         verbose: false,
         listing: ferrosa::ui::agent::Listing::All,
+        memory: None,
     };
     header::print(
         "ferrosa agent benchmark",

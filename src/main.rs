@@ -173,6 +173,10 @@ enum Command {
     /// Talk to the agent (REPL): /stop (e-stop, also mid-run; so does Ctrl-C), /reset,
     /// /call, /tools, /clear, /trace, /quit.
     Chat {
+        /// Continue the last conversation with this robot (its exchanges, from the
+        /// memory file).
+        #[arg(long)]
+        resume: bool,
         #[command(flatten)]
         agent: AgentOpts,
     },
@@ -258,6 +262,12 @@ enum Command {
         #[command(subcommand)]
         command: ModelsCommand,
     },
+    /// What the robot keeps across sessions (taught places, facts, the request log):
+    /// list, export or forget it.
+    Memory {
+        #[command(subcommand)]
+        command: MemoryCommand,
+    },
 }
 
 #[derive(clap::Args)]
@@ -326,6 +336,10 @@ struct AgentOpts {
     /// offered (those retrieval offers the request).
     #[arg(long, value_enum, default_value_t = ui::agent::Listing::All)]
     listing: ui::agent::Listing,
+    /// The memory file (places taught, facts, the request log); default memory.sqlite
+    /// in the data directory ($XDG_DATA_HOME/ferrosa).
+    #[arg(long)]
+    memory: Option<PathBuf>,
 }
 
 /// `--lang`: `None` for auto.
@@ -371,6 +385,7 @@ impl AgentOpts {
             language: self.lang,
             verbose: self.verbose,
             listing: self.listing,
+            memory: self.memory,
         }
     }
 }
@@ -496,6 +511,63 @@ enum EvalCommand {
     },
 }
 
+/// Which memory file and robot a `memory` command works on.
+#[derive(clap::Args)]
+struct MemoryOpts {
+    /// The memory file; default memory.sqlite in the data directory.
+    #[arg(long)]
+    memory: Option<PathBuf>,
+    /// One robot's memory, by its key (sim, ros2, ros2/<robot file name>, …; `list`
+    /// shows them); default every robot's.
+    #[arg(long)]
+    of: Option<String>,
+}
+
+impl MemoryOpts {
+    fn which(self) -> ui::memory::Which {
+        ui::memory::Which {
+            file: self.memory,
+            of: self.of,
+        }
+    }
+}
+
+#[derive(Subcommand)]
+enum MemoryCommand {
+    /// Show each robot's taught places, facts (with their numbers) and latest requests.
+    List {
+        /// How many of the latest requests to show.
+        #[arg(long, default_value_t = 20)]
+        runs: usize,
+        #[command(flatten)]
+        opts: MemoryOpts,
+    },
+    /// Write everything kept, as JSON (to standard output, or --out FILE).
+    Export {
+        #[arg(long, short)]
+        out: Option<PathBuf>,
+        #[command(flatten)]
+        opts: MemoryOpts,
+    },
+    /// Delete a taught place, a fact, the request log, or everything.
+    Forget {
+        /// A taught place, by name.
+        #[arg(long, group = "what")]
+        place: Option<String>,
+        /// A fact, by the number `list` shows.
+        #[arg(long, group = "what")]
+        fact: Option<i64>,
+        /// The log of past requests.
+        #[arg(long, group = "what")]
+        runs: bool,
+        /// Everything kept.
+        #[arg(long, group = "what")]
+        all: bool,
+        #[command(flatten)]
+        opts: MemoryOpts,
+    },
+}
+
 #[derive(Subcommand)]
 enum ModelsCommand {
     /// Show each catalog model: present or not, size, architecture, context, vocabulary.
@@ -602,9 +674,10 @@ fn main() -> ExitCode {
             &query,
             json,
         ),
-        Command::Chat { agent } => {
-            ui::agent::chat(&agent.into_args(dir, cli_prompt_cache, remote.clone()))
-        }
+        Command::Chat { agent, resume } => ui::agent::chat(
+            &agent.into_args(dir, cli_prompt_cache, remote.clone()),
+            resume,
+        ),
         Command::Call {
             name,
             arguments,
@@ -656,7 +729,7 @@ fn main() -> ExitCode {
             if args.robot == ui::agent::Robot::None {
                 args.robot = ui::agent::Robot::Sim;
             }
-            ui::agent::chat(&args)
+            ui::agent::chat(&args, false)
         }
         Command::Sim => ui::agent::sim(),
         Command::Eval {
@@ -709,6 +782,7 @@ fn main() -> ExitCode {
                 language: lang,
                 verbose: false,
                 listing,
+                memory: None,
             },
             suite,
             decoding,
@@ -758,6 +832,33 @@ fn main() -> ExitCode {
                 ground,
             },
         }),
+        Command::Memory { command } => match command {
+            MemoryCommand::List { runs, opts } => ui::memory::list(&opts.which(), runs),
+            MemoryCommand::Export { out, opts } => {
+                ui::memory::export(&opts.which(), out.as_deref())
+            }
+            MemoryCommand::Forget {
+                place,
+                fact,
+                runs,
+                all,
+                opts,
+            } => {
+                let what = match (place, fact, runs, all) {
+                    (Some(p), ..) => Some(ui::memory::Forget::Place(p)),
+                    (_, Some(f), ..) => Some(ui::memory::Forget::Fact(f)),
+                    (_, _, true, _) => Some(ui::memory::Forget::Runs),
+                    (_, _, _, true) => Some(ui::memory::Forget::All),
+                    _ => None,
+                };
+                match what {
+                    Some(w) => ui::memory::forget(&opts.which(), &w),
+                    None => Err(anyhow::anyhow!(
+                        "say what to forget: --place NAME, --fact N, --runs or --all"
+                    )),
+                }
+            }
+        },
         Command::Models { command } => match command {
             ModelsCommand::List => ui::models::list(&dir),
             ModelsCommand::Fetch {

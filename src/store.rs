@@ -20,8 +20,9 @@ use serde::{Deserialize, Serialize};
 
 /// The file's name in the data directory.
 pub const FILE: &str = "memory.sqlite";
-/// The schema this build writes (SQLite's `user_version`).
-const SCHEMA: i64 = 1;
+/// The schema this build writes (SQLite's `user_version`). 2: runs carry their
+/// session and how they ended.
+const SCHEMA: i64 = 2;
 /// How long a write waits for another process holding the file.
 const BUSY_WAIT: Duration = Duration::from_secs(2);
 /// Longest text kept in one field; longer is cut (a log, not an archive).
@@ -52,8 +53,15 @@ CREATE TABLE IF NOT EXISTS runs (
     at TEXT NOT NULL,
     request TEXT NOT NULL,
     calls TEXT NOT NULL,
-    answer TEXT NOT NULL
+    answer TEXT NOT NULL,
+    session TEXT NOT NULL DEFAULT '',
+    finish TEXT NOT NULL DEFAULT 'answer'
 );
+";
+/// From schema 1 (runs without their session).
+const FROM_1: &str = "
+ALTER TABLE runs ADD COLUMN session TEXT NOT NULL DEFAULT '';
+ALTER TABLE runs ADD COLUMN finish TEXT NOT NULL DEFAULT 'answer';
 ";
 
 #[derive(Debug, thiserror::Error)]
@@ -109,6 +117,20 @@ pub struct Run {
     /// The calls made, as `name(arguments)` lines.
     pub calls: String,
     pub answer: String,
+    /// The conversation it was part of (`chat --resume` continues the last one).
+    pub session: String,
+    /// How it ended: `answer`, `cancelled`, `max_steps`.
+    pub finish: String,
+}
+
+/// A run to log: what was asked, the calls made, what came of it.
+#[derive(Debug, Clone, Default)]
+pub struct NewRun<'a> {
+    pub session: &'a str,
+    pub request: &'a str,
+    pub calls: &'a str,
+    pub answer: &'a str,
+    pub finish: &'a str,
 }
 
 /// The memory file, open. Scoped to one robot: a data directory shared by the sim and
@@ -173,8 +195,9 @@ impl Store {
                 found,
             });
         }
+        let upgrade = if found == 1 { FROM_1 } else { "" };
         conn.execute_batch(&format!(
-            "BEGIN; {TABLES} PRAGMA user_version = {SCHEMA}; COMMIT;"
+            "BEGIN; {upgrade} {TABLES} PRAGMA user_version = {SCHEMA}; COMMIT;"
         ))
         .map_err(|e| classify(path, &e))?;
         Ok(Store {
@@ -296,11 +319,20 @@ impl Store {
     }
 
     /// Log one finished request.
-    pub fn log_run(&self, request: &str, calls: &str, answer: &str) -> Result<(), StoreError> {
+    pub fn log_run(&self, run: &NewRun) -> Result<(), StoreError> {
         self.conn()
             .execute(
-                "INSERT INTO runs (robot, at, request, calls, answer) VALUES (?1, ?2, ?3, ?4, ?5)",
-                params![self.robot, now(), cut(request), cut(calls), cut(answer)],
+                "INSERT INTO runs (robot, at, request, calls, answer, session, finish)
+                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7)",
+                params![
+                    self.robot,
+                    now(),
+                    cut(run.request),
+                    cut(run.calls),
+                    cut(run.answer),
+                    run.session,
+                    run.finish
+                ],
             )
             .map_err(|e| self.err(e))?;
         Ok(())
@@ -308,26 +340,87 @@ impl Store {
 
     /// The newest `limit` runs, oldest first.
     pub fn runs(&self, limit: usize) -> Result<Vec<Run>, StoreError> {
+        self.query_runs(
+            "SELECT * FROM runs WHERE robot = ?1 ORDER BY id DESC LIMIT ?2",
+            params![self.robot, limit as i64],
+        )
+    }
+
+    /// The runs of the newest session (up to `limit`, its last ones), oldest first; empty
+    /// when nothing is logged.
+    pub fn last_session(&self, limit: usize) -> Result<Vec<Run>, StoreError> {
+        self.query_runs(
+            "SELECT * FROM runs WHERE robot = ?1 AND session =
+               (SELECT session FROM runs WHERE robot = ?1 ORDER BY id DESC LIMIT 1)
+             ORDER BY id DESC LIMIT ?2",
+            params![self.robot, limit as i64],
+        )
+    }
+
+    /// Runs whose request or answer holds `needle` (any case), the newest `limit`,
+    /// oldest first.
+    pub fn runs_about(&self, needle: &str, limit: usize) -> Result<Vec<Run>, StoreError> {
+        self.query_runs(
+            "SELECT * FROM runs WHERE robot = ?1
+               AND (instr(lower(request), lower(?3)) > 0 OR instr(lower(answer), lower(?3)) > 0)
+             ORDER BY id DESC LIMIT ?2",
+            params![self.robot, limit as i64, needle],
+        )
+    }
+
+    /// `newest` selects rows of `runs`, newest first; they come back oldest first.
+    fn query_runs(
+        &self,
+        newest: &str,
+        params: impl rusqlite::Params,
+    ) -> Result<Vec<Run>, StoreError> {
         let conn = self.conn();
         let mut stmt = conn
-            .prepare(
-                "SELECT id, at, request, calls, answer FROM
-                   (SELECT * FROM runs WHERE robot = ?1 ORDER BY id DESC LIMIT ?2)
-                 ORDER BY id",
-            )
+            .prepare(&format!(
+                "SELECT id, at, request, calls, answer, session, finish FROM ({newest}) ORDER BY id"
+            ))
             .map_err(|e| self.err(e))?;
         let rows = stmt
-            .query_map(params![self.robot, limit as i64], |r| {
+            .query_map(params, |r| {
                 Ok(Run {
                     id: r.get(0)?,
                     at: r.get(1)?,
                     request: r.get(2)?,
                     calls: r.get(3)?,
                     answer: r.get(4)?,
+                    session: r.get(5)?,
+                    finish: r.get(6)?,
                 })
             })
             .map_err(|e| self.err(e))?;
         rows.collect::<Result<_, _>>().map_err(|e| self.err(e))
+    }
+
+    /// Forget the run log (places and facts stay). How many runs went.
+    pub fn forget_runs(&self) -> Result<usize, StoreError> {
+        self.conn()
+            .execute("DELETE FROM runs WHERE robot = ?1", params![self.robot])
+            .map_err(|e| self.err(e))
+    }
+
+    /// The robots this file keeps anything for.
+    pub fn robots(&self) -> Result<Vec<String>, StoreError> {
+        let conn = self.conn();
+        let mut stmt = conn
+            .prepare(
+                "SELECT robot FROM places UNION SELECT robot FROM facts
+                 UNION SELECT robot FROM runs ORDER BY robot",
+            )
+            .map_err(|e| self.err(e))?;
+        let rows = stmt
+            .query_map([], |r| r.get::<_, String>(0))
+            .map_err(|e| self.err(e))?;
+        rows.collect::<Result<_, _>>().map_err(|e| self.err(e))
+    }
+
+    /// The robot this store is scoped to.
+    pub fn robot(&self) -> &str {
+        &self.robot
     }
 
     /// Delete everything kept for this robot (places, facts, runs).
@@ -403,11 +496,13 @@ mod tests {
             // Same name, other case: replaced, not doubled.
             assert!(s.put_place(&place("charger", 3.0)).unwrap());
             s.add_fact("the charger is in aisle 3").unwrap();
-            s.log_run(
-                "go to the charger",
-                "place_go({\"place\":\"charger\"})",
-                "arrived",
-            )
+            s.log_run(&NewRun {
+                session: "a",
+                request: "go to the charger",
+                calls: "place_go({\"place\":\"charger\"})",
+                answer: "arrived",
+                finish: "answer",
+            })
             .unwrap();
         }
         let s = Store::open(&path, "sim").unwrap();
@@ -458,6 +553,58 @@ mod tests {
         assert!(matches!(e, StoreError::Locked(_)), "{e}");
         holder.execute_batch("COMMIT;").unwrap();
         s.add_fact("x").unwrap();
+    }
+
+    #[test]
+    fn the_last_session_and_runs_about_a_word_are_found() {
+        let dir = tempfile::tempdir().unwrap();
+        let s = Store::open(&dir.path().join(FILE), "sim").unwrap();
+        assert!(s.last_session(10).unwrap().is_empty());
+        let log = |session, request, answer| {
+            s.log_run(&NewRun {
+                session,
+                request,
+                answer,
+                calls: "",
+                finish: "answer",
+            })
+            .unwrap()
+        };
+        log("one", "go to the Dock", "arrived at the dock");
+        log("two", "list the topics", "3 topics");
+        log("two", "where are you", "at x 1, y 2");
+        let last = s.last_session(10).unwrap();
+        assert_eq!(
+            last.iter().map(|r| r.request.as_str()).collect::<Vec<_>>(),
+            ["list the topics", "where are you"]
+        );
+        assert_eq!(s.last_session(1).unwrap()[0].request, "where are you");
+        assert_eq!(s.runs_about("DOCK", 10).unwrap().len(), 1);
+        assert!(s.runs_about("kitchen", 10).unwrap().is_empty());
+        assert_eq!(s.robots().unwrap(), ["sim"]);
+        assert_eq!(s.forget_runs().unwrap(), 3);
+    }
+
+    #[test]
+    fn a_schema_1_file_is_upgraded_and_keeps_its_runs() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join(FILE);
+        Connection::open(&path)
+            .unwrap()
+            .execute_batch(
+                "CREATE TABLE runs (id INTEGER PRIMARY KEY, robot TEXT NOT NULL, at TEXT NOT NULL,
+                   request TEXT NOT NULL, calls TEXT NOT NULL, answer TEXT NOT NULL);
+                 INSERT INTO runs (robot, at, request, calls, answer)
+                   VALUES ('sim', 'then', 'hello', '', 'hi');
+                 PRAGMA user_version = 1;",
+            )
+            .unwrap();
+        let s = Store::open(&path, "sim").unwrap();
+        let runs = s.runs(5).unwrap();
+        assert_eq!(
+            (runs[0].request.as_str(), runs[0].finish.as_str()),
+            ("hello", "answer")
+        );
     }
 
     #[test]

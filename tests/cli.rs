@@ -152,9 +152,18 @@ fn fetch_is_idempotent() {
 
 #[test]
 #[ignore = "needs the model weights (or a ROS peer): cargo test --release -- --include-ignored"]
-fn ask_json_answers_the_mean_with_a_calculation_tool() {
+fn ask_json_answers_the_mean_with_a_calculation_tool_and_memory_keeps_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let memory = dir.path().join("memory.sqlite");
+    let memory = memory.to_str().unwrap();
     let out = ferrosa(
-        &["ask", "--json", "what is the mean of 3, 5 and 10?"],
+        &[
+            "ask",
+            "--json",
+            "--memory",
+            memory,
+            "what is the mean of 3, 5 and 10?",
+        ],
         &models_dir(),
     );
     let stdout = String::from_utf8_lossy(&out.stdout);
@@ -176,6 +185,64 @@ fn ask_json_answers_the_mean_with_a_calculation_tool() {
     for key in ["total_ms", "prompt_tokens", "reused_tokens"] {
         assert!(v["timings"].get(key).is_some(), "timings.{key} missing");
     }
+    memory_keeps_lists_resumes_exports_and_forgets(memory);
+}
+
+/// The request just asked is in the memory file: listed, resumed by the chat (whose
+/// next request goes on in the same session), exported, and forgotten.
+fn memory_keeps_lists_resumes_exports_and_forgets(memory: &str) {
+    let models = models_dir();
+    let out = ferrosa(&["memory", "list", "--memory", memory], &models);
+    let listed = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{listed}");
+    assert!(
+        listed.contains("[none]") && listed.contains("what is the mean of 3, 5 and 10?"),
+        "{listed}"
+    );
+    let mut chat = Command::new(env!("CARGO_BIN_EXE_ferrosa"))
+        .args(["chat", "--resume", "--memory", memory])
+        .env("FERROSA_MODELS_DIR", &models)
+        .stdin(std::process::Stdio::piped())
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    {
+        use std::io::Write;
+        let mut stdin = chat.stdin.take().unwrap();
+        stdin
+            .write_all(b"and the mean of 2, 4 and 9?\n/quit\n")
+            .unwrap();
+    }
+    let out = chat.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("resumed the conversation of") && err.contains("1 exchanges"),
+        "{err}"
+    );
+    let out = ferrosa(&["memory", "export", "--memory", memory], &models);
+    let doc: serde_json::Value = serde_json::from_slice(&out.stdout).expect("JSON export");
+    let runs = doc["robots"]["none"]["requests"].as_array().unwrap();
+    assert_eq!(runs.len(), 2, "{doc}");
+    assert_eq!(runs[0]["session"], runs[1]["session"], "{doc}");
+    assert!(
+        runs[1]["answer"].as_str().unwrap().contains("mean 5"),
+        "{doc}"
+    );
+    let out = ferrosa(&["memory", "forget", "--runs", "--memory", memory], &models);
+    assert!(out.status.success());
+    let out = ferrosa(&["memory", "list", "--memory", memory], &models);
+    // Nothing else was kept for the robot: it is gone from the file.
+    assert!(
+        String::from_utf8_lossy(&out.stderr).contains("nothing is kept"),
+        "{}",
+        String::from_utf8_lossy(&out.stdout)
+    );
+    let out = ferrosa(
+        &["memory", "forget", "--fact", "99", "--memory", memory],
+        &models,
+    );
+    assert_one_line_error(&out, &["no fact #99", "ferrosa memory list"]);
 }
 
 #[test]

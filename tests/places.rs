@@ -411,6 +411,12 @@ fn places_are_taught_and_reached_with_the_real_model() {
         std::thread::sleep(Duration::from_millis(300));
     };
     let mut agent = build();
+    // Every request's prompt lists all of the sim's tools (so the prompt before the
+    // request stays cached): the place and memory tools still fit the listing budget.
+    assert!(
+        agent.lists_every_tool(),
+        "the sim's tools no longer fit the listing budget"
+    );
     let ok = |r: &ferrosa::agent::RunResult, name: &str| {
         r.steps.iter().find(|s| s.name == name && s.ok).cloned()
     };
@@ -432,6 +438,15 @@ fn places_are_taught_and_reached_with_the_real_model() {
     let (x, y, _) = xy(sim);
     assert!((x - 2.5).hypot(y - 8.5) < 0.1, "at ({x}, {y}): {why}");
 
+    // A fact the operator states is kept in their words.
+    let (r, why) =
+        crate::util::ask_shown(&mut agent, "note down that the spare fuses sit in drawer 4");
+    let noted = ok(&r, "memory_note").unwrap_or_else(|| panic!("{why}"));
+    assert_eq!(
+        noted.output["fact"], "the spare fuses sit in drawer 4",
+        "{why}"
+    );
+
     let (r, why) = crate::util::ask_shown(&mut agent, "drive over to the greenhouse");
     // The place is reported missing, with the known ones; no drive goes there. (What
     // the model does next is not held here: it may still pick `turtle_move` with a
@@ -448,4 +463,8 @@ fn places_are_taught_and_reached_with_the_real_model() {
     let (r, why) = crate::util::ask_shown(&mut again, "list the places you can go to");
     ok(&r, "place_list").unwrap_or_else(|| panic!("{why}"));
     assert!(r.answer.contains("workbench"), "{why}");
+    // And recalls the fact.
+    let (r, why) = crate::util::ask_shown(&mut again, "do you recall where the spare fuses are?");
+    ok(&r, "memory_recall").unwrap_or_else(|| panic!("{why}"));
+    assert!(r.answer.contains("drawer 4"), "{why}");
 }

@@ -308,6 +308,7 @@ fn stack(setup: &Setup, script: &[String]) -> Stack {
         language: None,
         verbose: false,
         listing: ferrosa::ui::agent::Listing::All,
+        memory: None,
     };
     let operator = Arc::new(Operator {
         approves: setup.approves,

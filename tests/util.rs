@@ -134,6 +134,7 @@ pub fn agent_args(robot: ferrosa::ui::agent::Robot, yes: bool) -> ferrosa::ui::a
         language: None,
         verbose: false,
         listing: ferrosa::ui::agent::Listing::All,
+        memory: None,
     }
 }
 

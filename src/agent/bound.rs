@@ -23,6 +23,7 @@ use std::collections::{BTreeMap, BTreeSet};
 use serde_json::{json, Value};
 
 use crate::lexicon::{folded_words, number_word};
+use crate::tool::schema::QUOTE;
 use crate::tool::ToolSpec;
 
 /// `specs` with each name argument held to the `names` (key, name) of its key that
@@ -61,9 +62,41 @@ pub fn bind(
             let mut spec = spec.clone();
             bind_schema(&mut spec.parameters, &held);
             require_given(&mut spec.parameters, &given, 0);
+            quote(&mut spec.parameters, request);
             spec
         })
         .collect()
+}
+
+/// Fewest words a quote has: a subject and what is said of it.
+const QUOTE_WORDS: usize = 3;
+
+/// Each string argument of `schema` marked `QUOTE` may be only words `request` ends
+/// with, three or more of them (all of a shorter request): what the operator said, not
+/// what a model makes of it. Asked to keep a fact about spare fuses in a drawer, a small
+/// model wrote a list of fuses of its own; held to the request's own words, it chooses
+/// where the fact begins.
+fn quote(schema: &mut Value, request: &str) {
+    let Some(props) = schema.get_mut("properties").and_then(Value::as_object_mut) else {
+        return;
+    };
+    let mut words: Vec<&str> = request.split_whitespace().collect();
+    if let Some(last) = words.last_mut() {
+        *last = last.trim_end_matches(['.', '!', '?', '。', '¡', '¿']);
+    }
+    words.retain(|w| !w.is_empty());
+    let fewest = QUOTE_WORDS.min(words.len()).max(1);
+    let phrases: Vec<String> = (fewest..=words.len())
+        .map(|n| words[words.len() - n..].join(" "))
+        .collect();
+    if phrases.is_empty() {
+        return;
+    }
+    for prop in props.values_mut() {
+        if prop.get(QUOTE).and_then(Value::as_bool) == Some(true) {
+            *prop = json!({"type": "string", "enum": phrases});
+        }
+    }
 }
 
 /// The fields `request` gives a value: a word followed by a number ("at x 2 y 3",
@@ -907,5 +940,24 @@ mod tests {
         );
         // A word said with an ending points at the name that has it bare.
         assert_eq!(held("show the forces", None), json!(["/wrist/force"]));
+    }
+
+    #[test]
+    fn a_quote_is_words_the_request_ends_with() {
+        let mut schema = json!({"type": "object", "properties": {
+            "fact": {"type": "string", "x-quote": true},
+            "other": {"type": "string"}}});
+        quote(&mut schema, "keep in mind: the red valve leaks!");
+        assert_eq!(
+            schema["properties"]["fact"]["enum"],
+            json!([
+                "red valve leaks",
+                "the red valve leaks",
+                "mind: the red valve leaks",
+                "in mind: the red valve leaks",
+                "keep in mind: the red valve leaks"
+            ])
+        );
+        assert_eq!(schema["properties"]["other"], json!({"type": "string"}));
     }
 }

@@ -61,7 +61,7 @@ pub use answer::{answer_spec, ANSWER_TOOL};
 pub use config::{AgentConfig, AnswerMode};
 pub use event::Event;
 pub use outcome::{AgentError, Finish, RunResult, StepRecord, Timings};
-pub use state::{Agent, NameSource};
+pub use state::{Agent, Journal, NameSource};
 
 /// What a run's arguments may copy from among the operator's words (`queries`, this
 /// session's, the current one last): the current request whole, and the earlier ones

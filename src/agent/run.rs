@@ -648,13 +648,17 @@ impl Run<'_> {
                 serde_json::to_value(&self.timings).unwrap_or_default(),
             );
         }
-        RunResult {
+        let result = RunResult {
             answer: self.answer,
             finish,
             steps: self.records,
             timings: self.timings,
             tools_offered: self.offered.iter().map(|s| s.name.clone()).collect(),
+        };
+        if let Some(journal) = &mut self.agent.journal {
+            journal(self.query, &result);
         }
+        result
     }
 
     /// The `allowed` tools (all offered when `None`) as the robot takes them now

@@ -50,7 +50,13 @@ pub struct Agent {
     /// The server that writes the turns, when the model runs there (`backend` is then
     /// its vocabulary only).
     pub(super) remote: Option<crate::remote::Remote>,
+    /// Told of every finished run (`with_journal`).
+    pub(super) journal: Option<Journal>,
 }
+
+/// What is told of each finished run: the request and what came of it (its answer is
+/// redacted by the fence; its calls' arguments are as the model wrote them).
+pub type Journal = Box<dyn FnMut(&str, &super::RunResult) + Send>;
 
 /// The names a robot holds, each with the argument key that takes it (`"topic"`,
 /// `"/turtle1/pose"`), read when a turn's copy bias is built.
@@ -112,6 +118,7 @@ impl Agent {
             names: None,
             meaning: None,
             remote: None,
+            journal: None,
         })
     }
 
@@ -203,6 +210,21 @@ impl Agent {
         self.memory.clear();
     }
 
+    /// Tell `journal` of every finished run (the memory file's run log), in place of
+    /// the one before.
+    pub fn set_journal(&mut self, journal: Journal) {
+        self.journal = Some(journal);
+    }
+
+    /// Continue a conversation: `exchanges` (request, answer), oldest first, are the
+    /// history the next request reads, as if asked in this process.
+    pub fn resume<'a>(&mut self, exchanges: impl IntoIterator<Item = (&'a str, &'a str)>) {
+        self.memory.clear();
+        for (q, a) in exchanges {
+            self.memory.push(q, a);
+        }
+    }
+
     fn tokens(&self, text: &str) -> usize {
         token_count(self.backend.as_ref(), text)
     }
@@ -234,6 +256,10 @@ impl Agent {
                 .map(|s| self.tokens(&Envelope::describe_tool(s)))
                 .sum::<usize>()
         };
+        if budget > 0 && all.len() > offered.len() {
+            let cost = cost();
+            tracing::debug!(target: "ferrosa::select", cost, budget, tools = all.len(), "listing every tool");
+        }
         if budget > 0 && all.len() > offered.len() && cost() <= budget {
             all
         } else {

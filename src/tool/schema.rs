@@ -5,6 +5,11 @@
 use schemars::generate::SchemaSettings;
 use serde_json::{json, Value};
 
+/// The mark of a string argument that quotes the operator (a fact to keep), in a tool's
+/// live parameters (`Tool::live_parameters`): the agent holds it to words the request
+/// ends with (`agent::bound`). The prompt never shows it.
+pub const QUOTE: &str = "x-quote";
+
 /// The cleaned schema of `T`'s JSON form.
 pub fn schema_for<T: schemars::JsonSchema>() -> Value {
     let settings = SchemaSettings::draft2020_12().with(|s| {
@@ -54,6 +59,11 @@ fn clean(v: &mut Value, root: bool) {
                 if non_null.len() == 1 {
                     map.insert("type".into(), non_null[0].clone());
                 }
+            }
+            // `Option<T>` with `#[serde(default)]` gets `"default": null`: what leaving
+            // it out means anyway, and tokens in every prompt that lists it.
+            if map.get("default") == Some(&Value::Null) {
+                map.remove("default");
             }
             for (k, x) in map.iter_mut() {
                 if k != "enum" && k != "const" && k != "default" && k != "examples" {

@@ -1,6 +1,7 @@
 //! The concrete tools, in packages a robot enables: `calc` (arithmetic, statistics,
 //! trigonometry, units, geometry), `system` (time, wait), `log` (reading log files in
-//! configured directories), `ros` (the ROS graph), `place` (named places) and `turtle`
+//! configured directories), `ros` (the ROS graph), `place` (named places), `memory` (facts and past
+//! requests) and `turtle`
 //! (the sim robot's own).
 //!
 //! Layout:
@@ -11,6 +12,7 @@
 //! - `stop`: robot_stop (the e-stop as a tool)
 //! - `system`: system_time, system_wait
 //! - `log`: log_read
+//! - `memory`: memory_note, memory_recall (the robot's memory file)
 //! - `place`: place_list, place_go, place_remember, place_forget (named places, Nav2)
 //! - `ros`: ros_node_*, ros_topic_*, ros_service_*, ros_param_*, ros_interface_show, ros_log_read
 //! - `turtle`: turtle_move, turtle_rotate, turtle_pose, turtle_teleport, turtle_pen, turtle_reset
@@ -20,6 +22,7 @@ pub mod declared;
 pub mod expr;
 pub mod guard;
 pub mod log;
+pub mod memory;
 pub mod place;
 pub mod ros;
 pub mod stop;

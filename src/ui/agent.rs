@@ -19,13 +19,13 @@ use super::term::{clean, Input, TerminalConfirm};
 use crate::agent::meaning::Meaning;
 use crate::agent::prompt::RobotPrompt;
 use crate::agent::trace::Trace;
-use crate::agent::{Agent, AgentConfig, AnswerMode, NameSource};
+use crate::agent::{Agent, AgentConfig, AnswerMode, Journal, NameSource, RunResult};
 use crate::decode::Decoding;
 use crate::estop::EStop;
 use crate::ros::ros2::Ros2Options;
 use crate::ros::sim::Sim;
 use crate::ros::RosGraph;
-use crate::store::Store;
+use crate::store::{NewRun, Store};
 use crate::tool::policy::{NoOperator, PolicyFile};
 use crate::tool::{Confirm, Package, Policy, Registry};
 
@@ -55,6 +55,8 @@ pub struct AgentArgs {
     pub verbose: bool,
     /// Which tools a request's prompt lists.
     pub listing: Listing,
+    /// The memory file (`store`); `None`: `memory.sqlite` in the data directory.
+    pub memory: Option<PathBuf>,
 }
 
 /// `ferrosa sim`: the robot alone, until Ctrl-C.
@@ -98,6 +100,9 @@ pub fn tools_and_policy(
     if !args.log_dirs.is_empty() {
         registry.add(crate::tools::logs(args.log_dirs.clone()));
     }
+    if let Ok(store) = open_memory(args) {
+        registry.add(crate::tools::memory::package(store));
+    }
     let prompt = robot_prompt(args)?;
     let files: Vec<PathBuf> = prompt.tools.iter().chain(&args.tools).cloned().collect();
     match graph {
@@ -140,24 +145,79 @@ fn has_places(args: &AgentArgs, prompt: &RobotPrompt, graph: &dyn RosGraph) -> b
     !prompt.places.is_empty() || prompt.pose_topic.is_some() || args.robot.is_sim() || navigates()
 }
 
-/// The place tools over `graph`: the robot file's places, and its memory in this
-/// machine's data directory (or why it has none, said once here and by the tools).
+/// The place tools over `graph`: the robot file's places, and its memory (or why it has
+/// none).
 fn place_tools(args: &AgentArgs, prompt: &RobotPrompt, graph: Arc<dyn RosGraph>) -> Package {
-    let store = match crate::store::default_path() {
-        None => Err("this machine has no data directory (set HOME or XDG_DATA_HOME)".to_string()),
-        Some(path) => Store::open(&path, &memory_key(args))
-            .map(Arc::new)
-            .map_err(|e| {
-                eprintln!("ferrosa: {e}");
-                e.to_string()
-            }),
-    };
     crate::tools::place::package(
         graph,
         prompt.places.clone(),
-        store,
+        open_memory(args),
         prompt.pose_topic.clone(),
     )
+}
+
+/// The memory file `args` use: `--memory`, else `memory.sqlite` in the data directory.
+pub fn memory_path(args: &AgentArgs) -> Option<PathBuf> {
+    args.memory.clone().or_else(crate::store::default_path)
+}
+
+/// The facts the robot's memory keeps (none when it has no memory).
+fn remembered(args: &AgentArgs) -> Vec<String> {
+    open_memory(args)
+        .ok()
+        .and_then(|s| s.facts().ok())
+        .map(|facts| facts.into_iter().map(|f| f.text).collect())
+        .unwrap_or_default()
+}
+
+/// The robot's memory, opened; why there is none is said once per process.
+pub fn open_memory(args: &AgentArgs) -> Result<Arc<Store>, String> {
+    let opened = match memory_path(args) {
+        None => Err(
+            "this machine has no data directory (set HOME or XDG_DATA_HOME, or give --memory FILE)"
+                .to_string(),
+        ),
+        Some(path) => Store::open(&path, &memory_key(args))
+            .map(Arc::new)
+            .map_err(|e| e.to_string()),
+    };
+    if let Err(why) = &opened {
+        static SAID: std::sync::Once = std::sync::Once::new();
+        SAID.call_once(|| eprintln!("ferrosa: nothing is remembered this session: {why}"));
+    }
+    opened
+}
+
+/// A journal that logs each run of `session` in `store`: the request, the calls (with
+/// their decisions) and the answer, every name off limits redacted by `fence`.
+pub fn journal(store: Arc<Store>, session: String, fence: Arc<crate::fence::Fence>) -> Journal {
+    Box::new(move |request: &str, result: &RunResult| {
+        let calls: Vec<String> = result
+            .steps
+            .iter()
+            .map(|s| {
+                let mut arguments = s.arguments.clone();
+                fence.redact_json(&mut arguments);
+                let came = if s.ok { "ok" } else { "failed or refused" };
+                format!("{}({arguments}) {came}", s.name)
+            })
+            .collect();
+        let logged = store.log_run(&NewRun {
+            session: &session,
+            request: &fence.redact(request),
+            calls: &calls.join("\n"),
+            answer: &result.answer,
+            finish: &format!("{:?}", result.finish).to_lowercase(),
+        });
+        if let Err(e) = logged {
+            eprintln!("ferrosa: this request was not logged: {e}");
+        }
+    })
+}
+
+/// A new session's name: when it began, and this process.
+pub fn new_session() -> String {
+    format!("{}-{}", crate::clock::Utc::now().iso(), std::process::id())
 }
 
 /// Whose memory this is: the robot kind, and its robot file's name when one is given
@@ -281,7 +341,10 @@ pub fn start(args: &AgentArgs) -> anyhow::Result<Running> {
     };
     let robot = connect(args.robot, true)?;
     let graph = robot.graph.clone();
-    let agent = build_with(args, confirm, graph, estop.clone())?.with_cancel(cancel.clone());
+    let mut agent = build_with(args, confirm, graph, estop.clone())?.with_cancel(cancel.clone());
+    if let Ok(store) = open_memory(args) {
+        agent.set_journal(journal(store, new_session(), agent.fence().clone()));
+    }
     if let Some(g) = &robot.graph {
         g.set_fence(agent.fence().clone());
     }
@@ -321,7 +384,7 @@ pub fn build_with(
     let remote = args.model.connect(&resolved, model.as_ref())?;
     let sampler = config.sampler;
     let mut agent = Agent::new(model, registry, policy, prompt.render(), config)?;
-    if let Some(meaning) = meaning(&args.model.models_dir, &prompt) {
+    if let Some(meaning) = meaning(&args.model.models_dir, &prompt, &remembered(args)) {
         agent = agent.with_meaning(meaning);
     }
     if let Some(cache) = cache {
@@ -346,16 +409,24 @@ pub fn build_with(
 /// the prompt file's (README, Understanding requests). `FERROSA_TOOL_CHOICE=words`
 /// reads words alone, as before the encoder. Without the encoder's files it says so
 /// once and tool choice reads words.
-fn meaning(models_dir: &Path, prompt: &RobotPrompt) -> Option<Arc<Meaning>> {
+///
+/// `remembered`: facts the robot's memory keeps, each an example of `memory_recall` (a
+/// request about the charger is near a fact about it).
+fn meaning(models_dir: &Path, prompt: &RobotPrompt, remembered: &[String]) -> Option<Arc<Meaning>> {
     if std::env::var("FERROSA_TOOL_CHOICE").is_ok_and(|v| v.trim() == "words") {
         return None;
     }
     match crate::embed::shared(models_dir) {
-        Ok(encoder) => Some(Arc::new(Meaning::new(
-            encoder,
-            prompt.examples.clone(),
-            &prompt.render(),
-        ))),
+        Ok(encoder) => {
+            let mut examples = prompt.examples.clone();
+            if !remembered.is_empty() {
+                examples
+                    .entry("memory_recall".to_string())
+                    .or_default()
+                    .extend(remembered.iter().cloned());
+            }
+            Some(Arc::new(Meaning::new(encoder, examples, &prompt.render())))
+        }
         Err(e) => {
             static SAID: std::sync::Once = std::sync::Once::new();
             SAID.call_once(|| eprintln!("ferrosa: tool choice reads words, not meaning: {e}"));
@@ -446,7 +517,9 @@ pub fn ask(args: &AgentArgs, query: &str, as_json: bool) -> anyhow::Result<()> {
 }
 
 /// The listing budget `--listing all` sets: a robot whose tools take more is listed
-/// the tools offered for each request (the sim's 33 tools take about 4,000 tokens).
+/// the tools offered for each request. The sim's 39 tools (the place and memory tools
+/// among them) take about 4,970 tokens: a tool more, or a longer description, and each
+/// request's prompt lists its own tools, so the prompt cache no longer holds it.
 const LISTING_BUDGET_TOKENS: usize = 5000;
 
 /// The request the chat prepares the prompt with: any does, the listing is the same for
@@ -455,8 +528,15 @@ const CHAT_WARM: &str = "hello";
 
 const CHAT_HELP: &str = "/stop engages the e-stop (also while a run goes on; so does Ctrl-C), /reset releases it, /call NAME {json} runs one tool call through the policy, /tools lists the tools, /clear forgets the conversation, /trace shows the trace file, /quit leaves.";
 
-pub fn chat(args: &AgentArgs) -> anyhow::Result<()> {
+/// How many of the last session's exchanges `chat --resume` brings back (the history
+/// is trimmed to the context as always).
+const RESUMED: usize = 20;
+
+pub fn chat(args: &AgentArgs, resume: bool) -> anyhow::Result<()> {
     let mut run = start(args)?;
+    if resume {
+        resume_last(args, &mut run.agent)?;
+    }
     // Without a terminal the chat still reads its input on its own thread.
     let input = match run.input.clone() {
         Some(i) => i,
@@ -505,6 +585,39 @@ pub fn chat(args: &AgentArgs) -> anyhow::Result<()> {
             break;
         }
     }
+    Ok(())
+}
+
+/// `chat --resume`: the last session's exchanges become the history, and its log goes
+/// on in that session.
+fn resume_last(args: &AgentArgs, agent: &mut Agent) -> anyhow::Result<()> {
+    let store =
+        open_memory(args).map_err(|why| anyhow::anyhow!("nothing to resume from: {why}"))?;
+    let runs = store.last_session(RESUMED)?;
+    let Some(last) = runs.last() else {
+        eprintln!(
+            "nothing to resume: no conversation is logged for this robot; starting a new one"
+        );
+        return Ok(());
+    };
+    let answered: Vec<(&str, &str)> = runs
+        .iter()
+        .filter(|r| r.finish == "answer")
+        .map(|r| (r.request.as_str(), r.answer.as_str()))
+        .collect();
+    agent.resume(answered.iter().copied());
+    let session = last.session.clone();
+    eprintln!(
+        "resumed the conversation of {}: {} exchanges, the last \"{}\"",
+        runs[0]
+            .at
+            .get(..16)
+            .unwrap_or(&runs[0].at)
+            .replace('T', " "),
+        answered.len(),
+        clean(&last.request)
+    );
+    agent.set_journal(journal(store, session, agent.fence().clone()));
     Ok(())
 }
 

@@ -124,6 +124,25 @@ pub fn bfcl(args: &BfclArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// A directory of its own for a run's memory file, removed when the run ends.
+struct FreshMemory(PathBuf);
+
+impl FreshMemory {
+    fn new() -> anyhow::Result<FreshMemory> {
+        let dir = std::env::temp_dir().join(format!("ferrosa-eval-memory-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir)
+            .with_context(|| format!("cannot create {}", dir.display()))?;
+        Ok(FreshMemory(dir))
+    }
+}
+
+impl Drop for FreshMemory {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
 pub struct RosArgs {
     pub agent: super::agent::AgentArgs,
     pub suite: PathBuf,
@@ -233,15 +252,16 @@ pub fn ros(args: &RosArgs) -> anyhow::Result<()> {
         .clone()
         .context("no ROS graph joined for the robot")?;
     let switch = Arc::new(SwitchGraph::new(first));
+    // A run starts from an empty memory of its own, never the operator's: what one run
+    // taught is not the next run's, and nothing of the suite is kept.
+    let fresh = FreshMemory::new()?;
+    let mut base = args.agent.clone();
+    base.memory
+        .get_or_insert_with(|| fresh.0.join(crate::store::FILE));
     // The robot just started serves the first case; on the sim every later case gets a
     // new one.
     if args.retrieval {
-        let agent = build_with(
-            &args.agent,
-            operator,
-            Some(switch),
-            crate::estop::EStop::new(),
-        )?;
+        let agent = build_with(&base, operator, Some(switch), crate::estop::EStop::new())?;
         return retrieval(&agent, &cases);
     }
     let mut used = false;
@@ -255,7 +275,7 @@ pub fn ros(args: &RosArgs) -> anyhow::Result<()> {
     let total = cases.len() * args.decoding.modes().len();
     let mut model_name = String::new();
     for &mode in args.decoding.modes() {
-        let mut agent_args = args.agent.clone();
+        let mut agent_args = base.clone();
         agent_args.decoding = mode;
         let mut agent = build_with(
             &agent_args,

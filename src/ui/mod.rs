@@ -13,6 +13,7 @@
 //! - `eval`: `ferrosa eval bfcl`
 //! - `generate`: `ferrosa generate`, streaming text from a model, with `--stats`
 //! - `models`: `ferrosa models list|fetch|verify`
+//! - `memory`: `ferrosa memory list|export|forget`, what the robot keeps
 //! - `mcp`: `ferrosa mcp`, the robot's tools for an MCP client (stdio or HTTP)
 
 pub mod agent;
@@ -22,6 +23,7 @@ pub mod console;
 pub mod eval;
 pub mod generate;
 pub mod mcp;
+pub mod memory;
 pub mod models;
 pub mod progress;
 pub mod robot;

@@ -66,8 +66,12 @@ pub fn run(args: &ServeArgs) -> anyhow::Result<()> {
     let cancel = Arc::new(AtomicBool::new(false));
     let hub = Hub::new(estop.clone(), cancel.clone());
     let robot = connect(agent_args.robot, true)?;
-    let agent = build_with(&agent_args, hub.clone(), robot.graph.clone(), estop.clone())?
+    let mut agent = build_with(&agent_args, hub.clone(), robot.graph.clone(), estop.clone())?
         .with_cancel(cancel.clone());
+    if let Ok(store) = super::agent::open_memory(&agent_args) {
+        let session = super::agent::new_session();
+        agent.set_journal(super::agent::journal(store, session, agent.fence().clone()));
+    }
     if let Some(g) = &robot.graph {
         g.set_fence(agent.fence().clone());
     }
