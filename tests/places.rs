@@ -320,12 +320,49 @@ fn places_are_taught_kept_reached_and_stopped() {
         "{listed}"
     );
 
-    // The e-stop mid-way cancels the goal: the turtle stops short of the dock and stays.
+    // A route of three places, the last the start: each reached in turn, and the
+    // turtle back where it began (at the Werkbank).
+    let route = call(
+        &exec,
+        "place_go",
+        json!({"place": "home", "then": ["pond"], "back": true}),
+    );
+    assert_eq!(
+        (route["reached"].clone(), route["of"].clone()),
+        (json!(3), json!(3)),
+        "{route}"
+    );
+    assert!(
+        route["summary"]
+            .as_str()
+            .unwrap()
+            .starts_with("route done, 3 of 3: home, pond, the start"),
+        "{route}"
+    );
+    // Back at the start as read when the route began (the Werkbank, within the
+    // tolerance it was reached with), within the navigation's own tolerance.
+    let (x, y, _) = xy(&sim);
+    let start = &route["legs"][2]["target"];
+    let (sx, sy) = (start["x"].as_f64().unwrap(), start["y"].as_f64().unwrap());
+    assert!((sx - 3.0).hypot(sy - 8.0) < 0.06, "{route}");
+    assert!((x - sx).hypot(y - sy) < 0.06, "at ({x}, {y}): {route}");
+    let said = refused(
+        &exec,
+        "place_go",
+        json!({"place": "home", "then": ["kitchen"]}),
+    );
+    assert!(
+        said.contains("known places are"),
+        "a route with a missing place drove: {said}"
+    );
+
+    // The e-stop mid-way cancels the goal: the turtle stops short of the dock and stays,
+    // and the route says where it stopped and that the rest was not driven.
     let go = std::thread::spawn(move || {
         let o = exec.call(
             &ToolCall {
                 name: "place_go".into(),
-                arguments: json!({"place": "charging station"}),
+                arguments: json!({"place": "charging station", "then": ["pond"]}),
             },
             &Arc::new(AtomicBool::new(false)),
         );
@@ -352,10 +389,17 @@ fn places_are_taught_kept_reached_and_stopped() {
         "it reached the dock: {later:?}"
     );
     assert!(
-        !stopped.ok || stopped.output["status"] != "succeeded",
+        !stopped.ok || stopped.output["reached"] == json!(0),
         "{:?}",
         stopped.output
     );
+    if stopped.ok {
+        let said = stopped.output["summary"].as_str().unwrap();
+        assert!(
+            said.starts_with("route stopped on leg 1 of 2") && said.contains("not driven"),
+            "{said}"
+        );
+    }
     // Forgetting: the taught place goes, the robot file's cannot.
     assert!(estop.reset());
     call(&exec, "place_forget", json!({"name": "werkbank"}));
@@ -446,6 +490,13 @@ fn places_are_taught_and_reached_with_the_real_model() {
         noted.output["fact"], "the spare fuses sit in drawer 4",
         "{why}"
     );
+
+    // A route of two places in one request, driven in order.
+    let (r, why) = crate::util::ask_shown(&mut agent, "drive to the pond and then to the dock");
+    let route = ok(&r, "place_go").unwrap_or_else(|| panic!("{why}"));
+    assert_eq!(route.output["reached"], json!(2), "{why}");
+    let (x, y, _) = xy(sim);
+    assert!((x - 1.0).hypot(y - 1.0) < 0.1, "at ({x}, {y}): {why}");
 
     let (r, why) = crate::util::ask_shown(&mut agent, "drive over to the greenhouse");
     // The place is reported missing, with the known ones; no drive goes there. (What

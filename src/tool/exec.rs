@@ -73,7 +73,6 @@ impl Executor {
         decisions: &[Decision],
         cancel: &Arc<AtomicBool>,
     ) -> Vec<Outcome> {
-        let timeout = self.policy.timeout;
         let handles: Vec<_> = calls
             .iter()
             .zip(decisions)
@@ -88,6 +87,9 @@ impl Executor {
                 };
                 let args = call.arguments.clone();
                 let estop = self.policy.estop().clone();
+                let timeout = self
+                    .policy
+                    .time_limit(tool.as_ref().and_then(|t| t.time_limit()));
                 self.runtime.spawn(async move {
                     let start = Instant::now();
                     let result = match (tool, refused) {

@@ -82,4 +82,10 @@ pub trait Tool: Send + Sync + 'static {
     fn live_parameters(&self) -> Option<serde_json::Value> {
         None
     }
+    /// How long a call may take when the policy file sets no time limit, if longer than
+    /// the default's 30 s (a drive through several places). A policy file's limit holds
+    /// for every tool.
+    fn time_limit(&self) -> Option<std::time::Duration> {
+        None
+    }
 }

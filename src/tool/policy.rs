@@ -157,6 +157,8 @@ pub struct Policy {
     pub read_only: bool,
     pub auto_approve: bool,
     pub timeout: Duration,
+    /// Whether the policy file set the time limit (then it holds for every tool).
+    timeout_given: bool,
     limits: Vec<(Regex, Limit)>,
     only: Vec<(Regex, Only)>,
     /// (tool, argument, anchored value pattern)
@@ -198,6 +200,7 @@ impl Policy {
             read_only: file.read_only,
             auto_approve: file.auto_approve,
             timeout: Duration::from_secs_f64(file.timeout_s.unwrap_or(30.0).max(0.001)),
+            timeout_given: file.timeout_s.is_some(),
             limits: file
                 .limit
                 .into_iter()
@@ -391,6 +394,15 @@ impl Policy {
     /// names are dropped and every string is redacted. Returns how many were hidden.
     pub fn redact(&self, output: &mut Value) -> usize {
         self.fence.redact_json(output)
+    }
+
+    /// The time limit of a call of a tool that asks for `own` (`Tool::time_limit`): the
+    /// policy file's when it sets one, else the tool's own, else the default.
+    pub fn time_limit(&self, own: Option<Duration>) -> Duration {
+        match own {
+            Some(own) if !self.timeout_given => own,
+            _ => self.timeout,
+        }
     }
 
     /// `text` with denied names redacted (answers, errors, anything shown).

@@ -20,6 +20,10 @@ pub trait DynTool: Send + Sync {
     fn live_spec(&self) -> Option<ToolSpec> {
         None
     }
+    /// How long a call may take unless the policy says (`Tool::time_limit`).
+    fn time_limit(&self) -> Option<std::time::Duration> {
+        None
+    }
     /// Run with JSON arguments (already validated against the schema by the policy).
     fn call<'a>(
         &'a self,
@@ -40,6 +44,10 @@ impl<T: Tool> DynTool for Typed<T> {
 
     fn effect(&self) -> Effect {
         T::EFFECT
+    }
+
+    fn time_limit(&self) -> Option<std::time::Duration> {
+        self.tool.time_limit()
     }
 
     fn live_spec(&self) -> Option<ToolSpec> {

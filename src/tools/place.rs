@@ -324,7 +324,18 @@ impl Tool for PlaceList {
 pub struct GoArgs {
     /// The place's name or one of its aliases, as the operator said it.
     pub place: String,
+    /// Places to go to after it, in order.
+    #[serde(default)]
+    pub then: Vec<String>,
+    /// Return to where the robot started, last.
+    #[serde(default)]
+    pub back: bool,
 }
+
+/// Most places one call goes to (a route), the return to the start included.
+const MAX_LEGS: usize = 8;
+/// How long a drive may take unless the policy file sets a time limit.
+const ROUTE_TIME: Duration = Duration::from_secs(300);
 
 pub struct PlaceGo(Places);
 
@@ -333,23 +344,131 @@ impl Tool for PlaceGo {
     const NAME: &'static str = "place_go";
     const EFFECT: Effect = Effect::Actuates;
     fn description(&self) -> String {
-        "Drive the robot to a named place with its navigation (Nav2's navigate_to_pose); returns where it arrived or how far it still has to go. Moves the robot.".into()
+        "Drive the robot to a named place, or through several in order, with its navigation (Nav2's navigate_to_pose); returns where it arrived or stopped. Moves the robot.".into()
     }
-    /// The known places' names and aliases, or any other name (which the call reports
-    /// missing, with the known ones).
+    /// The known places' names and aliases for `place`, or any other name (which the
+    /// call reports missing, with the known ones), and known ones for `then`.
     fn live_parameters(&self) -> Option<Value> {
-        self.0.named("place", |_| true, false)
+        let mut schema = self.0.named("place", |_| true, false)?;
+        // The places after the first are only known ones: a small model fills a list
+        // it may write freely with words of its own ("to_land", "then").
+        let known = schema["properties"]["place"]["anyOf"][0].clone();
+        schema["properties"]["then"] =
+            json!({"type": "array", "items": known, "maxItems": MAX_LEGS - 2});
+        schema["properties"]["back"] = json!({"type": "boolean"});
+        Some(schema)
+    }
+    /// A route of several places takes minutes (a real robot drives about 0.5 m/s);
+    /// the e-stop and the operator's cancel still end it at once.
+    fn time_limit(&self) -> Option<Duration> {
+        Some(ROUTE_TIME)
     }
     async fn call(&self, a: GoArgs, cx: &ToolContext) -> Result<Value, ToolError> {
-        let (place, _) = self.0.find(&a.place)?;
-        let g = self.0.graph.graph().await.map_err(failed)?;
+        // Every place is found before the robot moves: a route with a name the robot
+        // lacks is refused whole.
+        let mut legs = vec![self.0.find(&a.place)?.0];
+        for name in &a.then {
+            legs.push(self.0.find(name)?.0);
+        }
+        if a.back {
+            let (frame, x, y, yaw) = self.0.here().await?;
+            legs.push(Place {
+                name: "the start".into(),
+                frame,
+                x,
+                y,
+                yaw,
+                aliases: Vec::new(),
+                description: String::new(),
+            });
+        }
+        if legs.len() > MAX_LEGS {
+            return Err(ToolError::InvalidArguments(format!(
+                "a route goes to at most {MAX_LEGS} places; split it"
+            )));
+        }
+        let action = self.0.navigate_action().await?;
+        // Leave a second of the call's time limit for the answer to come back.
+        let deadline =
+            std::time::Instant::now() + cx.timeout.saturating_sub(Duration::from_secs(1));
+        if legs.len() == 1 {
+            return self.0.drive(&legs[0], &action, deadline).await;
+        }
+        route(&self.0, &legs, &action, deadline).await
+    }
+}
+
+/// Drive `legs` in order, each after the one before arrived; stop at the first that
+/// does not (the e-stop, a cancel, a refusal, the time limit) and say where.
+async fn route(
+    places: &Places,
+    legs: &[Place],
+    action: &str,
+    deadline: std::time::Instant,
+) -> Result<Value, ToolError> {
+    let n = legs.len();
+    let mut done: Vec<Value> = Vec::new();
+    for leg in legs {
+        let out = match places.drive(leg, action, deadline).await {
+            Ok(out) => out,
+            // A leg refused after others were driven (the e-stop engaged between them)
+            // ends the route; what was reached is still reported.
+            Err(e) if !done.is_empty() => {
+                json!({"summary": e.to_string(), "place": leg.name, "status": "refused"})
+            }
+            Err(e) => return Err(e),
+        };
+        let arrived = out["status"] == json!(GoalStatus::Succeeded);
+        done.push(out);
+        if !arrived {
+            break;
+        }
+    }
+    let reached: Vec<&str> = done
+        .iter()
+        .filter(|o| o["status"] == json!(GoalStatus::Succeeded))
+        .filter_map(|o| o["place"].as_str())
+        .collect();
+    let last = done.last().cloned().unwrap_or_default();
+    let pose = last["last_pose"].clone();
+    let at = match (pose["x"].as_f64(), pose["y"].as_f64()) {
+        (Some(x), Some(y)) => format!(", at ({}, {})", round2(x), round2(y)),
+        _ => String::new(),
+    };
+    let summary = if reached.len() == n {
+        format!("route done, {n} of {n}: {}{at}", reached.join(", "))
+    } else {
+        let stopped = last["summary"].as_str().unwrap_or("");
+        let before = if reached.is_empty() {
+            "nothing reached before".to_string()
+        } else {
+            format!("reached {}", reached.join(", "))
+        };
+        format!(
+            "route stopped on leg {} of {n}: {stopped}; {before}; the rest was not driven",
+            done.len()
+        )
+    };
+    Ok(json!({
+        "summary": summary,
+        "reached": reached.len(),
+        "of": n,
+        "legs": done,
+        "last_pose": pose,
+    }))
+}
+
+impl Places {
+    /// The navigation action this robot serves: Nav2's first, else the first of its type.
+    async fn navigate_action(&self) -> Result<String, ToolError> {
+        let g = self.graph.graph().await.map_err(failed)?;
         let served: Vec<String> = g
             .actions()
             .into_iter()
             .filter(|x| crate::ros::msg::normalize_type(&x.type_name) == NAVIGATE_TYPE)
             .map(|x| x.action)
             .collect();
-        let action = served
+        served
             .iter()
             .find(|x| *x == NAVIGATE_ACTION)
             .or(served.first())
@@ -358,7 +477,17 @@ impl Tool for PlaceGo {
                 ToolError::Failed(format!(
                     "this robot serves no {NAVIGATE_TYPE} action (Nav2's navigate_to_pose), so it cannot drive to places; start its navigation first"
                 ))
-            })?;
+            })
+    }
+
+    /// Drive to `place` until it is reached or `deadline`: the leg's report (its summary,
+    /// status, the distance left and the last pose).
+    async fn drive(
+        &self,
+        place: &Place,
+        action: &str,
+        deadline: std::time::Instant,
+    ) -> Result<Value, ToolError> {
         let goal = json!({
             "pose": {
                 "header": {"frame_id": place.frame},
@@ -370,15 +499,12 @@ impl Tool for PlaceGo {
             },
             "behavior_tree": "",
         });
-        // Leave a second of the call's time limit for the answer to come back.
-        let wait = cx
-            .timeout
-            .saturating_sub(Duration::from_secs(1))
+        let wait = deadline
+            .saturating_duration_since(std::time::Instant::now())
             .max(Duration::from_millis(100));
         let outcome = self
-            .0
             .graph
-            .send_goal(&action, NAVIGATE_TYPE, goal, wait)
+            .send_goal(action, NAVIGATE_TYPE, goal, wait)
             .await
             .map_err(failed)?;
         let last = outcome.feedback.last().map(|s| {

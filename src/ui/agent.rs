@@ -517,10 +517,12 @@ pub fn ask(args: &AgentArgs, query: &str, as_json: bool) -> anyhow::Result<()> {
 }
 
 /// The listing budget `--listing all` sets: a robot whose tools take more is listed
-/// the tools offered for each request. The sim's 39 tools (the place and memory tools
-/// among them) take about 4,970 tokens: a tool more, or a longer description, and each
-/// request's prompt lists its own tools, so the prompt cache no longer holds it.
-const LISTING_BUDGET_TOKENS: usize = 5000;
+/// the tools offered for each request, and the prompt before a request is no longer
+/// the same for all (the prompt cache then holds less). The sim's 39 tools (the place
+/// and memory tools among them) take about 5,030 tokens; with the robot prompt, about
+/// 5,350 of the default 8,192-token context, leaving some 2,800 for the history, the
+/// run and its answer (the history is trimmed to fit).
+const LISTING_BUDGET_TOKENS: usize = 5400;
 
 /// The request the chat prepares the prompt with: any does, the listing is the same for
 /// every request.
