@@ -370,6 +370,9 @@ impl Tool for PlaceGo {
         for name in &a.then {
             legs.push(self.0.find(name)?.0);
         }
+        // A place again right after itself is no leg ("dock, then dock"): a small model
+        // repeats the place it was given to fill the list.
+        legs.dedup_by(|b, a| a.name == b.name);
         if a.back {
             let (frame, x, y, yaw) = self.0.here().await?;
             legs.push(Place {
