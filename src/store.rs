@@ -3,11 +3,11 @@
 //! (a robot file's own places stay in that file), facts the operator states, and a log
 //! of past requests, their calls and answers.
 //!
-//! The file is the operator's: a file that is not a database, is from a newer ferrosa,
-//! or is locked by another process is a clear error that names it, and it is never
-//! rewritten or removed here. Every write is one transaction. Text stored here has
-//! passed the fence's redaction where it came from a tool (the caller's duty: the store
-//! keeps what it is given).
+//! The file is the operator's: a file that is not a database, is another program's
+//! database, is from a newer ferrosa, or is locked by another process is a clear error
+//! that names it, and it is never rewritten or removed here. Every write is one
+//! transaction. Text stored here has passed the fence's redaction where it came from a
+//! tool (the caller's duty: the store keeps what it is given).
 //!
 //! Depends on `clock` and `dirs`.
 
@@ -70,6 +70,8 @@ pub enum StoreError {
     NotADatabase(PathBuf),
     #[error("the memory file {path} was written by a newer ferrosa (schema {found}, this build reads {SCHEMA}); it is kept as it is: run that ferrosa, or move the file aside")]
     Newer { path: PathBuf, found: i64 },
+    #[error("{0} is a database of something else, not a ferrosa memory file; it is kept as it is: give --memory another file")]
+    Foreign(PathBuf),
     #[error("the memory file {0} is locked by another process; close the other ferrosa using it, or wait and try again")]
     Locked(PathBuf),
     #[error("the memory file {path}: {message}")]
@@ -194,6 +196,18 @@ impl Store {
                 path: path.to_path_buf(),
                 found,
             });
+        }
+        // A database of something else (`--memory` pointed at it) is not written into.
+        let foreign: i64 = conn
+            .query_row(
+                "SELECT count(*) FROM sqlite_master WHERE type = 'table'
+                   AND name NOT IN ('places', 'facts', 'runs') AND name NOT LIKE 'sqlite_%'",
+                [],
+                |r| r.get(0),
+            )
+            .map_err(|e| classify(path, &e))?;
+        if foreign > 0 {
+            return Err(StoreError::Foreign(path.to_path_buf()));
         }
         let upgrade = if found == 1 { FROM_1 } else { "" };
         conn.execute_batch(&format!(
@@ -528,6 +542,20 @@ mod tests {
         assert!(matches!(e, StoreError::NotADatabase(_)), "{e}");
         assert!(e.to_string().contains("move it aside"));
         assert_eq!(std::fs::read(&path).unwrap(), junk);
+    }
+
+    #[test]
+    fn another_programs_database_is_not_written_into() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("inventory.db");
+        Connection::open(&path)
+            .unwrap()
+            .execute_batch("CREATE TABLE parts (id INTEGER, name TEXT);")
+            .unwrap();
+        let before = std::fs::read(&path).unwrap();
+        let e = Store::open(&path, "sim").unwrap_err();
+        assert!(matches!(e, StoreError::Foreign(_)), "{e}");
+        assert_eq!(std::fs::read(&path).unwrap(), before);
     }
 
     #[test]
