@@ -80,6 +80,10 @@ fn quote(schema: &mut Value, request: &str) {
     let Some(props) = schema.get_mut("properties").and_then(Value::as_object_mut) else {
         return;
     };
+    let quoted = |p: &Value| p.get(QUOTE).and_then(Value::as_bool) == Some(true);
+    if !props.values().any(quoted) {
+        return;
+    }
     let mut words: Vec<&str> = request.split_whitespace().collect();
     if let Some(last) = words.last_mut() {
         *last = last.trim_end_matches(['.', '!', '?', '。', '¡', '¿']);
@@ -93,7 +97,7 @@ fn quote(schema: &mut Value, request: &str) {
         return;
     }
     for prop in props.values_mut() {
-        if prop.get(QUOTE).and_then(Value::as_bool) == Some(true) {
+        if quoted(prop) {
             *prop = json!({"type": "string", "enum": phrases});
         }
     }

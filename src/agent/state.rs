@@ -251,16 +251,15 @@ impl Agent {
     pub(super) fn listed(&self, offered: &[ToolSpec]) -> Vec<ToolSpec> {
         let all = self.retrievable();
         let budget = self.config.listing_budget_tokens;
-        let cost = || {
-            all.iter()
-                .map(|s| self.tokens(&Envelope::describe_tool(s)))
-                .sum::<usize>()
-        };
-        if budget > 0 && all.len() > offered.len() {
-            let cost = cost();
-            tracing::debug!(target: "ferrosa::select", cost, budget, tools = all.len(), "listing every tool");
+        if budget == 0 || all.len() <= offered.len() {
+            return offered.to_vec();
         }
-        if budget > 0 && all.len() > offered.len() && cost() <= budget {
+        let cost: usize = all
+            .iter()
+            .map(|s| self.tokens(&Envelope::describe_tool(s)))
+            .sum();
+        tracing::debug!(target: "ferrosa::select", cost, budget, tools = all.len(), "listing every tool");
+        if cost <= budget {
             all
         } else {
             offered.to_vec()

@@ -32,7 +32,8 @@ pub fn package(store: Arc<Store>) -> Package {
         .with(MemoryRecall(store))
 }
 
-fn failed(e: crate::store::StoreError) -> ToolError {
+/// A memory file error as a tool reports it (the place tools' too).
+pub(crate) fn failed(e: crate::store::StoreError) -> ToolError {
     ToolError::Failed(e.to_string())
 }
 
@@ -114,6 +115,68 @@ fn said_run(r: &Run) -> String {
     )
 }
 
+/// What recall found: facts, places and logged requests.
+type Recalled = (Vec<crate::store::Fact>, Vec<crate::store::Place>, Vec<Run>);
+
+impl MemoryRecall {
+    /// The latest requests, recalls left out: asking what was done is not something done.
+    fn latest(&self) -> Result<Vec<Run>, ToolError> {
+        let mut runs = self.0.runs(RECENT).map_err(failed)?;
+        runs.retain(|r| !r.calls.contains(NAME_OF_RECALL));
+        Ok(runs)
+    }
+
+    /// Of `facts`, `places` and the logged requests, those that mention `words` most
+    /// (`mentions`): the others are beside the subject. Recalls are left out, and so are
+    /// notes (a fact noted is shown as the fact).
+    fn mentioning(
+        &self,
+        words: &[String],
+        facts: Vec<crate::store::Fact>,
+        places: Vec<crate::store::Place>,
+    ) -> Result<Recalled, ToolError> {
+        let mut runs: Vec<Run> = Vec::new();
+        for w in words {
+            for r in self.0.runs_about(w, RECENT).map_err(failed)? {
+                if !runs.iter().any(|x| x.id == r.id) {
+                    runs.push(r);
+                }
+            }
+        }
+        runs.retain(|r| !r.calls.contains(NAME_OF_RECALL) && !r.calls.contains(NAME_OF_NOTE));
+        runs.sort_by_key(|r| r.id);
+        let fact_score = |f: &crate::store::Fact| mentions(&f.text, words);
+        let place_score = |p: &crate::store::Place| {
+            std::iter::once(&p.name)
+                .chain(&p.aliases)
+                .map(|n| mentions(n, words))
+                .max()
+                .unwrap_or(0)
+        };
+        let run_score = |r: &Run| mentions(&format!("{} {}", r.request, r.answer), words);
+        let best = facts
+            .iter()
+            .map(fact_score)
+            .chain(places.iter().map(place_score))
+            .chain(runs.iter().map(run_score))
+            .max()
+            .unwrap_or(0)
+            .max(1);
+        let facts = facts
+            .into_iter()
+            .filter(|f| fact_score(f) >= best)
+            .collect();
+        let places = places
+            .into_iter()
+            .filter(|p| place_score(p) >= best)
+            .collect();
+        runs.retain(|r| run_score(r) >= best);
+        let keep = runs.len().saturating_sub(RECENT);
+        runs.drain(..keep);
+        Ok((facts, places, runs))
+    }
+}
+
 impl Tool for MemoryRecall {
     type Args = RecallArgs;
     const NAME: &'static str = "memory_recall";
@@ -126,52 +189,10 @@ impl Tool for MemoryRecall {
         let words = subject_words(&about);
         let facts = self.0.facts().map_err(failed)?;
         let places = self.0.places().map_err(failed)?;
-        let (facts, places, runs) = if words.is_empty() {
-            let mut runs = self.0.runs(RECENT).map_err(failed)?;
-            runs.retain(|r| !r.calls.contains(NAME_OF_RECALL));
-            (facts, Vec::new(), runs)
+        let (facts, places, mut runs) = if words.is_empty() {
+            (facts, Vec::new(), self.latest()?)
         } else {
-            let mut runs: Vec<Run> = Vec::new();
-            for w in &words {
-                for r in self.0.runs_about(w, RECENT).map_err(failed)? {
-                    if !runs.iter().any(|x| x.id == r.id) {
-                        runs.push(r);
-                    }
-                }
-            }
-            // Asking what was done is not something done, and a fact noted is shown
-            // as the fact.
-            runs.retain(|r| !r.calls.contains(NAME_OF_RECALL) && !r.calls.contains(NAME_OF_NOTE));
-            runs.sort_by_key(|r| r.id);
-            let place_score = |p: &crate::store::Place| {
-                std::iter::once(&p.name)
-                    .chain(&p.aliases)
-                    .map(|n| mentions(n, &words))
-                    .max()
-                    .unwrap_or(0)
-            };
-            let run_score = |r: &Run| mentions(&format!("{} {}", r.request, r.answer), &words);
-            // What mentions the subject most: the others are beside it.
-            let best = facts
-                .iter()
-                .map(|f| mentions(&f.text, &words))
-                .chain(places.iter().map(place_score))
-                .chain(runs.iter().map(run_score))
-                .max()
-                .unwrap_or(0)
-                .max(1);
-            let facts: Vec<_> = facts
-                .into_iter()
-                .filter(|f| mentions(&f.text, &words) >= best)
-                .collect();
-            let places: Vec<_> = places
-                .into_iter()
-                .filter(|p| place_score(p) >= best)
-                .collect();
-            runs.retain(|r| run_score(r) >= best);
-            let keep = runs.len().saturating_sub(RECENT);
-            runs.drain(..keep);
-            (facts, places, runs)
+            self.mentioning(&words, facts, places)?
         };
         let mut said = Vec::new();
         if !facts.is_empty() {
@@ -190,10 +211,8 @@ impl Tool for MemoryRecall {
         }
         // A subject nothing mentions ("earlier today" names a time, not a subject): the
         // latest requests, after saying so.
-        let mut runs = runs;
         if said.is_empty() && !words.is_empty() {
-            runs = self.0.runs(RECENT).map_err(failed)?;
-            runs.retain(|r| !r.calls.contains(NAME_OF_RECALL));
+            runs = self.latest()?;
             let each: Vec<String> = runs.iter().map(said_run).collect();
             said.push(format!("nothing remembered about {}", about.trim()));
             if !each.is_empty() {

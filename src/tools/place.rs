@@ -138,9 +138,7 @@ impl Places {
             .map(|p| (p, Kept::RobotFile))
             .collect();
         if let Ok(store) = &self.store {
-            let taught = store
-                .places()
-                .map_err(|e| ToolError::Failed(e.to_string()))?;
+            let taught = store.places().map_err(crate::tools::memory::failed)?;
             out.extend(taught.into_iter().map(|p| (p, Kept::Memory)));
         }
         Ok(out)
@@ -625,7 +623,7 @@ impl Tool for PlaceRemember {
         };
         let replaced = store
             .put_place(&place)
-            .map_err(|e| ToolError::Failed(e.to_string()))?;
+            .map_err(crate::tools::memory::failed)?;
         let mut out = shown(&place, Kept::Memory);
         out["summary"] = json!(if replaced {
             format!("{name} moved to where the robot is now")
@@ -668,7 +666,7 @@ impl Tool for PlaceForget {
         let store = self.0.store()?;
         store
             .forget_place(&place.name)
-            .map_err(|e| ToolError::Failed(e.to_string()))?;
+            .map_err(crate::tools::memory::failed)?;
         Ok(json!({"summary": format!("forgot {}", place.name), "forgotten": place.name}))
     }
 }

@@ -170,22 +170,32 @@ fn remembered(args: &AgentArgs) -> Vec<String> {
         .unwrap_or_default()
 }
 
-/// The robot's memory, opened; why there is none is said once per process.
+/// The robot's memory, opened once per process for each file and robot (the tools,
+/// the journal and tool choice share it); why there is none is said once per process.
 pub fn open_memory(args: &AgentArgs) -> Result<Arc<Store>, String> {
-    let opened = match memory_path(args) {
-        None => Err(
+    static OPEN: std::sync::Mutex<Vec<(PathBuf, String, Arc<Store>)>> =
+        std::sync::Mutex::new(Vec::new());
+    let Some(path) = memory_path(args) else {
+        return Err(said_once(
             "this machine has no data directory (set HOME or XDG_DATA_HOME, or give --memory FILE)"
                 .to_string(),
-        ),
-        Some(path) => Store::open(&path, &memory_key(args))
-            .map(Arc::new)
-            .map_err(|e| e.to_string()),
+        ));
     };
-    if let Err(why) = &opened {
-        static SAID: std::sync::Once = std::sync::Once::new();
-        SAID.call_once(|| eprintln!("ferrosa: nothing is remembered this session: {why}"));
+    let key = memory_key(args);
+    let mut open = OPEN.lock().unwrap_or_else(|p| p.into_inner());
+    if let Some((_, _, store)) = open.iter().find(|(p, k, _)| *p == path && *k == key) {
+        return Ok(store.clone());
     }
-    opened
+    let store = Arc::new(Store::open(&path, &key).map_err(|e| said_once(e.to_string()))?);
+    open.push((path, key, store.clone()));
+    Ok(store)
+}
+
+/// `why` there is no memory, said on stderr the first time.
+fn said_once(why: String) -> String {
+    static SAID: std::sync::Once = std::sync::Once::new();
+    SAID.call_once(|| eprintln!("ferrosa: nothing is remembered this session: {why}"));
+    why
 }
 
 /// A journal that logs each run of `session` in `store`: the request, the calls (with
@@ -611,11 +621,7 @@ fn resume_last(args: &AgentArgs, agent: &mut Agent) -> anyhow::Result<()> {
     let session = last.session.clone();
     eprintln!(
         "resumed the conversation of {}: {} exchanges, the last \"{}\"",
-        runs[0]
-            .at
-            .get(..16)
-            .unwrap_or(&runs[0].at)
-            .replace('T', " "),
+        super::memory::short_time(&runs[0].at),
         answered.len(),
         clean(&last.request)
     );

@@ -129,7 +129,11 @@ struct FreshMemory(PathBuf);
 
 impl FreshMemory {
     fn new() -> anyhow::Result<FreshMemory> {
-        let dir = std::env::temp_dir().join(format!("ferrosa-eval-memory-{}", std::process::id()));
+        // A name of its own per run: the memory a process opened is kept open by path.
+        static RUNS: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+        let run = RUNS.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
+        let dir =
+            std::env::temp_dir().join(format!("ferrosa-eval-memory-{}-{run}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
         std::fs::create_dir_all(&dir)
             .with_context(|| format!("cannot create {}", dir.display()))?;

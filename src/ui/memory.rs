@@ -177,7 +177,7 @@ pub fn forget(which: &Which, what: &Forget) -> anyhow::Result<()> {
 }
 
 /// "2026-11-28 08:12" of an ISO time.
-fn short_time(iso: &str) -> String {
+pub(super) fn short_time(iso: &str) -> String {
     iso.get(..16).unwrap_or(iso).replace('T', " ")
 }
 
