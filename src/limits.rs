@@ -1,7 +1,7 @@
 //! Motion limits: how fast a robot may be told to move, and how far a motion service
 //! may take it, out of the box and per robot (the policy file's `[motion]` table).
 //!
-//! They are enforced at the ROS boundary (`ros::guard`) on the message as it will be
+//! They are enforced at the ROS boundary (`ros::boundary`) on the message as it will be
 //! encoded (every field filled in, any spelling of the type resolved), so no tool, no
 //! argument name and no type spelling gets around them:
 //!

@@ -113,6 +113,7 @@ fn an_operator_drives_the_robot_from_the_console_in_a_browser() {
         return;
     }
     let traces = tempfile_dir("traces");
+    let memory = traces.join("memory.sqlite");
     let (mut server, url) = serve(
         &[
             "--robot",
@@ -121,6 +122,8 @@ fn an_operator_drives_the_robot_from_the_console_in_a_browser() {
             "127.0.0.1:0",
             "--trace-dir",
             traces.to_str().unwrap(),
+            "--memory",
+            memory.to_str().unwrap(),
         ],
         &[("FERROSA_CONSOLE_TOKEN", TOKEN)],
     );
@@ -156,11 +159,29 @@ fn an_operator_drives_the_robot_from_the_console_in_a_browser() {
         Duration::from_secs(20),
     );
     let x0 = turtle_x(&b);
+    // The robot file's places, on the robot view and in the memory panel.
+    let drawn = b.wait_for(
+        "the places on the canvas",
+        "return document.getElementById('canvas').dataset.places",
+        Duration::from_secs(10),
+    );
+    assert!(
+        drawn.as_str().unwrap().split('|').any(|p| p == "pond"),
+        "{drawn}"
+    );
+    let listed = b.eval("return document.getElementById('memory-places').innerText");
+    assert!(listed.as_str().unwrap().contains("robot file"), "{listed}");
 
     // A question: the answer names the sim's node, the trace shows the call.
     let bubble = send(&b, "list the ROS nodes");
     let said = answer(&b);
     assert!(said.contains("/turtlesim"), "{bubble}: {said}");
+    // The request is logged in the robot's memory, and the panel shows it.
+    b.wait_for(
+        "the request in the memory panel",
+        "return document.getElementById('memory-runs').innerText.includes('list the ROS nodes')",
+        Duration::from_secs(10),
+    );
     b.wait_for(
         "the call in the trace",
         "return document.querySelector('#trace li.call[data-name=\"ros_node_list\"]') !== null",
@@ -199,6 +220,12 @@ fn an_operator_drives_the_robot_from_the_console_in_a_browser() {
             x1 + 0.2
         ),
         Duration::from_secs(20),
+    );
+    // The move says how far it has got while it runs.
+    b.wait_for(
+        "the move's progress on its line",
+        "return [...document.querySelectorAll('#messages .steps .took')].some(t => /of 3.0 m driven/.test(t.textContent))",
+        Duration::from_secs(10),
     );
     b.click("#estop");
     b.wait_for(
@@ -280,6 +307,17 @@ fn an_operator_drives_the_robot_from_the_console_in_a_browser() {
         .filter(|v| v["kind"] == "query")
         .count();
     assert_eq!(queries, 5, "{jsonl}");
+    // The operator deletes the request log from the panel.
+    b.click("#forget-runs");
+    b.wait_for(
+        "the request log gone from the panel",
+        "return document.getElementById('memory-runs').innerText.trim() === 'none'",
+        Duration::from_secs(10),
+    );
+    let (status, _, kept) = http(host, "GET", "/api/memory", &auth, None);
+    assert_eq!(status, 200, "{kept}");
+    let kept: Value = serde_json::from_str(&kept).unwrap();
+    assert_eq!(kept["runs"], serde_json::json!([]), "{kept}");
     drop(b);
     stop(&mut server);
 

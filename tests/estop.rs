@@ -235,6 +235,11 @@ fn refused_until_reset(chat: &mut Chat) {
         aborted["ok"], false,
         "the running call was aborted: {aborted}"
     );
+    refused_until_reset_after_report(chat);
+}
+
+/// `refused_until_reset` once the aborted call's report is read.
+fn refused_until_reset_after_report(chat: &mut Chat) {
     let refused = chat.call("turtle_move", json!({"distance": 1.0}));
     assert_eq!(refused["ok"], false, "{refused}");
     assert!(
@@ -366,6 +371,27 @@ fn e_stop_and_override_on_the_wire() {
     assert_eq!(aborted["ok"], false, "{aborted}");
     chat.send("/reset");
     chat.wait_for("e-stop released", Duration::from_secs(5));
+
+    // 4b. "stop", typed in words while the robot drives to a named place: the drive's
+    // navigation goal is cancelled and the turtle stays where it stopped.
+    let from = last(&poses);
+    chat.send(&format!("/call place_go {}", json!({"place": "pond"})));
+    until(&poses, "driving to the pond", |p| {
+        (p.x - from.x).hypot(p.y - from.y) > 0.2
+    });
+    let t0 = now();
+    chat.send("stop");
+    let ms = stop_latency(&chat, &poses, t0, Duration::from_millis(2000)) * 1e3;
+    figures.push(("place_go drive, typed stop", ms));
+    let aborted = chat.report(Duration::from_secs(10));
+    assert_eq!(aborted["ok"], false, "the drive was aborted: {aborted}");
+    // The typed line is then a request of its own: the agent says it stopped.
+    let said = chat
+        .reports
+        .recv_timeout(Duration::from_secs(30))
+        .expect("the answer to the typed stop");
+    assert!(said.to_lowercase().contains("stop"), "{said}");
+    refused_until_reset_after_report(&mut chat);
 
     // 5. The operator's teleop overrides a running turtle_move: while it publishes on
     // /turtle1/cmd_vel (turning in place), the agent's drive is dropped and the tool

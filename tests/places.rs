@@ -195,6 +195,25 @@ fn call(exec: &Executor, name: &str, arguments: Value) -> Value {
     o.output
 }
 
+/// `call`, with what the call reported of its progress while it ran, in order.
+fn call_reporting(exec: &Executor, name: &str, arguments: Value) -> (Value, Vec<String>) {
+    let call = ToolCall {
+        name: name.into(),
+        arguments: arguments.clone(),
+    };
+    let mut said = Vec::new();
+    let o = exec
+        .run(
+            std::slice::from_ref(&call),
+            &[exec.decide(&call)],
+            &Arc::new(AtomicBool::new(false)),
+            &mut |_, text| said.push(text),
+        )
+        .remove(0);
+    assert!(o.ok, "{name} {arguments}: {:?}", o.output);
+    (o.output, said)
+}
+
 /// One tool call through the agent's policy path that must fail; what it said.
 fn refused(exec: &Executor, name: &str, arguments: Value) -> String {
     let o = exec.call(
@@ -322,7 +341,8 @@ fn places_are_taught_kept_reached_and_stopped() {
 
     // A route of three places, the last the start: each reached in turn, and the
     // turtle back where it began (at the Werkbank).
-    let route = call(
+    // What the operator sees while it drives: each leg, the distance left going down.
+    let (route, said) = call_reporting(
         &exec,
         "place_go",
         json!({"place": "home", "then": ["pond"], "back": true}),
@@ -331,6 +351,22 @@ fn places_are_taught_kept_reached_and_stopped() {
         (route["reached"].clone(), route["of"].clone()),
         (json!(3), json!(3)),
         "{route}"
+    );
+    for leg in [
+        "leg 1 of 3, to home",
+        "leg 2 of 3, to pond",
+        "leg 3 of 3, to the start",
+    ] {
+        assert!(said.iter().any(|s| s.starts_with(leg)), "{leg}: {said:?}");
+    }
+    let to_go: Vec<f64> = said
+        .iter()
+        .filter(|s| s.starts_with("leg 1 of 3"))
+        .filter_map(|s| s.split(": ").nth(1)?.strip_suffix(" m to go")?.parse().ok())
+        .collect();
+    assert!(
+        to_go.len() >= 2 && to_go.windows(2).all(|w| w[1] <= w[0]),
+        "the first leg's distance left as reported: {said:?}"
     );
     assert!(
         route["summary"]
@@ -405,6 +441,14 @@ fn places_are_taught_kept_reached_and_stopped() {
     call(&exec, "place_forget", json!({"name": "werkbank"}));
     let said = refused(&exec, "place_forget", json!({"name": "home"}));
     assert!(said.contains("robot file"), "{said}");
+
+    // A plain motion says how far it has got as it goes.
+    let (moved, said) = call_reporting(&exec, "turtle_move", json!({"distance": 1.5}));
+    assert!(moved["moved_m"].as_f64().unwrap() > 1.4, "{moved}");
+    assert!(
+        said.len() >= 2 && said.iter().all(|s| s.ends_with("of 1.5 m driven")),
+        "{said:?}"
+    );
 }
 
 /// The operator approves every call.

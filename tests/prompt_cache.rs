@@ -42,7 +42,7 @@ fn greedy(model: &mut dyn Backend, session: &mut Session, request: &str) -> Vec<
 }
 
 fn cache(dir: &Path, name: &str, model: &dyn Backend) -> Arc<PromptCache> {
-    let sha = ferrosa::models::verify::sha256_remembered(&model_path(name)).unwrap();
+    let sha = ferrosa::models::checksum::sha256_remembered(&model_path(name)).unwrap();
     Arc::new(PromptCache::open(dir, &sha, model, DEFAULT_MAX_BYTES).unwrap())
 }
 

@@ -334,9 +334,7 @@ fn ferrosa_tools_on_an_rclpy_peer() {
         eprintln!("rclpy peer discovered after {:?}", start.elapsed());
         let mut tools = Registry::new();
         tools.add(ferrosa::tools::ros::package(graph.clone()));
-        let cx = ToolContext {
-            timeout: Duration::from_secs(10),
-        };
+        let cx = ToolContext::new(Duration::from_secs(10));
         let call = |name: &str, args: serde_json::Value| {
             let tool = tools.get(name).expect("a ROS tool").clone();
             let cx = cx.clone();

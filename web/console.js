@@ -9,6 +9,7 @@ const runs = new Map();        // run → {bubble, raw, calls: Map, answered}
 const approvals = new Map();   // id → {name, arguments, timeout_s}
 let view = null;
 let trail = [];
+let places = [];               // the robot's places, from /api/memory
 let drawing = false;
 let shownApproval = null;
 let live = false;              // past the replay: answers may be spoken
@@ -98,7 +99,7 @@ function callLine(r, d) {
   const took = el("span", "took muted", "");
   li.append(el("span", "call", `→ ${d.name}${argsLine(d.arguments)}`), " ", took);
   r.steps.append(li);
-  const line = { li, took, since: performance.now() };
+  const line = { li, took, since: performance.now(), progress: "" };
   if (d.decision.decision === "refused") {
     li.classList.add("refused");
     took.textContent = `refused: ${d.decision.reason || ""}`;
@@ -112,7 +113,8 @@ function callLine(r, d) {
 function tick() {
   const frame = FRAMES[Math.floor(performance.now() / 100) % FRAMES.length];
   for (const line of running) {
-    line.took.textContent = `${frame} ${((performance.now() - line.since) / 1000).toFixed(1)} s`;
+    const secs = ((performance.now() - line.since) / 1000).toFixed(1);
+    line.took.textContent = line.progress ? `${frame} ${line.progress} · ${secs} s` : `${frame} ${secs} s`;
   }
   if (running.size === 0) {
     clearInterval(ticker);
@@ -184,6 +186,11 @@ function onAgent(d) {
       if (d.name !== "reply") r.lines.set(li.dataset.key, callLine(r, d));
       break;
     }
+    case "tool_progress": {
+      const line = r.lines.get(`${d.run}/${d.step}/${d.index}`);
+      if (line && running.has(line)) line.progress = d.text;
+      break;
+    }
     case "tool_result": {
       const line = r.lines.get(`${d.run}/${d.step}/${d.index}`);
       if (line) callDone(line, d);
@@ -212,6 +219,8 @@ function onAgent(d) {
 function onDone(d) {
   const r = runs.get(d.run);
   setBusy(false);
+  // A run may have taught a place, noted a fact, and it is logged.
+  if (live) loadMemory();
   if (!r) return;
   r.bubble.classList.remove("writing");
   if (d.error) {
@@ -405,6 +414,15 @@ function draw() {
   g.lineWidth = 1;
   for (let m = Math.ceil(x0); m <= x1; m++) { g.beginPath(); g.moveTo(px(m), 0); g.lineTo(px(m), H); g.stroke(); }
   for (let m = Math.ceil(y0); m <= y1; m++) { g.beginPath(); g.moveTo(0, py(m)); g.lineTo(W, py(m)); g.stroke(); }
+  g.font = "12px system-ui";
+  for (const pl of places) {
+    g.fillStyle = pl.kept_in === "memory" ? "#b54708" : "#667085";
+    g.beginPath();
+    g.arc(px(pl.x), py(pl.y), 4, 0, 2 * Math.PI);
+    g.fill();
+    g.fillText(pl.name, px(pl.x) + 6, py(pl.y) - 4);
+  }
+  c.dataset.places = places.map((pl) => pl.name).join("|");
   if (trail.length > 1) {
     g.strokeStyle = "#2457c5";
     g.lineWidth = 2;
@@ -464,6 +482,58 @@ function connect() {
   on("estop", (s) => { setEstop(s); requestDraw(); });
   on("pose", (p) => { trail.push(p); if (trail.length > 4000) trail.shift(); requestDraw(); });
   on("cleared", () => $("messages").append(el("li", "agent", "— conversation cleared —")));
+  on("memory", () => loadMemory());
+}
+
+// ---- memory ----------------------------------------------------------------------
+
+async function loadMemory() {
+  const r = await fetch("/api/memory");
+  const m = await r.json().catch(() => ({}));
+  if (!r.ok) { notice(m.error || `HTTP ${r.status}`); return; }
+  places = m.places || [];
+  $("memory-robot").textContent = m.robot ? `(${m.robot})` : "";
+  $("memory-why").hidden = m.kept !== false;
+  $("memory-why").textContent = m.kept === false ? `Nothing is kept: ${m.why}` : "";
+  const list = (id, items, line) => {
+    const ul = $(id);
+    ul.replaceChildren(...items.map(line));
+    if (!items.length) ul.append(el("li", "muted", "none"));
+  };
+  list("memory-places", places, (pl) => {
+    const li = el("li");
+    li.append(el("span", "what", `${pl.name} · x ${pl.x.toFixed(2)}, y ${pl.y.toFixed(2)}`),
+      el("span", "muted", pl.kept_in));
+    if (pl.kept_in === "memory") li.append(forgetButton({ place: pl.name }));
+    return li;
+  });
+  list("memory-facts", m.facts || [], (f) => {
+    const li = el("li");
+    li.append(el("span", "what", f.text), forgetButton({ fact: f.id }));
+    return li;
+  });
+  list("memory-runs", m.runs || [], (run) => {
+    const li = el("li");
+    li.append(el("span", "what", run.request), el("span", "muted", run.at.slice(0, 16).replace("T", " ")));
+    li.title = run.answer;
+    return li;
+  });
+  requestDraw();
+}
+
+function forgetButton(what) {
+  const b = el("button", "small", "forget");
+  b.type = "button";
+  b.addEventListener("click", () => forget(what));
+  return b;
+}
+
+async function forget(what) {
+  try {
+    await post("/api/memory/forget", what);
+  } catch (e) {
+    notice(e.message);
+  }
 }
 
 async function start() {
@@ -484,6 +554,7 @@ async function start() {
   setEstop(info.estop);
   setBusy(info.busy);
   draw();
+  loadMemory();
 
   $("ask").addEventListener("submit", (e) => { e.preventDefault(); submit(); });
   // Click to start and click to send, or hold while speaking and release to send.
@@ -499,6 +570,10 @@ async function start() {
   $("estop").addEventListener("click", () => post("/api/estop").catch((e) => notice(e.message)));
   $("reset").addEventListener("click", () => post("/api/reset").catch((e) => notice(e.message)));
   $("clear").addEventListener("click", () => post("/api/clear").catch((e) => notice(e.message)));
+  $("forget-all").addEventListener("click", () => {
+    if (confirm("Delete every place taught, fact and logged request this robot keeps?")) forget({ all: true });
+  });
+  $("forget-runs").addEventListener("click", () => forget({ runs: true }));
   $("approve").addEventListener("click", () => answerApproval(true));
   $("deny").addEventListener("click", () => answerApproval(false));
   // Escape denies rather than leaving the agent waiting on a hidden question.

@@ -47,7 +47,7 @@ pub fn last_result(last: &str, language: Language) -> String {
         format!(
             "{}: {}",
             language.say(Phrase::LastResult),
-            super::memory::truncate_output(last, 300)
+            super::history::truncate_output(last, 300)
         )
     }
 }

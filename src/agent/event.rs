@@ -30,6 +30,14 @@ pub enum Event {
         arguments: Value,
         decision: Decision,
     },
+    /// How a running call is going, in its own words ("0.6 of 1.0 m driven"); each
+    /// replaces the one before, until the call's result.
+    ToolProgress {
+        step: usize,
+        index: usize,
+        name: String,
+        text: String,
+    },
     /// What a call returned (or the error the model reads), and how long it took.
     ToolResult {
         step: usize,

@@ -11,7 +11,7 @@
 //! scratchpad (the calls made and what they returned).
 //!
 //! Layout:
-//! - `state`: the `Agent` between requests (model, session, tools, policy, memory) and
+//! - `state`: the `Agent` between requests (model, session, tools, policy, history) and
 //!   what a run asks of it
 //! - `run`: one request as a state machine (think → guards → policy → act → observe)
 //! - `guard`: the guards between the model's turn and the policy, in order
@@ -23,7 +23,7 @@
 //! - `intent`: whether the operator's request asks for an actuating call
 //! - `language`: the language an answer is written in
 //! - `prompt`: robot system prompts (ROSA's fields) from TOML
-//! - `memory`: chat history, trimming, output truncation
+//! - `history`: the conversation's exchanges, trimming, output truncation
 //! - `meaning`: how near a request is to each tool's description and examples, by the
 //!   sentence encoder
 //! - `select`: choosing tools when their specs exceed the budget
@@ -39,10 +39,10 @@ pub mod config;
 pub mod event;
 pub mod facts;
 pub mod guard;
+pub mod history;
 pub mod intent;
 pub mod language;
 pub mod meaning;
-pub mod memory;
 pub mod outcome;
 pub mod plan;
 pub mod prompt;
@@ -102,7 +102,7 @@ impl Agent {
         let start = Instant::now();
         let mut offered = self.offered_tools(query);
         let queries: Vec<String> = self
-            .memory
+            .history
             .queries()
             .into_iter()
             .map(str::to_string)

@@ -24,8 +24,8 @@ use super::bound;
 use super::config::STOP_TOOL;
 use super::facts;
 use super::guard::{Came, Guards, Verdict};
+use super::history::truncate_output;
 use super::language::{Language, Phrase};
-use super::memory::truncate_output;
 use super::small_talk;
 use super::{Agent, AgentError, Event, Finish, RunResult, StepRecord, Timings};
 use crate::backend::BackendError;
@@ -108,7 +108,8 @@ impl Run<'_> {
             Event::Answer { text, .. } | Event::Error { message: text } => {
                 *text = policy.redact_text(text).into_owned();
             }
-            Event::Step { .. } | Event::Token { .. } => {}
+            // The executor redacted it.
+            Event::Step { .. } | Event::Token { .. } | Event::ToolProgress { .. } => {}
         }
         if let Some(t) = &mut self.agent.trace {
             t.event(&e);
@@ -511,10 +512,20 @@ impl Run<'_> {
             .filter(|(c, _)| !unasked(c))
             .map(|(c, d)| (c.clone(), d.clone()))
             .unzip();
-        let mut ran = self
-            .agent
+        // Each run call's place among the calls shown, for its progress events.
+        let shown_at: Vec<usize> = (0..calls.len()).filter(|&i| !unasked(&calls[i])).collect();
+        let (events, agent) = (&mut self.events, &*self.agent);
+        let mut on_progress = |i: usize, text: String| {
+            events(&Event::ToolProgress {
+                step,
+                index: shown_at[i],
+                name: run_calls[i].name.clone(),
+                text,
+            })
+        };
+        let mut ran = agent
             .exec
-            .run(&run_calls, &run_decisions, &self.agent.cancel)
+            .run(&run_calls, &run_decisions, &agent.cancel, &mut on_progress)
             .into_iter();
         let mut outcomes = Vec::with_capacity(calls.len());
         for (c, d) in calls.iter().zip(&decisions) {
@@ -640,7 +651,7 @@ impl Run<'_> {
             finish: format!("{finish:?}").to_lowercase(),
         });
         if finish == Finish::Answer {
-            self.agent.memory.push(self.query, self.answer.clone());
+            self.agent.history.push(self.query, self.answer.clone());
         }
         if let Some(t) = &mut self.agent.trace {
             t.record(

@@ -11,8 +11,8 @@ use serde_json::json;
 use super::answer::{answer_spec, ANSWER_TOOL};
 use super::config::{AgentConfig, AnswerMode, Pick};
 use super::guard::Asked;
+use super::history::History;
 use super::intent;
-use super::memory::Memory;
 use super::outcome::AgentError;
 use super::select;
 use super::trace::Trace;
@@ -23,7 +23,7 @@ use crate::decode::turn::{render_prompt, render_prompt_split, with_tools, TurnRe
 use crate::decode::{DecodeError, Decoding, Grammars, Session};
 use crate::strategy::choice::{Calibrated, Weighed};
 use crate::strategy::copy::{defaults, CopyBias, CopyIndex, Scoped};
-use crate::strategy::guard::LoopGuard;
+use crate::strategy::repeats::LoopGuard;
 use crate::strategy::Pipeline;
 use crate::tool::exec::Executor;
 use crate::tool::{Effect, Policy, Registry, ToolSpec};
@@ -40,7 +40,7 @@ pub struct Agent {
     pub(super) system: String,
     pub config: AgentConfig,
     pub(super) session: Session,
-    pub(super) memory: Memory,
+    pub(super) history: History,
     pub(super) trace: Option<Trace>,
     pub(super) cancel: Arc<AtomicBool>,
     /// The names the robot holds now, by the argument that takes them (`with_names`).
@@ -112,7 +112,7 @@ impl Agent {
             system,
             config,
             session: Session::new(),
-            memory: Memory::default(),
+            history: History::default(),
             trace: None,
             cancel: Arc::new(AtomicBool::new(false)),
             names: None,
@@ -198,7 +198,7 @@ impl Agent {
 
     /// Exchanges the agent remembers (what the next prompt may include).
     pub fn history_len(&self) -> usize {
-        self.memory.len()
+        self.history.len()
     }
 
     pub fn backend(&self) -> &dyn Backend {
@@ -207,7 +207,7 @@ impl Agent {
 
     /// Forget the conversation (the KV cache keeps the system prompt).
     pub fn clear(&mut self) {
-        self.memory.clear();
+        self.history.clear();
     }
 
     /// Tell `journal` of every finished run (the memory file's run log), in place of
@@ -219,9 +219,9 @@ impl Agent {
     /// Continue a conversation: `exchanges` (request, answer), oldest first, are the
     /// history the next request reads, as if asked in this process.
     pub fn resume<'a>(&mut self, exchanges: impl IntoIterator<Item = (&'a str, &'a str)>) {
-        self.memory.clear();
+        self.history.clear();
         for (q, a) in exchanges {
-            self.memory.push(q, a);
+            self.history.push(q, a);
         }
     }
 
@@ -478,7 +478,7 @@ impl Agent {
             .saturating_sub(fixed + self.config.reserve_tokens)
             .min(self.config.history_tokens);
         let backend = self.backend.as_ref();
-        let dropped = self.memory.trim(room, |s| token_count(backend, s));
+        let dropped = self.history.trim(room, |s| token_count(backend, s));
         if dropped > 0 {
             if let Some(t) = &mut self.trace {
                 t.record(
@@ -488,7 +488,7 @@ impl Agent {
             }
         }
         let mut messages = vec![base[0].clone()];
-        messages.extend(self.memory.messages());
+        messages.extend(self.history.messages());
         messages.extend(base[1..].iter().cloned());
         Ok(messages)
     }

@@ -48,8 +48,9 @@ impl Trace {
     }
 
     pub fn event(&mut self, e: &Event) {
-        // Tokens are in the answer and the calls; a line per token would bury them.
-        if matches!(e, Event::Token { .. }) {
+        // Tokens are in the answer and the calls, progress in the result; a line for
+        // each would bury them.
+        if matches!(e, Event::Token { .. } | Event::ToolProgress { .. }) {
             return;
         }
         let v = serde_json::to_value(e).unwrap_or_default();

@@ -28,7 +28,7 @@ use crate::decode::{DecodeError, Decoding, Grammars, Sampler, SamplerConfig, Ses
 use crate::strategy::choice::Calibrated;
 use crate::strategy::copy::{defaults, CopyBias, CopyIndex};
 use crate::strategy::ground::Grounding;
-use crate::strategy::guard::{LoopGuard, RepeatGuard};
+use crate::strategy::repeats::{LoopGuard, RepeatGuard};
 use crate::strategy::turn::{run, Engine};
 use crate::strategy::verify::Verification;
 use crate::strategy::Pipeline;

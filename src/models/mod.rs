@@ -4,8 +4,8 @@
 //! It never loads a model (that is `backend`) and never contacts a model hub.
 
 pub mod catalog;
+pub mod checksum;
 pub mod fetch;
-pub mod verify;
 
 use std::path::{Path, PathBuf};
 
@@ -29,7 +29,7 @@ pub enum ModelError {
     )]
     NoSuchFile(PathBuf),
     #[error(transparent)]
-    Verify(#[from] verify::VerifyError),
+    Verify(#[from] checksum::VerifyError),
     #[error(transparent)]
     Fetch(#[from] fetch::FetchError),
 }
@@ -66,7 +66,7 @@ impl ResolvedModel {
     pub fn sha256(&self) -> std::io::Result<String> {
         match &self.entry {
             Some(e) => Ok(e.sha256.to_ascii_lowercase()),
-            None => verify::sha256_remembered(&self.path),
+            None => checksum::sha256_remembered(&self.path),
         }
     }
 }
@@ -84,7 +84,7 @@ pub fn resolve(spec: Option<&str>, dir: &Path) -> Result<ResolvedModel, ModelErr
                 path,
             });
         }
-        verify::check(entry, &path)?;
+        checksum::check(entry, &path)?;
         return Ok(ResolvedModel {
             path,
             entry: Some(entry.clone()),
@@ -103,7 +103,7 @@ pub fn resolve(spec: Option<&str>, dir: &Path) -> Result<ResolvedModel, ModelErr
             .and_then(|f| catalog.model.iter().find(|e| e.file == f))
             .cloned();
         if let Some(e) = &entry {
-            verify::check(e, &path)?;
+            checksum::check(e, &path)?;
         }
         return Ok(ResolvedModel { path, entry });
     }

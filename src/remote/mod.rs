@@ -19,11 +19,11 @@
 //! says so, never a call. The strategies that read the model's log-probabilities (the
 //! weighed pick, the copy bias, call review) need a local model and are not applied.
 //!
-//! Layout: `http` (the HTTP client), `frame` (turns as JSON schemas), `error`.
+//! Layout: `client` (the HTTP client), `frame` (turns as JSON schemas), `error`.
 
+pub mod client;
 mod error;
 pub mod frame;
-pub mod http;
 
 pub use error::RemoteError;
 
@@ -38,8 +38,8 @@ use crate::decode::turn::{render_prompt_split, with_tools, TurnRequest, TurnResu
 use crate::decode::{
     DecodeError, Decoding, Finish, GenerationStats, SamplerConfig, ToolChoice, Turn,
 };
+use client::{Client, Events};
 use frame::Frame;
-use http::{Client, Events};
 
 /// Which grammar form to send (`--grammar`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -324,7 +324,7 @@ impl Remote {
             return Err(RemoteError::Status {
                 path: PATH.into(),
                 status,
-                message: http::server_message(&bytes),
+                message: client::server_message(&bytes),
             });
         }
         let c = self.read_stream(&mut resp, start, max_tokens, on_text);
@@ -338,7 +338,7 @@ impl Remote {
                 path: PATH.into(),
                 reason: format!(
                     "the stream ended without saying why the completion stopped, after {:?}",
-                    http::preview(c.text.as_bytes())
+                    client::preview(c.text.as_bytes())
                 ),
             });
         }
@@ -347,11 +347,11 @@ impl Remote {
 
     /// A completion's streamed answer, read up to its end, its `[DONE]` or `on_text`'s
     /// break, within bounds on what a server may send: text for the token limit (at a
-    /// generous 128 bytes a token), a line and an event (`http::Events`), and a time-out
+    /// generous 128 bytes a token), a line and an event (`client::Events`), and a time-out
     /// between pieces of new text (keep-alive comments and empty pieces do not count).
     fn read_stream(
         &self,
-        resp: &mut http::Response,
+        resp: &mut client::Response,
         start: Instant,
         max_tokens: usize,
         on_text: &mut dyn FnMut(&str) -> ControlFlow<()>,
@@ -459,7 +459,7 @@ impl Remote {
                     Err(e) => {
                         return Err(RemoteError::IgnoredGrammar {
                             reason: e.to_string(),
-                            text: http::preview(text.as_bytes()),
+                            text: client::preview(text.as_bytes()),
                         }
                         .into())
                     }
@@ -649,7 +649,7 @@ fn read_event(
         path: PATH.into(),
         reason: format!(
             "a streamed event is not JSON ({e}): {}",
-            http::preview(event.as_bytes())
+            client::preview(event.as_bytes())
         ),
     })?;
     if let Some(err) = v.get("error") {
@@ -682,7 +682,7 @@ fn read_event(
             path: PATH.into(),
             reason: format!(
                 "an event without choices: {}",
-                http::preview(event.as_bytes())
+                client::preview(event.as_bytes())
             ),
         });
     };

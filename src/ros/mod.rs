@@ -9,7 +9,7 @@
 //!
 //! Layout:
 //! - `graph`: the joined graph (nodes, topics, services, actions) and its cache
-//! - `guard`: the boundary every tool goes through: deny-list, e-stop, motion limits,
+//! - `boundary`: the boundary every tool goes through: deny-list, e-stop, motion limits,
 //!   mux, redaction, and the brake
 //! - `ros2`: the ROS 2 implementation over ros2-client (RustDDS), localhost-only by default
 //! - `ros1`: the ROS 1 implementation (XML-RPC and TCPROS), loopback unless told otherwise
@@ -20,10 +20,10 @@
 //! - `switch`: a graph whose target is replaced under the tools (a fresh robot per case)
 //! - `typedesc`: types learnt from a peer, verified by their hash
 
+pub mod boundary;
 pub mod cdr;
 pub mod fake;
 pub mod graph;
-pub mod guard;
 pub mod msg;
 pub mod ros1;
 pub mod ros2;
@@ -159,6 +159,20 @@ pub trait RosGraph: Send + Sync {
         goal: Value,
         wait: Duration,
     ) -> BoxFuture<'a, Result<GoalOutcome, RosError>>;
+    /// `send_goal`, with each feedback message also sent to `feedback` as it comes (a
+    /// long goal's progress, for the operator). A graph that cannot stream feedback
+    /// sends none and still returns it in the outcome.
+    fn send_goal_watched<'a>(
+        &'a self,
+        action: &'a str,
+        type_name: &'a str,
+        goal: Value,
+        wait: Duration,
+        feedback: FeedbackSink,
+    ) -> BoxFuture<'a, Result<GoalOutcome, RosError>> {
+        drop(feedback);
+        self.send_goal(action, type_name, goal, wait)
+    }
     /// Cancel one goal of `action` (by its id) or, with `None`, every goal it has.
     fn cancel_goals<'a>(
         &'a self,
@@ -204,7 +218,7 @@ pub trait RosGraph: Send + Sync {
         Box::pin(async { Ok(()) })
     }
     /// The fence applied to what this graph asks of other nodes by itself (type
-    /// descriptions, service probes); tools' requests meet it at `ros::guard`.
+    /// descriptions, service probes); tools' requests meet it at `ros::boundary`.
     fn set_fence(&self, _fence: std::sync::Arc<crate::fence::Fence>) {}
 }
 
@@ -250,3 +264,6 @@ impl From<Value> for Reply {
 
 /// Messages of a watched topic, as they arrive.
 pub type Watch = tokio::sync::mpsc::UnboundedReceiver<Value>;
+
+/// Where a goal's feedback messages go as they come (`send_goal_watched`), decoded.
+pub type FeedbackSink = tokio::sync::mpsc::UnboundedSender<Value>;

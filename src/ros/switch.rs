@@ -121,6 +121,21 @@ impl RosGraph for SwitchGraph {
         Box::pin(async move { g.send_goal(action, type_name, goal, wait).await })
     }
 
+    fn send_goal_watched<'a>(
+        &'a self,
+        action: &'a str,
+        type_name: &'a str,
+        goal: Value,
+        wait: Duration,
+        feedback: super::FeedbackSink,
+    ) -> BoxFuture<'a, Result<GoalOutcome, RosError>> {
+        let g = self.get();
+        Box::pin(async move {
+            g.send_goal_watched(action, type_name, goal, wait, feedback)
+                .await
+        })
+    }
+
     fn cancel_goals<'a>(
         &'a self,
         action: &'a str,

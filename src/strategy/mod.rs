@@ -12,27 +12,27 @@
 //! - `choice`: which tool a turn calls, calibrated (against a content-free request, list
 //!   length too) or weighed with a prior (the agent's tool retrieval)
 //! - `copy`: the copy bias (values lean towards spans of the request or a tool result)
-//! - `guard`: guards on what a turn writes (no looping arrays, no repeated call, no
+//! - `repeats`: guards on what a turn writes (no looping arrays, no repeated call, no
 //!   repeated phrase in an answer)
 //! - `verify`: call verification (a call's values must come from the request)
 //! - `ground`: grounding (optional arguments nobody asked for are dropped)
 //! - `default`: what a parameter's schema declares as its default (shared knowledge)
-//! - `score`: the model's log-probabilities of continuations (for calibrated choices)
+//! - `likelihood`: the model's log-probabilities of continuations (for calibrated choices)
 //! - `turn`: the turn driver
 
 pub mod choice;
 pub mod copy;
 pub mod default;
 pub mod ground;
-pub mod guard;
-pub mod score;
+pub mod likelihood;
+pub mod repeats;
 pub mod turn;
 pub mod verify;
 
 use crate::backend::{Backend, BackendError, TokenId};
 use crate::decode::{DecodeError, LogitsHook, Session, TokenContext};
 use crate::tool::{ToolCall, ToolSpec};
-use score::continuation_logprobs;
+use likelihood::continuation_logprobs;
 
 /// What to do with a call a turn just wrote.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]

@@ -11,7 +11,7 @@ use std::time::{Duration, Instant};
 
 use serde_json::{json, Value};
 
-use super::{Decision, Effect, Policy, Registry, ToolCall, ToolContext, ToolError};
+use super::{Decision, Effect, Policy, Progress, Registry, ToolCall, ToolContext, ToolError};
 
 /// What came of one call.
 #[derive(Debug, Clone)]
@@ -60,60 +60,37 @@ impl Executor {
     /// One call through the policy and, if allowed, run: what `ferrosa call` does.
     pub fn call(&self, call: &ToolCall, cancel: &Arc<AtomicBool>) -> Outcome {
         let decision = self.decide(call);
-        self.run(std::slice::from_ref(call), &[decision], cancel)
-            .pop()
-            .expect("one call, one outcome")
+        self.run(
+            std::slice::from_ref(call),
+            &[decision],
+            cancel,
+            &mut |_, _| {},
+        )
+        .pop()
+        .expect("one call, one outcome")
     }
 
     /// Run the calls whose decision allows it, concurrently; outcomes in call order.
-    /// Refused calls come back as their refusal.
+    /// Refused calls come back as their refusal. What a call reports of its progress
+    /// goes to `on_progress` (the call's index, the text redacted) while it runs.
     pub fn run(
         &self,
         calls: &[ToolCall],
         decisions: &[Decision],
         cancel: &Arc<AtomicBool>,
+        on_progress: &mut dyn FnMut(usize, String),
     ) -> Vec<Outcome> {
+        let (progress, mut reports) = tokio::sync::mpsc::unbounded_channel();
         let handles: Vec<_> = calls
             .iter()
             .zip(decisions)
-            .map(|(call, decision)| {
-                let tool = match decision {
-                    Decision::Refused(_) => None,
-                    _ => self.registry.get(&call.name).cloned(),
-                };
-                let refused = match decision {
-                    Decision::Refused(r) => Some(r.clone()),
-                    _ => None,
-                };
-                let args = call.arguments.clone();
-                let estop = self.policy.estop().clone();
-                let timeout = self
-                    .policy
-                    .time_limit(tool.as_ref().and_then(|t| t.time_limit()));
-                self.runtime.spawn(async move {
-                    let start = Instant::now();
-                    let result = match (tool, refused) {
-                        (_, Some(reason)) => Err(ToolError::Refused(reason)),
-                        (None, None) => Err(ToolError::Failed("no such tool".into())),
-                        (Some(tool), None) => {
-                            let cx = ToolContext { timeout };
-                            let moves = tool.effect() == Effect::Actuates;
-                            match tokio::time::timeout(timeout, tool.call(args, &cx)).await {
-                                Ok(r) => r,
-                                Err(_) => {
-                                    // Out of time while moving: leave the robot stopped.
-                                    if moves {
-                                        estop.halt("the time limit of a moving call");
-                                    }
-                                    Err(ToolError::Timeout(timeout))
-                                }
-                            }
-                        }
-                    };
-                    (result, start.elapsed())
-                })
+            .enumerate()
+            .map(|(index, (call, decision))| {
+                self.spawn(call, decision, Progress::to(index, progress.clone()))
             })
             .collect();
+        // The calls hold the only senders: the reports end when the calls do.
+        drop(progress);
         // A press of the e-stop (or the operator's cancel) during the run aborts every
         // running call but a stop.
         let aborts: Vec<_> = handles
@@ -129,23 +106,32 @@ impl Executor {
         let estop = self.policy.estop().clone();
         let results = self.runtime.block_on(async {
             let mut all = std::pin::pin!(futures::future::join_all(handles));
-            let stop = async {
+            let mut stop = std::pin::pin!(async {
                 tokio::select! {
                     _ = estop.pressed() => "the e-stop was engaged",
                     _ = cancelled(cancel) => "the operator cancelled the run",
                 }
-            };
-            let (joined, why) = tokio::select! {
-                r = &mut all => (r, None),
-                why = stop => {
-                    aborts.iter().for_each(|a| a.abort());
-                    // A cancel without the e-stop still leaves the robot stopped.
-                    if !estop.is_engaged() {
-                        estop.halt("the operator cancelled the run");
+            });
+            let (joined, why) = loop {
+                tokio::select! {
+                    r = &mut all => break (r, None),
+                    why = &mut stop => {
+                        aborts.iter().for_each(|a| a.abort());
+                        // A cancel without the e-stop still leaves the robot stopped.
+                        if !estop.is_engaged() {
+                            estop.halt("the operator cancelled the run");
+                        }
+                        break ((&mut all).await, Some(why));
                     }
-                    ((&mut all).await, Some(why))
+                    Some((index, text)) = reports.recv() => {
+                        on_progress(index, self.policy.redact_text(&text).into_owned());
+                    }
                 }
             };
+            // What was said just before the calls ended still comes before their results.
+            while let Ok((index, text)) = reports.try_recv() {
+                on_progress(index, self.policy.redact_text(&text).into_owned());
+            }
             joined
                 .into_iter()
                 .map(|j| {
@@ -161,6 +147,51 @@ impl Executor {
             .zip(decisions)
             .map(|(r, d)| self.outcome(r, d.clone()))
             .collect()
+    }
+
+    /// Start one call on the runtime (a refused one ends at once with its refusal),
+    /// under its time limit: its result and how long it took.
+    fn spawn(
+        &self,
+        call: &ToolCall,
+        decision: &Decision,
+        progress: Progress,
+    ) -> tokio::task::JoinHandle<(Result<Value, ToolError>, Duration)> {
+        let tool = match decision {
+            Decision::Refused(_) => None,
+            _ => self.registry.get(&call.name).cloned(),
+        };
+        let refused = match decision {
+            Decision::Refused(r) => Some(r.clone()),
+            _ => None,
+        };
+        let args = call.arguments.clone();
+        let estop = self.policy.estop().clone();
+        let timeout = self
+            .policy
+            .time_limit(tool.as_ref().and_then(|t| t.time_limit()));
+        self.runtime.spawn(async move {
+            let start = Instant::now();
+            let result = match (tool, refused) {
+                (_, Some(reason)) => Err(ToolError::Refused(reason)),
+                (None, None) => Err(ToolError::Failed("no such tool".into())),
+                (Some(tool), None) => {
+                    let cx = ToolContext { timeout, progress };
+                    let moves = tool.effect() == Effect::Actuates;
+                    match tokio::time::timeout(timeout, tool.call(args, &cx)).await {
+                        Ok(r) => r,
+                        Err(_) => {
+                            // Out of time while moving: leave the robot stopped.
+                            if moves {
+                                estop.halt("the time limit of a moving call");
+                            }
+                            Err(ToolError::Timeout(timeout))
+                        }
+                    }
+                }
+            };
+            (result, start.elapsed())
+        })
     }
 
     fn outcome(
@@ -214,5 +245,79 @@ impl Executor {
 async fn cancelled(flag: &AtomicBool) {
     while !flag.load(Ordering::SeqCst) {
         tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::tool::policy::{NoOperator, PolicyFile};
+    use crate::tool::Package;
+
+    #[derive(serde::Deserialize, schemars::JsonSchema)]
+    struct Steps {
+        steps: u32,
+    }
+
+    /// Reports each step, one of them naming a denied topic, then returns.
+    struct Counts;
+
+    impl crate::tool::Tool for Counts {
+        type Args = Steps;
+        const NAME: &'static str = "counts";
+        const EFFECT: Effect = Effect::Observes;
+        fn description(&self) -> String {
+            "Counts.".into()
+        }
+        async fn call(&self, a: Steps, cx: &ToolContext) -> Result<Value, ToolError> {
+            for i in 1..=a.steps {
+                cx.progress
+                    .report(format!("step {i} of {} on /secret/cmd", a.steps));
+                tokio::time::sleep(Duration::from_millis(5)).await;
+            }
+            Ok(json!({"done": a.steps}))
+        }
+    }
+
+    #[test]
+    fn progress_reaches_the_caller_by_call_index_and_behind_the_fence() {
+        let mut registry = Registry::new();
+        registry.add(Package::new("test").with(Counts));
+        let file = PolicyFile {
+            deny: vec!["^/secret".into()],
+            ..PolicyFile::default()
+        };
+        let policy = Arc::new(Policy::from_file(file, Arc::new(NoOperator)).unwrap());
+        let exec = Executor::new(registry, policy).unwrap();
+        let calls: Vec<ToolCall> = [2, 3]
+            .iter()
+            .map(|n| ToolCall {
+                name: "counts".into(),
+                arguments: json!({"steps": n}),
+            })
+            .collect();
+        let decisions: Vec<Decision> = calls.iter().map(|c| exec.decide(c)).collect();
+        let mut seen: Vec<(usize, String)> = Vec::new();
+        let outcomes = exec.run(
+            &calls,
+            &decisions,
+            &Arc::new(AtomicBool::new(false)),
+            &mut |i, text| seen.push((i, text)),
+        );
+        assert!(outcomes.iter().all(|o| o.ok), "{outcomes:?}");
+        let of = |i: usize| seen.iter().filter(|(j, _)| *j == i).count();
+        assert_eq!((of(0), of(1)), (2, 3), "{seen:?}");
+        assert!(
+            seen.iter().all(|(_, t)| !t.contains("secret")),
+            "a denied name reached the front end: {seen:?}"
+        );
+        assert!(
+            seen.iter().any(|(_, t)| t.starts_with("step 3 of 3")),
+            "{seen:?}"
+        );
+        // A context nobody listens to takes reports without complaint.
+        ToolContext::new(Duration::from_secs(1))
+            .progress
+            .report("nobody");
     }
 }

@@ -58,6 +58,50 @@ pub enum ToolError {
 pub struct ToolContext {
     /// The call's time limit (tools that wait, like `system_wait`, respect it).
     pub timeout: Duration,
+    /// Where a long call says how it is going, for the operator to see while it runs.
+    pub progress: Progress,
+}
+
+impl ToolContext {
+    /// A context whose progress reports go nowhere.
+    pub fn new(timeout: Duration) -> ToolContext {
+        ToolContext {
+            timeout,
+            progress: Progress::default(),
+        }
+    }
+}
+
+/// A long call's reports of how it is going ("0.6 of 1.0 m driven", "waiting for a
+/// message, 2 s of 5"), shown to the operator while it runs; they reach the front end
+/// through the fence like everything else, and never the model (it reads the result).
+/// The default goes nowhere.
+#[derive(Clone, Default)]
+pub struct Progress(Option<(usize, tokio::sync::mpsc::UnboundedSender<(usize, String)>)>);
+
+impl Progress {
+    /// Reports of the call at `index` of a turn, sent into `to`.
+    pub fn to(index: usize, to: tokio::sync::mpsc::UnboundedSender<(usize, String)>) -> Progress {
+        Progress(Some((index, to)))
+    }
+
+    /// Say how the call is going (one short line; each replaces the one before).
+    pub fn report(&self, text: impl Into<String>) {
+        if let Some((index, to)) = &self.0 {
+            // Nobody listening any more (the turn ended) is no error of the tool's.
+            let _ = to.send((*index, text.into()));
+        }
+    }
+}
+
+impl std::fmt::Debug for Progress {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(if self.0.is_some() {
+            "Progress(on)"
+        } else {
+            "Progress(off)"
+        })
+    }
 }
 
 /// A tool with typed arguments. Implement this for a robot-specific tool; the registry

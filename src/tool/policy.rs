@@ -15,7 +15,7 @@
 //! refused too); it breaks an `only` rule; or it actuates and the operator does not
 //! confirm. Refusals never quote a deny pattern or a denied name.
 //!
-//! The same fence and e-stop guard the ROS boundary (`ros::guard`), which also holds the
+//! The same fence and e-stop guard the ROS boundary (`ros::boundary`), which also holds the
 //! motion limits of the `[motion]` table (`limits`) on every encoded message.
 
 use std::path::Path;

@@ -267,9 +267,7 @@ mod tests {
     use std::time::Duration;
 
     fn cx() -> ToolContext {
-        ToolContext {
-            timeout: Duration::from_secs(1),
-        }
+        ToolContext::new(Duration::from_secs(1))
     }
 
     fn run<T: Tool>(t: T, args: Value) -> Result<Value, ToolError> {

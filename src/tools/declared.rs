@@ -630,12 +630,7 @@ message = { data = "{{angle}}", note = "raise by {{angle}} deg" }
             .enable_all()
             .build()
             .unwrap();
-        rt.block_on(t.call(
-            args,
-            &ToolContext {
-                timeout: Duration::from_secs(1),
-            },
-        ))
+        rt.block_on(t.call(args, &ToolContext::new(Duration::from_secs(1))))
     }
 
     #[test]

@@ -165,12 +165,7 @@ mod tests {
             .build()
             .unwrap();
         let a: LogArgs = serde_json::from_value(args).unwrap();
-        rt.block_on(t.call(
-            a,
-            &ToolContext {
-                timeout: Duration::from_secs(1),
-            },
-        ))
+        rt.block_on(t.call(a, &ToolContext::new(Duration::from_secs(1))))
     }
 
     #[test]

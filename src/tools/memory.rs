@@ -242,9 +242,7 @@ mod tests {
         let rt = tokio::runtime::Builder::new_current_thread()
             .build()
             .unwrap();
-        let cx = ToolContext {
-            timeout: std::time::Duration::from_secs(1),
-        };
+        let cx = ToolContext::new(std::time::Duration::from_secs(1));
         rt.block_on(MemoryRecall(store.clone()).call(
             RecallArgs {
                 about: about.map(str::to_string),

@@ -8,7 +8,7 @@
 //! - `calc`: calc_eval, calc_stats, calc_convert, calc_geometry
 //! - `declared`: tools defined in a TOML file, acting through a ROS graph
 //! - `expr`: the expression evaluator behind calc_eval
-//! - `guard`: policy_deny_add (the model may add deny patterns, never remove them)
+//! - `deny`: policy_deny_add (the model may add deny patterns, never remove them)
 //! - `stop`: robot_stop (the e-stop as a tool)
 //! - `system`: system_time, system_wait
 //! - `log`: log_read
@@ -19,8 +19,8 @@
 
 pub mod calc;
 pub mod declared;
+pub mod deny;
 pub mod expr;
-pub mod guard;
 pub mod log;
 pub mod memory;
 pub mod place;

@@ -23,8 +23,8 @@ use serde_json::{json, Value};
 use crate::lexicon::folded_words;
 use crate::ros::{GoalStatus, RosGraph};
 use crate::store::{same_name, Place, Store};
-use crate::tool::{Effect, Package, Tool, ToolContext, ToolError};
-use crate::tools::ros::failed;
+use crate::tool::{Effect, Package, Progress, Tool, ToolContext, ToolError};
+use crate::tools::ros::{failed, send_goal_reporting};
 use crate::tools::system::NoArgs;
 
 /// The action type a robot navigates with.
@@ -393,9 +393,12 @@ impl Tool for PlaceGo {
         let deadline =
             std::time::Instant::now() + cx.timeout.saturating_sub(Duration::from_secs(1));
         if legs.len() == 1 {
-            return self.0.drive(&legs[0], &action, deadline).await;
+            return self
+                .0
+                .drive(&legs[0], &action, deadline, &cx.progress, "")
+                .await;
         }
-        route(&self.0, &legs, &action, deadline).await
+        route(&self.0, &legs, &action, deadline, &cx.progress).await
     }
 }
 
@@ -406,11 +409,13 @@ async fn route(
     legs: &[Place],
     action: &str,
     deadline: std::time::Instant,
+    progress: &Progress,
 ) -> Result<Value, ToolError> {
     let n = legs.len();
     let mut done: Vec<Value> = Vec::new();
-    for leg in legs {
-        let out = match places.drive(leg, action, deadline).await {
+    for (i, leg) in legs.iter().enumerate() {
+        let lead = format!("leg {} of {n}, ", i + 1);
+        let out = match places.drive(leg, action, deadline, progress, &lead).await {
             Ok(out) => out,
             // A leg refused after others were driven (the e-stop engaged between them)
             // ends the route; what was reached is still reported.
@@ -482,12 +487,15 @@ impl Places {
     }
 
     /// Drive to `place` until it is reached or `deadline`: the leg's report (its summary,
-    /// status, the distance left and the last pose).
+    /// status, the distance left and the last pose). The distance left goes to
+    /// `progress` as the navigation reports it, after `lead`.
     async fn drive(
         &self,
         place: &Place,
         action: &str,
         deadline: std::time::Instant,
+        progress: &Progress,
+        lead: &str,
     ) -> Result<Value, ToolError> {
         let goal = json!({
             "pose": {
@@ -503,11 +511,22 @@ impl Places {
         let wait = deadline
             .saturating_duration_since(std::time::Instant::now())
             .max(Duration::from_millis(100));
-        let outcome = self
-            .graph
-            .send_goal(action, NAVIGATE_TYPE, goal, wait)
-            .await
-            .map_err(failed)?;
+        let name = &place.name;
+        progress.report(format!("{lead}to {name}"));
+        let say = |f: &Value| {
+            let left = f["distance_remaining"].as_f64()?;
+            Some(format!("{lead}to {name}: {:.1} m to go", left.max(0.0)))
+        };
+        let outcome = send_goal_reporting(
+            self.graph.as_ref(),
+            (action, NAVIGATE_TYPE),
+            goal,
+            wait,
+            progress,
+            say,
+        )
+        .await
+        .map_err(failed)?;
         let last = outcome.feedback.last().map(|s| {
             let m = &s.message;
             m.get("feedback").unwrap_or(m).clone()
@@ -523,7 +542,6 @@ impl Places {
                 &place.frame,
             )
         });
-        let name = &place.name;
         let summary = match outcome.status {
             GoalStatus::Succeeded => match at {
                 Some((_, x, y, _)) => format!("arrived at {name}, ({}, {})", round2(x), round2(y)),

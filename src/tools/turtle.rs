@@ -37,6 +37,8 @@ pub struct Turtle {
 /// How often a motion command is repeated while the turtle moves (turtlesim drops a
 /// command after one second; a stop must not wait that long to be noticed).
 const TICK: Duration = Duration::from_millis(100);
+/// How often a motion says how far it has got.
+const REPORT_EVERY: Duration = Duration::from_millis(500);
 /// Default speeds: well inside the default motion limits.
 const SPEED: f64 = 0.5;
 const TURN_RATE: f64 = 1.0;
@@ -92,8 +94,16 @@ impl Turtle {
 
     /// Command `linear` m/s and `angular` rad/s until `amount` (metres or radians, by
     /// the speed actually sent) is covered, repeating the command every tick, then
-    /// command zero. Stops early when the operator's input takes over the mux.
-    async fn drive(&self, linear: f64, angular: f64, amount: f64) -> Result<Drive, ToolError> {
+    /// command zero; how much is covered so far goes to `cx`'s progress as `say` words
+    /// it. Stops early when the operator's input takes over the mux.
+    async fn drive(
+        &self,
+        linear: f64,
+        angular: f64,
+        amount: f64,
+        cx: &ToolContext,
+        say: impl Fn(f64) -> String,
+    ) -> Result<Drive, ToolError> {
         let topic = format!("/{}/cmd_vel", self.name);
         let twist = |l: f64, a: f64| json!({"linear": {"x": l}, "angular": {"z": a}});
         let start = std::time::Instant::now();
@@ -123,8 +133,14 @@ impl Turtle {
         };
         let mut note = sent.note.clone();
         let mut overridden = sent.overridden_by.is_some();
+        let mut reported = start;
         while !overridden && start.elapsed().as_secs_f64() + TICK.as_secs_f64() < seconds {
             tokio::time::sleep(TICK).await;
+            if reported.elapsed() >= REPORT_EVERY {
+                reported = std::time::Instant::now();
+                cx.progress
+                    .report(say((start.elapsed().as_secs_f64() * speed).abs()));
+            }
             sent = self
                 .graph
                 .publish(&topic, "geometry_msgs/msg/Twist", twist(l, a))
@@ -185,10 +201,11 @@ impl Tool for Move {
     fn description(&self) -> String {
         "Drive the turtle straight forward (or backward) a distance in meters; returns the new pose. Moves the robot.".into()
     }
-    async fn call(&self, a: MoveArgs, _: &ToolContext) -> Result<Value, ToolError> {
+    async fn call(&self, a: MoveArgs, cx: &ToolContext) -> Result<Value, ToolError> {
         let d = a.distance.clamp(-5.0, 5.0);
         let speed = a.speed.unwrap_or(SPEED).clamp(0.05, 1.0).copysign(d);
-        let drive = self.0.drive(speed, 0.0, d).await?;
+        let say = |m: f64| format!("{m:.1} of {:.1} m driven", d.abs());
+        let drive = self.0.drive(speed, 0.0, d, cx, say).await?;
         let moved = (drive.seconds * drive.speed * 1000.0).round() / 1000.0;
         let out = json!({"requested_m": d, "moved_m": moved, "speed_m_s": drive.speed.abs(),
                              "pose": self.0.pose().await?});
@@ -212,10 +229,11 @@ impl Tool for Rotate {
     fn description(&self) -> String {
         "Turn the turtle in place by an angle in degrees (positive turns left); returns the new pose. Moves the robot.".into()
     }
-    async fn call(&self, a: RotateArgs, _: &ToolContext) -> Result<Value, ToolError> {
+    async fn call(&self, a: RotateArgs, cx: &ToolContext) -> Result<Value, ToolError> {
         let deg = a.degrees.clamp(-180.0, 180.0);
         let rate = TURN_RATE.copysign(deg);
-        let drive = self.0.drive(0.0, rate, deg.to_radians()).await?;
+        let say = |r: f64| format!("{:.0} of {:.0}° turned", r.to_degrees(), deg.abs());
+        let drive = self.0.drive(0.0, rate, deg.to_radians(), cx, say).await?;
         let turned = (drive.seconds * drive.speed).to_degrees();
         let out = json!({"requested_deg": deg, "turned_deg": (turned * 10.0).round() / 10.0,
                              "pose": self.0.pose().await?});

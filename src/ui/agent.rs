@@ -95,7 +95,7 @@ pub fn tools_and_policy(
     for p in crate::tools::standard() {
         registry.add(p);
     }
-    registry.add(crate::tools::guard::package(policy.clone()));
+    registry.add(crate::tools::deny::package(policy.clone()));
     registry.add(crate::tools::stop::package(estop));
     if !args.log_dirs.is_empty() {
         registry.add(crate::tools::logs(args.log_dirs.clone()));
@@ -243,6 +243,11 @@ pub fn memory_key(args: &AgentArgs) -> String {
         Some(stem) => format!("{kind}/{}", stem.to_string_lossy()),
         None => kind.to_string(),
     }
+}
+
+/// The places the robot file names (the console draws them).
+pub fn robot_places(args: &AgentArgs) -> anyhow::Result<Vec<crate::store::Place>> {
+    Ok(robot_prompt(args)?.places)
 }
 
 /// The robot's prompt file: `--prompt`, else the sim's or the default robot's.

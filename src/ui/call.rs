@@ -44,5 +44,17 @@ pub fn run(args: &AgentArgs, name: &str, arguments: &str) -> anyhow::Result<()> 
         "{}",
         serde_json::to_string_pretty(&report_call(&shown, &o))?
     );
+    let acted = exec
+        .registry()
+        .get(&call.name)
+        .is_some_and(|t| t.effect() == crate::tool::Effect::Actuates);
+    if acted && o.ok {
+        // What was just sent to a reliable subscriber that matched this process late is
+        // sent again only when it asks, and only while the process is here.
+        std::thread::sleep(LINGER);
+    }
     Ok(())
 }
+
+/// How long a call that acted keeps the process (and its ROS participant) alive after.
+const LINGER: std::time::Duration = std::time::Duration::from_millis(300);

@@ -7,7 +7,8 @@
 //! - `robot`: joining ROS 2, the sim, the guarded graph, the e-stop's ROS trigger
 //! - `speech`: `ferrosa transcribe` and `ferrosa say`
 //! - `term`: cleaning what is printed, the input thread, terminal confirmation
-//! - `choice`: the command line's names for the library's choices
+//! - `cli`: the command line (clap's definitions) and `run`, which hands each command
+//!   to its front end
 //! - `console`: `ferrosa serve`, the operator console in a web page
 //! - `secret`: the secret every client of a local surface (console, MCP over HTTP) holds
 //! - `eval`: `ferrosa eval bfcl`
@@ -18,7 +19,7 @@
 
 pub mod agent;
 pub mod call;
-pub mod choice;
+pub mod cli;
 pub mod console;
 pub mod eval;
 pub mod generate;

@@ -8,7 +8,7 @@ use crate::backend::Gguf;
 use crate::metrics::mib;
 use crate::models::catalog::Registry;
 use crate::models::fetch::{self, FetchOptions, FetchOutcome};
-use crate::models::{verify, Catalog, Entry, ModelKind};
+use crate::models::{checksum, Catalog, Entry, ModelKind};
 
 pub fn list(dir: &Path) -> anyhow::Result<()> {
     let cat = Catalog::load(dir)?;
@@ -147,9 +147,9 @@ pub fn verify(dir: &Path, names: &[String]) -> anyhow::Result<()> {
             }
             continue;
         }
-        let found = verify::sha256_file(&path, |_| {})?;
+        let found = checksum::sha256_file(&path, |_| {})?;
         if found == e.sha256.to_ascii_lowercase() {
-            verify::remember(&path, &found);
+            checksum::remember(&path, &found);
             println!("{:<14} ok        {found}", e.name);
         } else {
             bad += 1;

@@ -202,6 +202,13 @@ impl View {
                 }
                 self.calls.insert((*step, *index), (line, decision.clone()));
             }
+            Event::ToolProgress {
+                step, index, text, ..
+            } => {
+                if let Some((line, _)) = self.calls.get(&(*step, *index)) {
+                    begin_or_update(format!("→ {line}: {}", clean(text)));
+                }
+            }
             Event::ToolResult {
                 step,
                 index,
@@ -342,6 +349,9 @@ fn verbose(e: &Event) {
             let short: String = text.chars().take(300).collect();
             let mark = if *ok { "←" } else { "✗" };
             let _ = writeln!(err, "{mark} {} ({ms:.0} ms): {short}", clean(name));
+        }
+        Event::ToolProgress { name, text, .. } => {
+            let _ = writeln!(err, "… {}: {}", clean(name), clean(text));
         }
         Event::Error { message } => {
             let _ = writeln!(err, "\n! {}", clean(message));

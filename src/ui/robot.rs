@@ -1,6 +1,6 @@
 //! The robot the front ends act on: joining ROS 2 (and starting the built-in sim) or
 //! ROS 1's master, the
-//! guarded graph every tool goes through (`ros::guard`: the deny-list, the e-stop, the
+//! guarded graph every tool goes through (`ros::boundary`: the deny-list, the e-stop, the
 //! motion limits, the mux), the tools that come with it, and the e-stop's ROS trigger
 //! (`/ferrosa/estop`, std_msgs/msg/Bool: `true` engages it, from any node or teleop).
 
@@ -9,7 +9,7 @@ use std::time::{Duration, Instant};
 
 use crate::estop::EStop;
 use crate::limits::Motion;
-use crate::ros::guard::Guarded;
+use crate::ros::boundary::Guarded;
 use crate::ros::ros1::{Ros1Graph, Ros1Options};
 use crate::ros::ros2::{Ros2Graph, Ros2Options};
 use crate::ros::sim::{Sim, ARENA};

@@ -491,7 +491,7 @@ fn property_event_streams_are_cut_into_bounded_events() {
     if in_child("parsers::property::property_event_streams_are_cut_into_bounded_events") {
         return;
     }
-    use ferrosa::remote::http::{Events, MAX_EVENT, MAX_LINE};
+    use ferrosa::remote::client::{Events, MAX_EVENT, MAX_LINE};
     proptest!(cases(64), |((body, cuts) in sse_body())| {
         let mut events = Events::default();
         let mut pieces = Vec::new();
@@ -510,7 +510,7 @@ fn property_event_streams_are_cut_into_bounded_events() {
                 got.extend(events.push(piece)?);
             }
             got.extend(events.finish()?);
-            Ok::<_, ferrosa::remote::http::StreamLimit>(got)
+            Ok::<_, ferrosa::remote::client::StreamLimit>(got)
         });
         if let Ok(got) = got {
             prop_assert!(got.iter().all(|e| e.len() <= MAX_EVENT));

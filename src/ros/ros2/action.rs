@@ -146,10 +146,10 @@ impl Actions {
         &self,
         node: &NodeLock,
         interfaces: &Interfaces,
-        action: &str,
-        type_name: &str,
+        (action, type_name): (&str, &str),
         goal: Value,
         wait: Duration,
+        sink: Option<crate::ros::FeedbackSink>,
     ) -> Result<GoalOutcome, RosError> {
         let start = Instant::now();
         let (ty, kind) = action_type(type_name)?;
@@ -213,6 +213,10 @@ impl Actions {
                 }
                 Some(Ok(raw)) = feedback.next() => {
                     if let Ok(message) = cdr::decode(interfaces, &feedback_ty, &raw.0, 16) {
+                        if let Some(sink) = &sink {
+                            // A watcher gone is no failure of the goal.
+                            let _ = sink.send(message.clone());
+                        }
                         if outcome.feedback.len() == FEEDBACK_KEPT {
                             outcome.feedback.remove(0);
                         }

@@ -364,13 +364,13 @@ impl Ros2Graph {
     }
 
     /// The publisher for `topic` of type `ty`, made on first use (volatile: a late
-    /// subscriber must never receive an old command).
+    /// subscriber must never receive an old command); `true` when this call made it.
     async fn publisher(
         &self,
         topic: &str,
         ty: &str,
-    ) -> Result<Arc<ros2_client::Publisher<Raw>>, RosError> {
-        let (publisher, _) = self
+    ) -> Result<(Arc<ros2_client::Publisher<Raw>>, bool), RosError> {
+        let made = self
             .publishers
             .get_or_make(&self.node, topic, ty, |node| {
                 let (pkg, _, short) = split_type(ty)?;
@@ -382,7 +382,7 @@ impl Ros2Graph {
                 node.create_publisher::<Raw>(&t, Some(qos)).map_err(failed)
             })
             .await?;
-        Ok(publisher)
+        Ok(made)
     }
 
     fn encode(&self, ty: &str, message: &Value) -> Result<Vec<u8>, RosError> {
@@ -401,11 +401,12 @@ impl Ros2Graph {
     ) -> Result<super::Delivery, RosError> {
         let ty = normalize_type(type_name);
         let bytes = self.encode(&ty, &message)?;
-        let publisher = self.publisher(topic, &ty).await?;
+        let (publisher, made) = self.publisher(topic, &ty).await?;
         // A volatile message sent before any subscriber matched is lost: wait for one
         // (not when braking: a stop goes out at once to whoever is there).
         let timeout = Duration::from_secs(3);
         let until = Instant::now() + timeout;
+        let mut waited = false;
         while wait_for_subscriber && publisher.get_subscription_count(&*self.node.lock().await) == 0
         {
             if Instant::now() >= until {
@@ -414,7 +415,15 @@ impl Ros2Graph {
                     timeout,
                 });
             }
+            waited = true;
             tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+        // Our side matching the subscriber does not mean it has matched us yet: until
+        // it has, it drops what we send (a best-effort reader for good; a reliable one
+        // asks for it again only while this process lives). Give a match made just now
+        // time to become mutual.
+        if wait_for_subscriber && (made || waited) {
+            tokio::time::sleep(MATCH_SETTLE).await;
         }
         publisher
             .async_publish(Raw(bytes))
@@ -502,7 +511,7 @@ impl Ros2Graph {
         if fresh {
             // We see the server, but the server may not see our reply reader yet: Fast DDS
             // waits only 100 ms for it before dropping the reply. Give discovery a moment.
-            tokio::time::sleep(NEW_CLIENT_SETTLE).await;
+            tokio::time::sleep(MATCH_SETTLE).await;
         }
         // Calls that read or set state by value may be sent again if the reply went
         // missing; anything else is sent once (a second /spawn would spawn twice).
@@ -619,10 +628,28 @@ impl RosGraph for Ros2Graph {
         Box::pin(self.actions.send_goal(
             &self.node,
             &self.interfaces,
-            action,
-            type_name,
+            (action, type_name),
             goal,
             wait,
+            None,
+        ))
+    }
+
+    fn send_goal_watched<'a>(
+        &'a self,
+        action: &'a str,
+        type_name: &'a str,
+        goal: Value,
+        wait: Duration,
+        feedback: super::FeedbackSink,
+    ) -> BoxFuture<'a, Result<GoalOutcome, RosError>> {
+        Box::pin(self.actions.send_goal(
+            &self.node,
+            &self.interfaces,
+            (action, type_name),
+            goal,
+            wait,
+            Some(feedback),
         ))
     }
 
@@ -640,8 +667,9 @@ impl RosGraph for Ros2Graph {
     }
 }
 
-/// Pause before the first request of a new service client (see `do_call`).
-const NEW_CLIENT_SETTLE: Duration = Duration::from_millis(300);
+/// Pause after a new endpoint first matches, before the first message or request, for
+/// the other side to match it too (see `do_call`, `do_publish`).
+const MATCH_SETTLE: Duration = Duration::from_millis(300);
 
 /// Services whose requests may be repeated without changing the outcome: parameter
 /// services (get, list, describe, set to a value) and type descriptions.

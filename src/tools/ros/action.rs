@@ -9,8 +9,8 @@ use serde::Deserialize;
 use serde_json::{json, Map, Value};
 
 use super::base::{absolute, failed, not_found, typed_by_name, Filter, ListArgs, Ros};
-use crate::ros::{GoalStatus, Graph};
-use crate::tool::{Effect, Tool, ToolContext, ToolError};
+use crate::ros::{GoalOutcome, GoalStatus, Graph, RosError, RosGraph};
+use crate::tool::{Effect, Progress, Tool, ToolContext, ToolError};
 
 /// Feedback messages shown in a goal's outcome (the newest; the count says how many came).
 const FEEDBACK_SHOWN: usize = 5;
@@ -18,6 +18,77 @@ const FEEDBACK_SHOWN: usize = 5;
 const DEFAULT_WAIT_S: f64 = 10.0;
 
 /// The type of `action`, or a "no action" error with near names.
+/// How often a goal's feedback is passed on to the operator.
+const PROGRESS_EVERY: Duration = Duration::from_millis(500);
+
+/// Send `goal` to `action` (of its type) and follow it for up to `wait`, as
+/// `send_goal` does, telling `progress` what `say` makes of its feedback as it comes
+/// (at most every `PROGRESS_EVERY`).
+pub(crate) async fn send_goal_reporting(
+    graph: &dyn RosGraph,
+    (action, ty): (&str, &str),
+    goal: Value,
+    wait: Duration,
+    progress: &Progress,
+    say: impl Fn(&Value) -> Option<String>,
+) -> Result<GoalOutcome, RosError> {
+    let (sink, mut feedback) = tokio::sync::mpsc::unbounded_channel();
+    let mut goal = std::pin::pin!(graph.send_goal_watched(action, ty, goal, wait, sink));
+    let mut reported: Option<std::time::Instant> = None;
+    loop {
+        tokio::select! {
+            outcome = &mut goal => return outcome,
+            Some(f) = feedback.recv() => {
+                if reported.is_none_or(|t| t.elapsed() >= PROGRESS_EVERY) {
+                    // An action's feedback message, or the `feedback` field of one
+                    // wrapped with its goal id.
+                    if let Some(text) = say(f.get("feedback").unwrap_or(&f)) {
+                        progress.report(text);
+                        reported = Some(std::time::Instant::now());
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// A feedback message in a line: its scalar fields as `name value`, nested names joined
+/// by dots, cut at 60 characters.
+fn brief(message: &Value) -> String {
+    fn walk(v: &Value, at: &str, out: &mut Vec<String>) {
+        match v {
+            Value::Object(m) => {
+                for (k, v) in m {
+                    let name = if at.is_empty() {
+                        k.clone()
+                    } else {
+                        format!("{at}.{k}")
+                    };
+                    walk(v, &name, out);
+                }
+            }
+            Value::Number(n) => {
+                let n = n.as_f64().map_or_else(
+                    || n.to_string(),
+                    |f| format!("{}", (f * 1000.0).round() / 1000.0),
+                );
+                out.push(format!("{at} {n}"));
+            }
+            Value::String(s) => out.push(format!("{at} {s}")),
+            Value::Bool(b) => out.push(format!("{at} {b}")),
+            Value::Array(_) | Value::Null => {}
+        }
+    }
+    let mut parts = Vec::new();
+    walk(message, "", &mut parts);
+    let line = parts.join(", ");
+    if line.chars().count() <= 60 {
+        return line;
+    }
+    let head: String = line.chars().take(59).collect();
+    format!("{head}…")
+}
+
 fn action_type(g: &Graph, action: &str) -> Result<String, ToolError> {
     let actions = g.actions();
     actions
@@ -82,12 +153,16 @@ impl Tool for ActionSendGoal {
         let wait = Duration::from_secs_f64(a.wait_s.unwrap_or(DEFAULT_WAIT_S).clamp(0.1, 120.0))
             .min(limit.max(Duration::from_millis(100)));
         let goal = Value::Object(a.goal.unwrap_or_default());
-        let outcome = self
-            .0
-            .graph
-            .send_goal(&action, &ty, goal.clone(), wait)
-            .await
-            .map_err(failed)?;
+        let outcome = send_goal_reporting(
+            self.0.graph.as_ref(),
+            (&action, &ty),
+            goal.clone(),
+            wait,
+            &cx.progress,
+            |f| Some(format!("feedback: {}", brief(f))),
+        )
+        .await
+        .map_err(failed)?;
         let count = outcome.feedback.len();
         let shown = &outcome.feedback[count.saturating_sub(FEEDBACK_SHOWN)..];
         let summary = match outcome.status {

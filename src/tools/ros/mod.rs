@@ -26,6 +26,7 @@ mod topic;
 
 use std::sync::Arc;
 
+pub(crate) use action::send_goal_reporting;
 pub(crate) use base::failed;
 use base::Ros;
 
@@ -127,9 +128,7 @@ mod tests {
     /// Run a tool on a current-thread runtime with a 5 s limit (also the action tests').
     pub(super) fn run<T: Tool>(t: &T, args: Value) -> Result<Value, ToolError> {
         let args: T::Args = serde_json::from_value(args).unwrap();
-        let cx = ToolContext {
-            timeout: Duration::from_secs(5),
-        };
+        let cx = ToolContext::new(Duration::from_secs(5));
         tokio::runtime::Builder::new_current_thread()
             .enable_time()
             .build()

@@ -16,7 +16,9 @@
 //! `POST /api/ask {text, language?}` (a request that asks to stop engages the e-stop at
 //! once, busy or not, and runs nothing), `/api/approval {id, approve}`, `/api/estop`,
 //! `/api/reset`, `/api/clear`; `POST /api/transcribe` (a WAV recording → `{text}`),
-//! `/api/say {text, language}` (→ a WAV of it spoken).
+//! `/api/say {text, language}` (→ a WAV of it spoken); `GET /api/memory` (the robot's
+//! places, facts and latest requests), `POST /api/memory/forget {place | fact | runs |
+//! all}`.
 
 use std::convert::Infallible;
 use std::net::SocketAddr;
@@ -40,6 +42,7 @@ use tokio::sync::broadcast::error::RecvError;
 
 use super::ears::{Ears, SpeechFailure};
 use super::hub::{Hub, Logged};
+use super::memory::{Forget, Memory};
 use super::worker::Job;
 use crate::agent::language::Language;
 use crate::ui::secret::{bearer, Secret};
@@ -74,6 +77,7 @@ pub struct App {
     /// The session cookie's name, for the port (cookies are not kept apart by port).
     cookie: Arc<str>,
     ears: Arc<Ears>,
+    memory: Arc<Memory>,
 }
 
 /// How a client signs in: the console's secret, and the login code of the printed
@@ -111,7 +115,14 @@ impl App {
             next_run: Arc::new(AtomicU64::new(1)),
             cookie: format!("ferrosa_token_{}", bind.port()).into(),
             ears: Arc::new(ears),
+            memory: Arc::new(Memory::none()),
         }
+    }
+
+    /// The robot's memory, for the memory panel (none until given).
+    pub fn with_memory(mut self, memory: Memory) -> App {
+        self.memory = Arc::new(memory);
+        self
     }
 
     /// Claim the agent and hand it the job `make` builds (after anything it publishes);
@@ -257,6 +268,8 @@ impl App {
                 post(transcribe).layer(axum::extract::DefaultBodyLimit::max(MAX_RECORDING)),
             )
             .route("/api/say", post(say))
+            .route("/api/memory", get(memory))
+            .route("/api/memory/forget", post(forget))
             .layer(middleware::from_fn_with_state(self.clone(), check))
             .with_state(self)
     }
@@ -513,6 +526,21 @@ async fn estop(State(app): State<App>) -> Json<Value> {
 
 async fn reset(State(app): State<App>) -> Json<Value> {
     Json(json!({"released": app.hub.estop.reset()}))
+}
+
+async fn memory(State(app): State<App>) -> Result<Json<Value>, Failure> {
+    let memory = app.memory.clone();
+    Ok(Json(blocking(move || memory.view()).await?))
+}
+
+/// Delete from memory what the operator asked; every page is told to read it again.
+async fn forget(State(app): State<App>, Json(what): Json<Forget>) -> Result<Json<Value>, Failure> {
+    let memory = app.memory.clone();
+    let done = blocking(move || memory.forget(&what))
+        .await?
+        .map_err(|e| fail(StatusCode::BAD_REQUEST, e))?;
+    app.hub.publish("memory", &done, false);
+    Ok(Json(done))
 }
 
 async fn clear(State(app): State<App>) -> Result<Json<Value>, Failure> {

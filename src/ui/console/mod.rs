@@ -19,12 +19,14 @@
 //! - `ears`: speech: recordings transcribed, answers spoken
 //! - `hub`: the shared session (events, approvals, trail, busy)
 //! - `http`: the routes, the SSE stream, the request checks (host, origin, token)
+//! - `memory`: the memory panel (places, facts, latest requests) and what it deletes
 //! - `pose`: the robot view's pose, read from a topic
 //! - `worker`: the agent's thread and the jobs it takes
 
 mod ears;
 mod http;
 pub mod hub;
+mod memory;
 pub mod pose;
 mod worker;
 
@@ -76,6 +78,11 @@ pub fn run(args: &ServeArgs) -> anyhow::Result<()> {
         g.set_fence(agent.fence().clone());
     }
     hub.set_fence(agent.fence().clone());
+    let memory = memory::Memory::new(
+        super::agent::open_memory(&agent_args),
+        super::agent::robot_places(&agent_args)?,
+        agent.fence().clone(),
+    );
     let view = view(args, &agent)?;
     let info = info(&agent, &agent_args, view.as_ref());
     let trace = agent.trace_path().map(PathBuf::from);
@@ -104,7 +111,8 @@ pub fn run(args: &ServeArgs) -> anyhow::Result<()> {
             secret,
             login: login.clone(),
         };
-        let app = http::App::new(hub.clone(), jobs, info, sign_in, addr, trace, ears);
+        let app = http::App::new(hub.clone(), jobs, info, sign_in, addr, trace, ears)
+            .with_memory(memory);
         let reach = match addr.ip().is_loopback() {
             true => "",
             false => "; this address is reachable from other machines",

@@ -33,7 +33,13 @@ pub fn work(mut agent: Agent, hub: &Hub, queue: &Receiver<Job>) {
                 let result = agent.ask(&text, &mut |e| {
                     let mut v = serde_json::to_value(e).unwrap_or_default();
                     v["run"] = json!(run);
-                    let keep = !matches!(e, crate::agent::Event::Token { .. });
+                    // A page that joins later needs neither the tokens (the answer
+                    // has them) nor a finished call's progress.
+                    let keep = !matches!(
+                        e,
+                        crate::agent::Event::Token { .. }
+                            | crate::agent::Event::ToolProgress { .. }
+                    );
                     hub.publish("agent", &v, keep);
                 });
                 let done = match result {

@@ -58,9 +58,7 @@ mod tests {
             .enable_all()
             .build()
             .unwrap();
-        let cx = ToolContext {
-            timeout: Duration::from_secs(1),
-        };
+        let cx = ToolContext::new(Duration::from_secs(1));
         rt.block_on(t.call(
             DenyArgs {
                 pattern: "^/camera".into(),

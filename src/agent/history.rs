@@ -1,11 +1,11 @@
-//! Conversation memory: completed exchanges (query and answer), trimmed oldest first, a
+//! Conversation history: completed exchanges (query and answer), trimmed oldest first, a
 //! whole pair at a time, to fit the token budget; and the truncation of long tool outputs
 //! with a note saying how to get the rest.
 //!
 //! Trimming forgets for good and goes down to half the budget at once: dropping one old
 //! exchange per turn would change the prompt right after the system prompt every turn,
 //! and the model would evaluate the whole history again each time; trimming in chunks
-//! keeps the cached prefix valid for many turns. Memory stays bounded however long the
+//! keeps the cached prefix valid for many turns. History stays bounded however long the
 //! chat runs.
 
 use crate::chat::{ChatMessage, Role};
@@ -17,11 +17,11 @@ pub struct Exchange {
 }
 
 #[derive(Debug, Clone, Default)]
-pub struct Memory {
+pub struct History {
     exchanges: Vec<Exchange>,
 }
 
-impl Memory {
+impl History {
     pub fn push(&mut self, query: impl Into<String>, answer: impl Into<String>) {
         self.exchanges.push(Exchange {
             query: query.into(),
@@ -100,7 +100,7 @@ mod tests {
 
     #[test]
     fn trimming_forgets_oldest_whole_pairs_down_to_half_the_budget() {
-        let mut m = Memory::default();
+        let mut m = History::default();
         for i in 0..5 {
             m.push(format!("q{i}"), format!("a{i}"));
         }

@@ -506,6 +506,7 @@ impl Guarded {
         type_name: &str,
         goal: Value,
         wait: Duration,
+        feedback: Option<super::FeedbackSink>,
     ) -> Result<GoalOutcome, RosError> {
         let action = self.name(action)?;
         let ty = normalize_type(type_name);
@@ -523,7 +524,14 @@ impl Guarded {
             });
             key
         };
-        let outcome = self.inner.send_goal(&action, &ty, goal, wait).await;
+        let outcome = match feedback {
+            Some(f) => {
+                self.inner
+                    .send_goal_watched(&action, &ty, goal, wait, f)
+                    .await
+            }
+            None => self.inner.send_goal(&action, &ty, goal, wait).await,
+        };
         {
             let mut sent = self.sent.lock().expect("guard lock");
             let at = sent.goals.iter().position(|g| g.key == key);
@@ -631,7 +639,18 @@ impl RosGraph for Guarded {
         goal: Value,
         wait: Duration,
     ) -> BoxFuture<'a, Result<GoalOutcome, RosError>> {
-        Box::pin(self.do_send_goal(action, type_name, goal, wait))
+        Box::pin(self.do_send_goal(action, type_name, goal, wait, None))
+    }
+
+    fn send_goal_watched<'a>(
+        &'a self,
+        action: &'a str,
+        type_name: &'a str,
+        goal: Value,
+        wait: Duration,
+        feedback: super::FeedbackSink,
+    ) -> BoxFuture<'a, Result<GoalOutcome, RosError>> {
+        Box::pin(self.do_send_goal(action, type_name, goal, wait, Some(feedback)))
     }
 
     fn cancel_goals<'a>(
