@@ -97,6 +97,9 @@ fn goal_status(s: GoalStatusEnum) -> GoalStatus {
     }
 }
 
+/// How long a goal's acceptance may take, however long the goal is followed.
+const GOAL_ANSWER_WAIT: Duration = Duration::from_secs(10);
+
 /// The action clients of a graph's node, made on first use and kept.
 #[derive(Default)]
 pub(super) struct Actions {
@@ -114,7 +117,7 @@ impl Actions {
         kind: &ActionTypeName,
         timeout: Duration,
     ) -> Result<Arc<RawActionClient>, RosError> {
-        let (client, _) = self
+        let (client, made) = self
             .clients
             .get_or_make(node, action, ty, |node| {
                 node.create_action_client::<Raw, Raw, Raw>(
@@ -138,6 +141,11 @@ impl Actions {
             .await
         {
             return Err(RosError::NoAction(action.to_string()));
+        }
+        if made {
+            // We see the server's readers; they may not see our writers yet (a goal sent
+            // then went unanswered for the whole wait).
+            tokio::time::sleep(super::MATCH_SETTLE).await;
         }
         Ok(client)
     }
@@ -165,14 +173,17 @@ impl Actions {
             wait.saturating_sub(start.elapsed())
                 .max(Duration::from_millis(floor))
         };
-        let sent = tokio::time::timeout(left(2000), client.async_send_goal(Raw(bytes))).await;
+        // The server answers a goal at once, accepted or not: a long wait is for the
+        // goal to end, never for that answer.
+        let answer = left(2000).min(GOAL_ANSWER_WAIT);
+        let sent = tokio::time::timeout(answer, client.async_send_goal(Raw(bytes))).await;
         let (goal_id, response) = match sent {
             Ok(Ok(r)) => r,
             Ok(Err(e)) => return Err(RosError::Other(format!("send goal to {action}: {e:?}"))),
             Err(_) => {
                 return Err(RosError::Timeout {
                     service: format!("{action}/_action/send_goal"),
-                    timeout: wait,
+                    timeout: answer,
                 })
             }
         };

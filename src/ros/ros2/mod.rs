@@ -668,8 +668,9 @@ impl RosGraph for Ros2Graph {
 }
 
 /// Pause after a new endpoint first matches, before the first message or request, for
-/// the other side to match it too (see `do_call`, `do_publish`).
-const MATCH_SETTLE: Duration = Duration::from_millis(300);
+/// the other side to match it too (see `do_call`, `do_publish`, an action client's first
+/// goal).
+pub(super) const MATCH_SETTLE: Duration = Duration::from_millis(300);
 
 /// Services whose requests may be repeated without changing the outcome: parameter
 /// services (get, list, describe, set to a value) and type descriptions.
