@@ -117,12 +117,16 @@ impl Memory {
             (Some(name), None, false, false) => {
                 if self.file_places.iter().any(|p| same_name(&p.name, name)) {
                     return Err(format!(
-                        "{name:?} is in the robot file, not in memory: edit the robot file to remove it"
+                        "{:?} is in the robot file, not in memory: edit the robot file to remove it",
+                        self.fence.redact(name)
                     ));
                 }
                 match store.forget_place(name).map_err(failed)? {
-                    true => Ok(json!({"forgot": "place", "name": name})),
-                    false => Err(format!("memory keeps no place called {name:?}")),
+                    true => Ok(json!({"forgot": "place", "name": self.fence.redact(name)})),
+                    false => Err(format!(
+                        "memory keeps no place called {:?}",
+                        self.fence.redact(name)
+                    )),
                 }
             }
             (None, Some(id), false, false) => match store.forget_fact(id).map_err(failed)? {
