@@ -19,7 +19,9 @@ use ros2_client::qos::Durability as QDurability;
 use ros2_client::{ActionTypeName, ServiceMapping};
 use serde_json::{json, Value};
 
-use super::dds::{reliable_qos, ros_name, service_ready, split_type, EndpointCache, Raw};
+use super::dds::{
+    reliable_qos, ros_name, service_ready, split_type, EndpointCache, Raw, MATCH_SETTLE,
+};
 use crate::ros::cdr;
 use crate::ros::msg::normalize_type;
 use crate::ros::msg::Interfaces;
@@ -145,7 +147,7 @@ impl Actions {
         if made {
             // We see the server's readers; they may not see our writers yet (a goal sent
             // then went unanswered for the whole wait).
-            tokio::time::sleep(super::MATCH_SETTLE).await;
+            tokio::time::sleep(MATCH_SETTLE).await;
         }
         Ok(client)
     }

@@ -235,6 +235,11 @@ where
     }
 }
 
+/// Pause after a new endpoint first matches, before the first message or request, for
+/// the other side to match it too (a publisher's first message, a service client's
+/// first request, an action client's first goal).
+pub(crate) const MATCH_SETTLE: std::time::Duration = std::time::Duration::from_millis(300);
+
 /// Endpoints made on first use and kept, by (ROS name, type).
 pub(crate) struct EndpointCache<T> {
     map: Mutex<HashMap<(String, String), Arc<T>>>,

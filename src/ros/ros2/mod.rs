@@ -18,7 +18,7 @@ mod dds;
 
 pub(crate) use action::server_qos as action_server_qos;
 pub(crate) use dds::{background, context, reliable_qos, ros_name, split_type, Raw};
-use dds::{dds_qos, service_ready, EndpointCache};
+use dds::{dds_qos, service_ready, EndpointCache, MATCH_SETTLE};
 pub use dds::{DiscoveryRange, Ros2Options};
 
 use std::sync::{Arc, Mutex};
@@ -666,11 +666,6 @@ impl RosGraph for Ros2Graph {
         )
     }
 }
-
-/// Pause after a new endpoint first matches, before the first message or request, for
-/// the other side to match it too (see `do_call`, `do_publish`, an action client's first
-/// goal).
-pub(super) const MATCH_SETTLE: Duration = Duration::from_millis(300);
 
 /// Services whose requests may be repeated without changing the outcome: parameter
 /// services (get, list, describe, set to a value) and type descriptions.
