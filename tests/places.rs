@@ -207,7 +207,7 @@ fn call_reporting(exec: &Executor, name: &str, arguments: Value) -> (Value, Vec<
             std::slice::from_ref(&call),
             &[exec.decide(&call)],
             &Arc::new(AtomicBool::new(false)),
-            &mut |_, text| said.push(text),
+            &mut |_, report| said.push(report.as_str().unwrap_or_default().to_string()),
         )
         .remove(0);
     assert!(o.ok, "{name} {arguments}: {:?}", o.output);

@@ -515,7 +515,12 @@ impl Run<'_> {
         // Each run call's place among the calls shown, for its progress events.
         let shown_at: Vec<usize> = (0..calls.len()).filter(|&i| !unasked(&calls[i])).collect();
         let (events, agent) = (&mut self.events, &*self.agent);
-        let mut on_progress = |i: usize, text: String| {
+        // A message reported (an action's feedback) in one line, as results are.
+        let mut on_progress = |i: usize, report: Value| {
+            let text = match report {
+                Value::String(text) => text,
+                message => facts::summarize(&message).unwrap_or_else(|| message.to_string()),
+            };
             events(&Event::ToolProgress {
                 step,
                 index: shown_at[i],

@@ -72,13 +72,13 @@ impl Executor {
 
     /// Run the calls whose decision allows it, concurrently; outcomes in call order.
     /// Refused calls come back as their refusal. What a call reports of its progress
-    /// goes to `on_progress` (the call's index, the text redacted) while it runs.
+    /// goes to `on_progress` (the call's index, the report redacted) while it runs.
     pub fn run(
         &self,
         calls: &[ToolCall],
         decisions: &[Decision],
         cancel: &Arc<AtomicBool>,
-        on_progress: &mut dyn FnMut(usize, String),
+        on_progress: &mut dyn FnMut(usize, Value),
     ) -> Vec<Outcome> {
         let (progress, mut reports) = tokio::sync::mpsc::unbounded_channel();
         let handles: Vec<_> = calls
@@ -123,14 +123,16 @@ impl Executor {
                         }
                         break ((&mut all).await, Some(why));
                     }
-                    Some((index, text)) = reports.recv() => {
-                        on_progress(index, self.policy.redact_text(&text).into_owned());
+                    Some((index, mut report)) = reports.recv() => {
+                        self.policy.redact(&mut report);
+                        on_progress(index, report);
                     }
                 }
             };
             // What was said just before the calls ended still comes before their results.
-            while let Ok((index, text)) = reports.try_recv() {
-                on_progress(index, self.policy.redact_text(&text).into_owned());
+            while let Ok((index, mut report)) = reports.try_recv() {
+                self.policy.redact(&mut report);
+                on_progress(index, report);
             }
             joined
                 .into_iter()
@@ -302,7 +304,7 @@ mod tests {
             &calls,
             &decisions,
             &Arc::new(AtomicBool::new(false)),
-            &mut |i, text| seen.push((i, text)),
+            &mut |i, report| seen.push((i, report.as_str().unwrap_or_default().to_string())),
         );
         assert!(outcomes.iter().all(|o| o.ok), "{outcomes:?}");
         let of = |i: usize| seen.iter().filter(|(j, _)| *j == i).count();

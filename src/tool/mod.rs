@@ -75,21 +75,31 @@ impl ToolContext {
 /// A long call's reports of how it is going ("0.6 of 1.0 m driven", "waiting for a
 /// message, 2 s of 5"), shown to the operator while it runs; they reach the front end
 /// through the fence like everything else, and never the model (it reads the result).
-/// The default goes nowhere.
+/// A report is a line of text, or a message (an action's feedback) that the agent words
+/// in one line as it words results. The default goes nowhere.
 #[derive(Clone, Default)]
-pub struct Progress(Option<(usize, tokio::sync::mpsc::UnboundedSender<(usize, String)>)>);
+pub struct Progress(
+    Option<(
+        usize,
+        tokio::sync::mpsc::UnboundedSender<(usize, serde_json::Value)>,
+    )>,
+);
 
 impl Progress {
     /// Reports of the call at `index` of a turn, sent into `to`.
-    pub fn to(index: usize, to: tokio::sync::mpsc::UnboundedSender<(usize, String)>) -> Progress {
+    pub fn to(
+        index: usize,
+        to: tokio::sync::mpsc::UnboundedSender<(usize, serde_json::Value)>,
+    ) -> Progress {
         Progress(Some((index, to)))
     }
 
-    /// Say how the call is going (one short line; each replaces the one before).
-    pub fn report(&self, text: impl Into<String>) {
+    /// Say how the call is going (one short line, or a message; each replaces the one
+    /// before).
+    pub fn report(&self, what: impl Into<serde_json::Value>) {
         if let Some((index, to)) = &self.0 {
             // Nobody listening any more (the turn ended) is no error of the tool's.
-            let _ = to.send((*index, text.into()));
+            let _ = to.send((*index, what.into()));
         }
     }
 }

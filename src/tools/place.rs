@@ -515,7 +515,10 @@ impl Places {
         progress.report(format!("{lead}to {name}"));
         let say = |f: &Value| {
             let left = f["distance_remaining"].as_f64()?;
-            Some(format!("{lead}to {name}: {:.1} m to go", left.max(0.0)))
+            Some(json!(format!(
+                "{lead}to {name}: {:.1} m to go",
+                left.max(0.0)
+            )))
         };
         let outcome = send_goal_reporting(
             self.graph.as_ref(),

@@ -23,14 +23,14 @@ const PROGRESS_EVERY: Duration = Duration::from_millis(500);
 
 /// Send `goal` to `action` (of its type) and follow it for up to `wait`, as
 /// `send_goal` does, telling `progress` what `say` makes of its feedback as it comes
-/// (at most every `PROGRESS_EVERY`).
+/// (at most every `PROGRESS_EVERY`): a line, or a message the agent words.
 pub(crate) async fn send_goal_reporting(
     graph: &dyn RosGraph,
     (action, ty): (&str, &str),
     goal: Value,
     wait: Duration,
     progress: &Progress,
-    say: impl Fn(&Value) -> Option<String>,
+    say: impl Fn(&Value) -> Option<Value>,
 ) -> Result<GoalOutcome, RosError> {
     let (sink, mut feedback) = tokio::sync::mpsc::unbounded_channel();
     let mut goal = std::pin::pin!(graph.send_goal_watched(action, ty, goal, wait, sink));
@@ -42,51 +42,14 @@ pub(crate) async fn send_goal_reporting(
                 if reported.is_none_or(|t| t.elapsed() >= PROGRESS_EVERY) {
                     // An action's feedback message, or the `feedback` field of one
                     // wrapped with its goal id.
-                    if let Some(text) = say(f.get("feedback").unwrap_or(&f)) {
-                        progress.report(text);
+                    if let Some(report) = say(f.get("feedback").unwrap_or(&f)) {
+                        progress.report(report);
                         reported = Some(std::time::Instant::now());
                     }
                 }
             }
         }
     }
-}
-
-/// A feedback message in a line: its scalar fields as `name value`, nested names joined
-/// by dots, cut at 60 characters.
-fn brief(message: &Value) -> String {
-    fn walk(v: &Value, at: &str, out: &mut Vec<String>) {
-        match v {
-            Value::Object(m) => {
-                for (k, v) in m {
-                    let name = if at.is_empty() {
-                        k.clone()
-                    } else {
-                        format!("{at}.{k}")
-                    };
-                    walk(v, &name, out);
-                }
-            }
-            Value::Number(n) => {
-                let n = n.as_f64().map_or_else(
-                    || n.to_string(),
-                    |f| format!("{}", (f * 1000.0).round() / 1000.0),
-                );
-                out.push(format!("{at} {n}"));
-            }
-            Value::String(s) => out.push(format!("{at} {s}")),
-            Value::Bool(b) => out.push(format!("{at} {b}")),
-            Value::Array(_) | Value::Null => {}
-        }
-    }
-    let mut parts = Vec::new();
-    walk(message, "", &mut parts);
-    let line = parts.join(", ");
-    if line.chars().count() <= 60 {
-        return line;
-    }
-    let head: String = line.chars().take(59).collect();
-    format!("{head}…")
 }
 
 fn action_type(g: &Graph, action: &str) -> Result<String, ToolError> {
@@ -159,7 +122,7 @@ impl Tool for ActionSendGoal {
             goal.clone(),
             wait,
             &cx.progress,
-            |f| Some(format!("feedback: {}", brief(f))),
+            |f| Some(json!({ "feedback": f })),
         )
         .await
         .map_err(failed)?;

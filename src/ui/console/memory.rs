@@ -64,39 +64,35 @@ impl Memory {
     /// `facts`, the latest `runs`, and `kept` (false, with `why`, when nothing is kept).
     pub fn view(&self) -> Value {
         let file = self.file_places.iter().map(|p| self.place(p, "robot file"));
-        let store = match &self.store {
-            Ok(s) => s,
-            Err(why) => {
-                return json!({"kept": false, "why": self.fence.redact(why),
-                              "places": file.collect::<Vec<_>>(), "facts": [], "runs": []})
-            }
-        };
-        let read = || -> Result<Value, crate::store::StoreError> {
-            let taught: Vec<Value> = store
-                .places()?
-                .iter()
-                .map(|p| self.place(p, "memory"))
-                .collect();
-            let facts: Vec<Value> = store
-                .facts()?
-                .into_iter()
-                .map(|f| json!({"id": f.id, "text": self.fence.redact(&f.text), "at": f.created}))
-                .collect();
-            let runs: Vec<Value> = store
-                .runs(RUNS_SHOWN)?
-                .into_iter()
-                .map(|r| {
-                    json!({"at": r.at, "request": self.fence.redact(&r.request),
-                           "answer": self.fence.redact(&r.answer), "finish": r.finish})
-                })
-                .collect();
-            Ok(json!({"kept": true, "robot": store.robot(),
-                      "places": file.clone().chain(taught).collect::<Vec<_>>(),
-                      "facts": facts, "runs": runs}))
-        };
-        read().unwrap_or_else(|e| {
-            json!({"kept": false, "why": self.fence.redact(&e.to_string()),
-                   "places": file.clone().collect::<Vec<_>>(), "facts": [], "runs": []})
+        let kept = self.store.clone().and_then(|store| {
+            let read = || -> Result<Value, crate::store::StoreError> {
+                let taught: Vec<Value> = store
+                    .places()?
+                    .iter()
+                    .map(|p| self.place(p, "memory"))
+                    .collect();
+                let facts: Vec<Value> = store
+                    .facts()?
+                    .into_iter()
+                    .map(|f| json!({"id": f.id, "text": self.fence.redact(&f.text), "at": f.created}))
+                    .collect();
+                let runs: Vec<Value> = store
+                    .runs(RUNS_SHOWN)?
+                    .into_iter()
+                    .map(|r| {
+                        json!({"at": r.at, "request": self.fence.redact(&r.request),
+                               "answer": self.fence.redact(&r.answer), "finish": r.finish})
+                    })
+                    .collect();
+                Ok(json!({"kept": true, "robot": store.robot(),
+                          "places": file.clone().chain(taught).collect::<Vec<_>>(),
+                          "facts": facts, "runs": runs}))
+            };
+            read().map_err(|e| e.to_string())
+        });
+        kept.unwrap_or_else(|why| {
+            json!({"kept": false, "why": self.fence.redact(&why),
+                   "places": file.collect::<Vec<_>>(), "facts": [], "runs": []})
         })
     }
 
