@@ -21,7 +21,7 @@ use criterion::{BatchSize, Criterion, Throughput};
 use ferrosa::backend::{self, Backend, BackendKind, LoadOptions, TokenId};
 use ferrosa::chat::{ChatMessage, Role};
 use ferrosa::decode::envelope::{Envelope, ToolChoice};
-use ferrosa::decode::turn::{with_tools, TurnRequest};
+use ferrosa::decode::request::{with_tools, TurnRequest};
 use ferrosa::decode::{
     generate, Constraint, Decoding, Grammars, JsonScan, NoHook, Sampler, SamplerConfig, Session,
     Steering,

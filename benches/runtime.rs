@@ -31,7 +31,7 @@ use ferrosa::agent::prompt::RobotPrompt;
 use ferrosa::backend::{self, Backend, BackendKind, LoadOptions, TokenId};
 use ferrosa::chat::{ChatMessage, Role};
 use ferrosa::decode::envelope::{Envelope, ToolChoice};
-use ferrosa::decode::turn::{with_tools, TurnRequest};
+use ferrosa::decode::request::{with_tools, TurnRequest};
 use ferrosa::decode::{
     generate, prompt_tokens, Constraint, Decoding, GenerationStats, Grammars, JsonScan, NoHook,
     Sampler, SamplerConfig, Session, Steering,

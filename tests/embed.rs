@@ -38,14 +38,14 @@ fn the_encoder_gives_the_reference_tokens_and_vectors() {
     assert!(cosine(&a, &b) > cosine(&a, &c) + 0.2);
 }
 
-/// Tool choice by meaning (`agent::meaning`) on tools nobody shipped examples for: a
+/// Tool choice by meaning (`reading::meaning`) on tools nobody shipped examples for: a
 /// declared-style tool set whose examples are written in English only, asked in other
 /// words and other languages; a robot prompt file's examples join a tool's own; the
 /// robot's names count for the tools that take them.
 #[test]
 #[ignore = "needs the sentence encoder (ferrosa models fetch use-multilingual-v3 use-multilingual-v3-vocab)"]
 fn tools_are_found_by_the_meaning_of_their_examples_in_any_language() {
-    use ferrosa::agent::meaning::Meaning;
+    use ferrosa::reading::meaning::Meaning;
     use ferrosa::tool::ToolSpec;
     use serde_json::json;
     use std::collections::BTreeMap;

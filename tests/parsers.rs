@@ -494,7 +494,7 @@ fn remote_options(url: &str) -> ferrosa::remote::RemoteOptions {
 /// A turn through a remote engine at `url` that must call `calc_convert`.
 fn remote_turn(url: &str) -> ferrosa::remote::RemoteError {
     use ferrosa::chat::{ChatMessage, Role};
-    use ferrosa::decode::turn::TurnRequest;
+    use ferrosa::decode::request::TurnRequest;
     use ferrosa::decode::{Decoding, Envelope, ToolChoice};
     use ferrosa::remote::{Remote, RemoteError};
     let backend = crate::support::scripted::Scripted::synthetic(&[]);

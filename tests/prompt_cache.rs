@@ -21,7 +21,7 @@ const SYSTEM: &str = "You are the on-board assistant of a small inspection robot
 /// The prompt's tokens (`model`'s template) and where its stable prefix ends.
 fn prompt(model: &dyn Backend, request: &str) -> (Vec<u32>, usize) {
     use ferrosa::chat::{ChatMessage, Role};
-    use ferrosa::decode::turn::render_prompt_split;
+    use ferrosa::decode::request::render_prompt_split;
     let messages = [
         ChatMessage::new(Role::System, SYSTEM.repeat(5)),
         ChatMessage::new(Role::User, request),

@@ -255,9 +255,11 @@ fn models(path: &str) -> Option<String> {
 }
 
 /// A turn through a connected scripted server, as the agent asks it.
-fn one_turn(url: &str) -> Result<ferrosa::decode::turn::TurnResult, ferrosa::decode::DecodeError> {
+fn one_turn(
+    url: &str,
+) -> Result<ferrosa::decode::request::TurnResult, ferrosa::decode::DecodeError> {
     use ferrosa::chat::{ChatMessage, Role};
-    use ferrosa::decode::turn::TurnRequest;
+    use ferrosa::decode::request::TurnRequest;
     use ferrosa::decode::{Decoding, Envelope, ToolChoice};
     let vocab = vocabulary("smollm2-135m");
     let mut opts = options(url, GrammarMode::JsonSchema);

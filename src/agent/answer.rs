@@ -3,7 +3,7 @@
 
 use serde_json::json;
 
-use super::language::{Language, Phrase};
+use crate::reading::language::{Language, Phrase};
 use crate::tool::ToolSpec;
 
 /// Name of the pseudo-tool the model calls to give its final answer.

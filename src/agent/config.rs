@@ -2,12 +2,11 @@
 //! budgets of its context, and the strategies it uses.
 
 use super::answer::ANSWER_TOOL;
-use super::language::Language;
+use crate::reading::language::Language;
 
-/// The e-stop tool (`tools::stop`), offered whatever the request.
-pub const STOP_TOOL: &str = "robot_stop";
 use crate::decode::envelope::Envelope;
 use crate::decode::{Decoding, SamplerConfig};
+pub use crate::tool::STOP_TOOL;
 
 /// How the model ends a run.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]

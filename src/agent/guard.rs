@@ -29,8 +29,8 @@ use std::sync::Arc;
 
 use serde_json::Value;
 
-use super::concepts::{acts_of, asked_acts, clauses, signs, Act};
-use super::intent::{is_generic, name_words, targets_known, Intent, TARGET_KEYS};
+use crate::reading::concepts::{acts_of, asked_acts, clauses, signs, Act};
+use crate::reading::intent::{is_generic, name_words, targets_known, Intent, TARGET_KEYS};
 use crate::strategy::ground::Grounding;
 use crate::strategy::Strategy;
 use crate::tool::{Effect, Policy, ToolCall, ToolSpec};
@@ -68,7 +68,7 @@ pub trait Guard {
     /// Before the model's turn: the tools this step may call, of those `offered` (`None`:
     /// all of them).
     /// Whether a tool (`declared`), its arguments as this step's grammar takes them
-    /// (`bound`, see `agent::bound`), may be offered: `false` when every call it could
+    /// (`bound`, see `reading::bound`), may be offered: `false` when every call it could
     /// write would be refused.
     fn keeps(&self, _declared: &ToolSpec, _bound: &ToolSpec) -> bool {
         true
@@ -508,7 +508,7 @@ fn offered_names(schema: &Value) -> Vec<String> {
     props
         .iter()
         .filter(|(k, _)| TARGET_KEYS.contains(&k.as_str()))
-        .filter_map(|(_, p)| super::bound::suggested(p))
+        .filter_map(|(_, p)| crate::reading::bound::suggested(p))
         .flatten()
         .collect()
 }
@@ -557,7 +557,7 @@ impl Guard for AskedFor {
         (askable.len() < offered.len()).then_some(askable)
     }
 
-    /// A generic actuator whose grammar holds its targets to names (`agent::bound`) is
+    /// A generic actuator whose grammar holds its targets to names (`reading::bound`) is
     /// kept only when the request asks for one of them: "upload the map to a server" asks
     /// nothing of `/clear`, `/kill` or `/spawn`, so the service call is not written (and
     /// refused).

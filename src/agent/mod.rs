@@ -10,6 +10,9 @@
 //! history (trimmed oldest pair first to the budget), the new query, then this run's
 //! scratchpad (the calls made and what they returned).
 //!
+//! What a request says is read without a model in `crate::reading`; the model's turn is
+//! decoded by `crate::turn`.
+//!
 //! Layout:
 //! - `state`: the `Agent` between requests (model, session, tools, policy, history) and
 //!   what a run asks of it
@@ -18,37 +21,19 @@
 //! - `config`: limits, budgets and modes
 //! - `outcome`: what a run returns (answer, finish, calls, timings)
 //! - `answer`: the `reply` pseudo-tool and the answer as the operator reads it
-//! - `concepts`: what a request asks for, forbids or asks about (acts, negation, mood),
-//!   in six languages
-//! - `intent`: whether the operator's request asks for an actuating call
-//! - `language`: the language an answer is written in
 //! - `prompt`: robot system prompts (ROSA's fields) from TOML
 //! - `history`: the conversation's exchanges, trimming, output truncation
-//! - `meaning`: how near a request is to each tool's description and examples, by the
-//!   sentence encoder
-//! - `select`: choosing tools when their specs exceed the budget
-//! - `small_talk`: the agent's own reply to a request it made no call for
-//! - `bound`: name arguments held to the names the robot has and the operator wrote
 //! - `event`: the typed event stream every front end consumes
 //! - `trace`: JSONL session traces
 
 pub mod answer;
-pub mod bound;
-pub mod concepts;
 pub mod config;
 pub mod event;
-pub mod facts;
 pub mod guard;
 pub mod history;
-pub mod intent;
-pub mod language;
-pub mod meaning;
 pub mod outcome;
-pub mod plan;
 pub mod prompt;
 mod run;
-pub mod select;
-mod small_talk;
 mod state;
 pub mod trace;
 
@@ -116,7 +101,8 @@ impl Agent {
                 .with_known(|name| Some(registry.get(name)?.live_spec()?.parameters))
         });
         let guards = guard::Guards::standard(query, &said, asked);
-        let parts = plan::parts(query, &intent::vocabulary(&offered));
+        let parts =
+            crate::reading::plan::parts(query, &crate::reading::intent::vocabulary(&offered));
         // Each part is offered what it would be offered alone, beside what the whole
         // request is: "turn, then tell me where it points" needs the pose tool, which
         // the whole request's words point at less than at the turn.
@@ -138,7 +124,7 @@ impl Agent {
                        "engine": engine}),
             );
         }
-        let language = language::Language::for_request(self.config.language, query);
+        let language = crate::reading::language::Language::for_request(self.config.language, query);
         let listed = self.listed(&offered);
         run::Run {
             agent: self,

@@ -20,22 +20,22 @@ use std::time::Instant;
 use serde_json::{json, Value};
 
 use super::answer::{self, ANSWER_CHARS, ANSWER_TOOL};
-use super::bound;
 use super::config::STOP_TOOL;
-use super::facts;
 use super::guard::{Came, Guards, Verdict};
 use super::history::truncate_output;
-use super::language::{Language, Phrase};
-use super::small_talk;
 use super::{Agent, AgentError, Event, Finish, RunResult, StepRecord, Timings};
 use crate::backend::BackendError;
 use crate::chat::{ChatMessage, Role};
 use crate::decode::envelope::to_json_spaced;
-use crate::decode::turn::TurnResult;
+use crate::decode::request::TurnResult;
 use crate::decode::{DecodeError, Decoding, Finish as DecodeFinish, Sampler, Turn};
-use crate::strategy::turn::Engine;
+use crate::reading::bound;
+use crate::reading::facts;
+use crate::reading::language::{Language, Phrase};
+use crate::reading::small_talk;
 use crate::tool::exec::Outcome;
 use crate::tool::{Decision, ToolCall, ToolSpec};
+use crate::turn::Engine;
 
 /// With every tool listed (`Agent::listed`), how many of the tools a request is
 /// offered the request names after its words, best first: the listing is the same for
@@ -120,7 +120,7 @@ impl Run<'_> {
     /// Run steps until the run ends. A request to stop stops the robot before anything
     /// else, without the model (stopping needs no model, no intent, no confirmation).
     pub fn run(mut self) -> Result<RunResult, AgentError> {
-        if super::concepts::operator_stops(self.query) {
+        if crate::reading::concepts::operator_stops(self.query) {
             let estop = self.agent.exec.policy().estop().clone();
             estop.trigger(&format!("the operator: {}", self.query.trim()));
             // The stop is the `robot_stop` act, taken without the model: the run's
@@ -279,7 +279,7 @@ impl Run<'_> {
         let priors = self
             .agent
             .prior(&self.parts[self.part], &tools, &self.agent.robot_names());
-        let i = super::select::grounding(&priors)?;
+        let i = crate::reading::select::grounding(&priors)?;
         Some(grounds[i].1.as_str())
     }
 
@@ -308,9 +308,9 @@ impl Run<'_> {
         candidates.extend(self.grounds.iter().map(|(t, _)| t.as_str()));
         let priors = self.agent.prior(part, &candidates, robot_names);
         let (offered, done) = priors.split_at(names.len());
-        let further = super::select::beyond(offered, done);
+        let further = crate::reading::select::beyond(offered, done);
         let part_acts = {
-            use super::concepts::{asked_acts, clauses, Act};
+            use crate::reading::concepts::{asked_acts, clauses, Act};
             asked_acts(&clauses(part))
                 .iter()
                 .any(|a| !matches!(a, Act::Stop | Act::Fence))
@@ -504,8 +504,9 @@ impl Run<'_> {
         // A stop the request did not ask for (a small model reaches for the tool it was
         // always shown) still brakes the robot, but does not latch the e-stop: the
         // operator's words, `/stop`, Ctrl-C and the ROS topic latch it.
-        let unasked =
-            |c: &ToolCall| c.name == STOP_TOOL && !super::concepts::operator_stops(self.query);
+        let unasked = |c: &ToolCall| {
+            c.name == STOP_TOOL && !crate::reading::concepts::operator_stops(self.query)
+        };
         let (run_calls, run_decisions): (Vec<ToolCall>, Vec<Decision>) = calls
             .iter()
             .zip(&decisions)
@@ -709,16 +710,11 @@ impl Run<'_> {
         (live, bound)
     }
 
-    /// Decode one turn with `allowed` tools (all offered when `None`), tokens streamed
-    /// as events as they come.
-    fn turn(
-        &mut self,
-        allowed: Option<Vec<String>>,
-        robot_names: &[(String, String)],
-    ) -> Result<TurnResult, DecodeError> {
-        // The request as the model reads it: with a note of the answer's language when
-        // that is not the prompt's.
-        let mut first = match self.language.note() {
+    /// The request as the model reads it: with a note of the answer's language when that
+    /// is not the prompt's, and the names of the tools that fit when not every tool is
+    /// offered.
+    fn first_message(&self) -> String {
+        let first = match self.language.note() {
             Some(note) => format!("{}\n{note}", self.parts[0]),
             None => self.parts[0].clone(),
         };
@@ -731,19 +727,22 @@ impl Run<'_> {
                 .take(HINTED)
                 .collect();
             if !fit.is_empty() {
-                first = format!("{first}\n(Tools that fit: {}.)", fit.join(", "));
+                return format!("{first}\n(Tools that fit: {}.)", fit.join(", "));
             }
         }
-        let messages = self.agent.context(&first, &self.scratch, &self.listed)?;
-        // The grammar takes each tool's arguments as the robot can take them now
-        // (`Tool::live_parameters`), name arguments held to the names that exist
-        // (`bound`).
-        let part = self.parts[self.part].clone();
-        let meaning = self.agent.meaning.clone();
-        let near = meaning
-            .as_ref()
-            .map(|m| move |name: &str| m.name_similarity(&part, name));
-        let near = near.as_ref().map(|f| f as &dyn Fn(&str) -> f64);
+        first
+    }
+
+    /// The tools a turn's grammar allows, as the robot can take them now, and on a part's
+    /// first step (`fresh`: nothing since the operator's words but the part itself) the
+    /// names of those that take a name the part writes.
+    fn turn_specs(
+        &self,
+        allowed: Option<Vec<String>>,
+        robot_names: &[(String, String)],
+        near: Option<&dyn Fn(&str) -> f64>,
+        fresh: bool,
+    ) -> (Vec<ToolSpec>, Vec<String>) {
         let (allowed_specs, bound_specs) = self.writable(allowed.as_ref(), robot_names, near);
         // The act-first preference, when it leaves nothing the other guards would write
         // (words that ask for an act no call of which the request asks for: "list the
@@ -763,13 +762,14 @@ impl Run<'_> {
             } else {
                 (allowed_specs, bound_specs)
             };
-        // A part's first step: nothing since the operator's words but the part itself.
-        let fresh = self.scratch.last().is_none_or(|m| m.role == Role::User);
         // On it, which tools take a name the part writes, as the robot has them (before
         // `bind` adds a written name the robot lacks to every argument of its kind).
         let taking: Vec<String> = if fresh {
-            let takes =
-                super::select::takes_written(&self.parts[self.part], &allowed_specs, &self.offered);
+            let takes = crate::reading::select::takes_written(
+                &self.parts[self.part],
+                &allowed_specs,
+                &self.offered,
+            );
             allowed_specs
                 .iter()
                 .zip(takes)
@@ -790,6 +790,29 @@ impl Run<'_> {
                 }
             }
         }
+        (allowed_specs, taking)
+    }
+
+    /// Decode one turn with `allowed` tools (all offered when `None`), tokens streamed
+    /// as events as they come.
+    fn turn(
+        &mut self,
+        allowed: Option<Vec<String>>,
+        robot_names: &[(String, String)],
+    ) -> Result<TurnResult, DecodeError> {
+        let first = self.first_message();
+        let messages = self.agent.context(&first, &self.scratch, &self.listed)?;
+        // The grammar takes each tool's arguments as the robot can take them now
+        // (`Tool::live_parameters`), name arguments held to the names that exist
+        // (`bound`).
+        let part = self.parts[self.part].clone();
+        let meaning = self.agent.meaning.clone();
+        let near = meaning
+            .as_ref()
+            .map(|m| move |name: &str| m.name_similarity(&part, name));
+        let near = near.as_ref().map(|f| f as &dyn Fn(&str) -> f64);
+        let fresh = self.scratch.last().is_none_or(|m| m.role == Role::User);
+        let (allowed_specs, taking) = self.turn_specs(allowed, robot_names, near, fresh);
         let sources: Vec<&str> = self.copy_from.iter().map(String::as_str).collect();
         let candidates: Vec<&str> = allowed_specs.iter().map(|s| s.name.as_str()).collect();
         let takes: Vec<bool> = candidates
@@ -821,7 +844,7 @@ impl Run<'_> {
             sampler: &mut sampler,
             remote: agent.remote.as_mut(),
         };
-        let result = crate::strategy::turn::run(
+        let result = crate::turn::run(
             &mut engine,
             &req,
             &mut pipeline,

@@ -12,15 +12,15 @@ use super::answer::{answer_spec, ANSWER_TOOL};
 use super::config::{AgentConfig, AnswerMode, Pick};
 use super::guard::Asked;
 use super::history::History;
-use super::intent;
 use super::outcome::AgentError;
-use super::select;
 use super::trace::Trace;
 use crate::backend::Backend;
 use crate::chat::{ChatMessage, Role};
 use crate::decode::envelope::{Envelope, ToolChoice};
-use crate::decode::turn::{render_prompt, render_prompt_split, with_tools, TurnRequest};
+use crate::decode::request::{render_prompt, render_prompt_split, with_tools, TurnRequest};
 use crate::decode::{DecodeError, Decoding, Grammars, Session};
+use crate::reading::intent;
+use crate::reading::select;
 use crate::strategy::choice::{Calibrated, Weighed};
 use crate::strategy::copy::{defaults, CopyBias, CopyIndex, Scoped};
 use crate::strategy::repeats::LoopGuard;
@@ -46,7 +46,7 @@ pub struct Agent {
     /// The names the robot holds now, by the argument that takes them (`with_names`).
     pub(super) names: Option<NameSource>,
     /// Tool choice by meaning (`with_meaning`); by words without it.
-    pub(super) meaning: Option<Arc<super::meaning::Meaning>>,
+    pub(super) meaning: Option<Arc<crate::reading::meaning::Meaning>>,
     /// The server that writes the turns, when the model runs there (`backend` is then
     /// its vocabulary only).
     pub(super) remote: Option<crate::remote::Remote>,
@@ -324,7 +324,7 @@ impl Agent {
     /// Read requests by meaning (`meaning`): tool choice compares each with the tools'
     /// descriptions and examples instead of their words. The tools' sentences are
     /// encoded now.
-    pub fn with_meaning(mut self, meaning: Arc<super::meaning::Meaning>) -> Agent {
+    pub fn with_meaning(mut self, meaning: Arc<crate::reading::meaning::Meaning>) -> Agent {
         meaning.prepare(&self.retrievable());
         self.meaning = Some(meaning);
         self
@@ -436,9 +436,9 @@ impl Agent {
             let mut scoped = defaults(&offered);
             let written: Vec<String> = sources
                 .iter()
-                .flat_map(|s| super::bound::written_names(s))
+                .flat_map(|s| crate::reading::bound::written_names(s))
                 .collect();
-            let pointed = super::bound::pointed(names, sources, &written);
+            let pointed = crate::reading::bound::pointed(names, sources, &written);
             scoped.extend(graph_names(&offered, &pointed));
             let index = CopyIndex::new(
                 vocab,

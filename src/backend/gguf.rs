@@ -282,64 +282,8 @@ impl Gguf {
             metadata.insert(key, value);
         }
 
-        let mut tensors = Vec::with_capacity(n_tensors as usize);
-        for _ in 0..n_tensors {
-            let name = read_string(&mut cur).map_err(|e| map_read(e, &cur, path, file_size))?;
-            let n_dims = cur.u32().map_err(|e| eof(e, cur.pos))?;
-            if n_dims > 8 {
-                return Err(corrupt(format!("tensor {name} has {n_dims} dimensions")));
-            }
-            let mut dims = Vec::with_capacity(n_dims as usize);
-            for _ in 0..n_dims {
-                dims.push(cur.u64().map_err(|e| eof(e, cur.pos))?);
-            }
-            let ggml_type = cur.u32().map_err(|e| eof(e, cur.pos))?;
-            let offset = cur.u64().map_err(|e| eof(e, cur.pos))?;
-            let tensor = TensorInfo {
-                name,
-                dims,
-                ggml_type,
-                offset,
-            };
-            if tensor.elements().is_none() {
-                return Err(corrupt(format!(
-                    "tensor {} has dimensions {:?}, more elements than can be",
-                    tensor.name, tensor.dims
-                )));
-            }
-            tensors.push(tensor);
-        }
-
-        let alignment = metadata
-            .get("general.alignment")
-            .and_then(MetaValue::as_u64)
-            .filter(|a| *a > 0)
-            .unwrap_or(32);
-        if alignment > MAX_ALIGNMENT {
-            return Err(corrupt(format!("an alignment of {alignment} bytes")));
-        }
-        let data_offset = cur.pos.div_ceil(alignment) * alignment;
-        let mut expected = data_offset;
-        for t in &tensors {
-            let Some(len) = t.byte_len() else { continue };
-            let end = data_offset
-                .checked_add(t.offset)
-                .and_then(|start| start.checked_add(len))
-                .ok_or_else(|| {
-                    corrupt(format!(
-                        "tensor {} at offset {} of {len} bytes ends past any file",
-                        t.name, t.offset
-                    ))
-                })?;
-            expected = expected.max(end);
-        }
-        if expected > file_size {
-            return Err(GgufError::Truncated {
-                path: path.to_path_buf(),
-                expected,
-                actual: file_size,
-            });
-        }
+        let tensors = read_tensors(&mut cur, n_tensors, path)?;
+        let data_offset = data_offset(&metadata, &tensors, cur.pos, path, file_size)?;
         Ok(Gguf {
             path: path.to_path_buf(),
             version,
@@ -431,6 +375,102 @@ impl From<io::Error> for ReadError {
     fn from(e: io::Error) -> Self {
         ReadError::Io(e)
     }
+}
+
+/// The `n` tensor descriptions after the metadata.
+fn read_tensors<R: Read>(
+    cur: &mut Cursor<R>,
+    n: u64,
+    path: &Path,
+) -> Result<Vec<TensorInfo>, GgufError> {
+    let file_size = cur.len;
+    let corrupt = |what: String| GgufError::Corrupt {
+        path: path.to_path_buf(),
+        what,
+    };
+    let mut tensors = Vec::with_capacity(n as usize);
+    for _ in 0..n {
+        let name = read_string(cur).map_err(|e| map_read(e, cur, path, file_size))?;
+        let n_dims = cur
+            .u32()
+            .map_err(|e| map_read(ReadError::Io(e), cur, path, file_size))?;
+        if n_dims > 8 {
+            return Err(corrupt(format!("tensor {name} has {n_dims} dimensions")));
+        }
+        let mut dims = Vec::with_capacity(n_dims as usize);
+        for _ in 0..n_dims {
+            dims.push(
+                cur.u64()
+                    .map_err(|e| map_read(ReadError::Io(e), cur, path, file_size))?,
+            );
+        }
+        let ggml_type = cur
+            .u32()
+            .map_err(|e| map_read(ReadError::Io(e), cur, path, file_size))?;
+        let offset = cur
+            .u64()
+            .map_err(|e| map_read(ReadError::Io(e), cur, path, file_size))?;
+        let tensor = TensorInfo {
+            name,
+            dims,
+            ggml_type,
+            offset,
+        };
+        if tensor.elements().is_none() {
+            return Err(corrupt(format!(
+                "tensor {} has dimensions {:?}, more elements than can be",
+                tensor.name, tensor.dims
+            )));
+        }
+        tensors.push(tensor);
+    }
+    Ok(tensors)
+}
+
+/// Where the tensor data starts (the header's end `pos`, aligned), checked to hold every
+/// tensor within the file.
+fn data_offset(
+    metadata: &BTreeMap<String, MetaValue>,
+    tensors: &[TensorInfo],
+    pos: u64,
+    path: &Path,
+    file_size: u64,
+) -> Result<u64, GgufError> {
+    let corrupt = |what: String| GgufError::Corrupt {
+        path: path.to_path_buf(),
+        what,
+    };
+    let alignment = metadata
+        .get("general.alignment")
+        .and_then(MetaValue::as_u64)
+        .filter(|a| *a > 0)
+        .unwrap_or(32);
+    if alignment > MAX_ALIGNMENT {
+        return Err(corrupt(format!("an alignment of {alignment} bytes")));
+    }
+    let data_offset = pos.div_ceil(alignment) * alignment;
+    let mut expected = data_offset;
+    for t in tensors {
+        let Some(len) = t.byte_len() else { continue };
+        let end = data_offset
+            .checked_add(t.offset)
+            .and_then(|start| start.checked_add(len))
+            .ok_or_else(|| {
+                corrupt(format!(
+                    "tensor {} at offset {} of {len} bytes ends past any file",
+                    t.name, t.offset
+                ))
+            })?;
+        expected = expected.max(end);
+    }
+    if expected > file_size {
+        return Err(GgufError::Truncated {
+            path: path.to_path_buf(),
+            expected,
+            actual: file_size,
+        });
+    }
+    Ok(data_offset)
 }
 
 fn map_read<R>(e: ReadError, cur: &Cursor<R>, path: &Path, file_size: u64) -> GgufError {

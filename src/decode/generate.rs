@@ -119,18 +119,16 @@ pub fn generate(
     )?;
     // Tokens forced at the start were evaluated with the prompt; they reach the caller
     // now, once the model has actually seen them.
-    for (i, &f) in forced.iter().enumerate() {
-        if stats.time_to_first_token.is_zero() {
-            stats.time_to_first_token = start.elapsed();
-        }
-        push_text(scan, &vocab, f);
-        if on_token(f, scan).is_break() {
-            // The caller has what it waited for: the rest is not the turn's.
-            if let Some(c) = constraint.as_deref_mut() {
-                c.rollback(forced.len() - i - 1)?;
-            }
-            return Ok((Finish::Stopped, stats));
-        }
+    if !deliver_forced_at_start(
+        &forced,
+        &vocab,
+        &mut stats,
+        start,
+        scan,
+        constraint.as_deref_mut(),
+        &mut on_token,
+    )? {
+        return Ok((Finish::Stopped, stats));
     }
     let gen_start = Instant::now();
     let mut pending: Vec<TokenId> = Vec::with_capacity(64);
@@ -140,27 +138,12 @@ pub fn generate(
             break Finish::EndOfGeneration;
         }
         let remaining = max_tokens.saturating_sub(stats.generated_tokens);
-        hook.adjust(
-            &TokenContext {
-                vocab: &vocab,
-                scan: &*scan,
-                remaining,
-            },
-            logits,
-        );
-        let chosen = match constraint.as_deref_mut() {
-            Some(c) => {
-                let t = Instant::now();
-                let tok = if close::should_close(remaining, scan) {
-                    close::closing_choice(c, &vocab, scan, logits)?
-                } else {
-                    c.choose(logits, sampler)?
-                };
-                stats.constraint_time += t.elapsed();
-                tok
-            }
-            None => sampler.sample(logits),
+        let step = Step {
+            vocab: &vocab,
+            scan,
+            remaining,
         };
+        let chosen = step.choose(hook, constraint.as_deref_mut(), sampler, logits, &mut stats)?;
         let Some(tok) = chosen else {
             break Finish::NoCandidate;
         };
@@ -170,56 +153,26 @@ pub fn generate(
         stats.generated_tokens += 1;
         push_text(scan, &vocab, tok);
         let flow = on_token(tok, scan);
-        if vocab.is_eog(tok) || flow.is_break() {
-            // The grammar takes every emitted token, so a turn that stops here can be
-            // rewound token for token (`TurnDecoder::rewind`).
-            if let Some(c) = constraint.as_deref_mut() {
-                c.advance(tok)?;
-            }
-            break if vocab.is_eog(tok) {
-                Finish::EndOfGeneration
-            } else {
-                Finish::Stopped
-            };
+        if let Some(finish) = ends_at(tok, flow, &vocab, constraint.as_deref_mut())? {
+            break finish;
         }
         pending.clear();
         pending.push(tok);
         if let Some(c) = constraint.as_deref_mut() {
-            let t = Instant::now();
-            let forced = c.commit(tok)?.to_vec();
-            stats.constraint_time += t.elapsed();
-            let (kept, stopped) = emit_forced(
-                &forced,
+            let step = ForcedStep {
                 hard_limit,
-                &mut stats,
-                &mut pending,
-                scan,
-                &vocab,
-                &mut on_token,
-            );
-            // The grammar has taken every forced token; those the turn does not keep
-            // are rolled back, so grammar and text stay token for token the same (a
-            // rewind relies on it).
-            if kept < forced.len() {
-                tracing::debug!(
-                    kept,
-                    forced = forced.len(),
-                    stopped,
-                    "forced tokens past the turn's end rolled back"
-                );
-            }
-            c.rollback(forced.len() - kept)?;
-            if stopped {
-                break 'gen Finish::Stopped;
-            }
-            // A finished grammar allows only end-of-generation: no need to ask the model.
-            if c.is_stopped() {
-                break Finish::EndOfGeneration;
+                vocab: &vocab,
+            };
+            if let Some(finish) =
+                step.commit(c, tok, &mut stats, &mut pending, scan, &mut on_token)?
+            {
+                break 'gen finish;
             }
         }
         // Past the budget only to close a call that is open.
         let open = constraint.is_some() && scan.open_count() > 0;
-        if stats.generated_tokens >= hard_limit || (stats.generated_tokens >= max_tokens && !open) {
+        let n = stats.generated_tokens;
+        if n >= hard_limit || (n >= max_tokens && !open) {
             break Finish::Length;
         }
         if session.tokens().len() + pending.len() > backend.context_len() {
@@ -233,6 +186,146 @@ pub fn generate(
     }
     stats.gen_time = gen_start.elapsed();
     Ok((finish, stats))
+}
+
+/// Whether the turn ends at the emitted `tok`: at end-of-generation, or when the caller
+/// broke. The grammar takes every emitted token, so a turn that stops here can be
+/// rewound token for token (`TurnDecoder::rewind`).
+fn ends_at(
+    tok: TokenId,
+    flow: ControlFlow<()>,
+    vocab: &Vocab,
+    constraint: Option<&mut Constraint>,
+) -> Result<Option<Finish>, DecodeError> {
+    let eog = vocab.is_eog(tok);
+    if !eog && flow.is_continue() {
+        return Ok(None);
+    }
+    if let Some(c) = constraint {
+        c.advance(tok)?;
+    }
+    Ok(Some(if eog {
+        Finish::EndOfGeneration
+    } else {
+        Finish::Stopped
+    }))
+}
+
+/// Where a step of the loop stands: the vocabulary, the turn's text so far, the tokens
+/// left in the budget.
+struct Step<'a> {
+    vocab: &'a Vocab,
+    scan: &'a JsonScan,
+    remaining: usize,
+}
+
+impl Step<'_> {
+    /// The step's token: the hook adjusts the logits, then the sampler chooses, or with a
+    /// grammar, the grammar checks the sampled token (or near the budget steers to a
+    /// close), its time counted as the grammar's.
+    fn choose(
+        &self,
+        hook: &mut dyn LogitsHook,
+        constraint: Option<&mut Constraint>,
+        sampler: &mut Sampler,
+        logits: &mut [f32],
+        stats: &mut GenerationStats,
+    ) -> Result<Option<TokenId>, DecodeError> {
+        let context = TokenContext {
+            vocab: self.vocab,
+            scan: self.scan,
+            remaining: self.remaining,
+        };
+        hook.adjust(&context, logits);
+        let Some(c) = constraint else {
+            return Ok(sampler.sample(logits));
+        };
+        let t = Instant::now();
+        let tok = if close::should_close(self.remaining, self.scan) {
+            close::closing_choice(c, self.vocab, self.scan, logits)?
+        } else {
+            c.choose(logits, sampler)?
+        };
+        stats.constraint_time += t.elapsed();
+        Ok(tok)
+    }
+}
+
+/// Hand the tokens forced before the first sample to the caller; false when it broke
+/// (the grammar is rolled back to the token it broke at).
+fn deliver_forced_at_start(
+    forced: &[TokenId],
+    vocab: &Vocab,
+    stats: &mut GenerationStats,
+    start: Instant,
+    scan: &mut JsonScan,
+    constraint: Option<&mut Constraint>,
+    on_token: &mut impl FnMut(TokenId, &JsonScan) -> ControlFlow<()>,
+) -> Result<bool, DecodeError> {
+    for (i, &f) in forced.iter().enumerate() {
+        if stats.time_to_first_token.is_zero() {
+            stats.time_to_first_token = start.elapsed();
+        }
+        push_text(scan, vocab, f);
+        if on_token(f, scan).is_break() {
+            // The caller has what it waited for: the rest is not the turn's.
+            if let Some(c) = constraint {
+                c.rollback(forced.len() - i - 1)?;
+            }
+            return Ok(false);
+        }
+    }
+    Ok(true)
+}
+
+/// What committing a sampled token to the grammar needs besides the turn's state.
+struct ForcedStep<'v> {
+    hard_limit: usize,
+    vocab: &'v Vocab,
+}
+
+impl ForcedStep<'_> {
+    /// Commit `tok` to the grammar and pass on the tokens it then forces: the turn's end
+    /// when the caller stopped or the grammar finished, else `None`.
+    fn commit(
+        &self,
+        c: &mut Constraint,
+        tok: TokenId,
+        stats: &mut GenerationStats,
+        pending: &mut Vec<TokenId>,
+        scan: &mut JsonScan,
+        on_token: &mut impl FnMut(TokenId, &JsonScan) -> ControlFlow<()>,
+    ) -> Result<Option<Finish>, DecodeError> {
+        let t = Instant::now();
+        let forced = c.commit(tok)?.to_vec();
+        stats.constraint_time += t.elapsed();
+        let (kept, stopped) = emit_forced(
+            &forced,
+            self.hard_limit,
+            stats,
+            pending,
+            scan,
+            self.vocab,
+            on_token,
+        );
+        // The grammar has taken every forced token; those the turn does not keep are
+        // rolled back, so grammar and text stay token for token the same (a rewind
+        // relies on it).
+        if kept < forced.len() {
+            tracing::debug!(
+                kept,
+                forced = forced.len(),
+                stopped,
+                "forced tokens past the turn's end rolled back"
+            );
+        }
+        c.rollback(forced.len() - kept)?;
+        if stopped {
+            return Ok(Some(Finish::Stopped));
+        }
+        // A finished grammar allows only end-of-generation: no need to ask the model.
+        Ok(c.is_stopped().then_some(Finish::EndOfGeneration))
+    }
 }
 
 /// Pass the tokens the grammar forced after a sampled one to the turn, up to the hard

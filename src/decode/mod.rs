@@ -1,8 +1,8 @@
 //! Decoding: the grammar and sampling layer. Turns logits into tokens, one step at a
 //! time, over a `Backend`: the generation loop, the sampler, grammar-constrained
-//! decoding (llguidance), the tool-call envelopes, the turn, and the one seam through
-//! which anything else shapes a token (`hook::LogitsHook`). It knows tool specs (to build
-//! grammars) but nothing of tool execution, strategies or ROS.
+//! decoding (llguidance), the tool-call envelopes, what a turn asks for and returns, and
+//! the one seam through which anything else shapes a token (`hook::LogitsHook`). It knows
+//! tool specs (to build grammars) but nothing of tool execution, strategies or ROS.
 //!
 //! Layout:
 //! - `generate`: the loop (prefill, hook, grammar, sample, forced tokens)
@@ -12,16 +12,17 @@
 //! - `trie`: llguidance's token environment built from a backend's vocabulary
 //! - `constraint`: per-model grammars, per-turn constraint (mask, commit, force, rollback)
 //! - `envelope`: tool-call formats per model family: grammar, prompt text, parser
-//! - `turn`: one assistant turn with tools: prompt, decoding, parse; `TurnDecoder`
+//! - `request`: what a turn asks for (`TurnRequest`), the prompt it renders, what it
+//!   returns (`TurnResult`); the turn itself is decoded by `crate::turn`
 
 mod close;
 pub mod constraint;
 pub mod envelope;
 pub mod generate;
 pub mod hook;
+pub mod request;
 pub mod sample;
 mod trie;
-pub mod turn;
 
 pub use crate::backend::{PromptCache, Session};
 pub use crate::json::JsonScan;

@@ -23,16 +23,16 @@ use crate::agent::{answer_spec, AnswerMode, ANSWER_TOOL};
 use crate::backend::{Backend, Vocab};
 use crate::chat::{ChatMessage, Role};
 use crate::decode::envelope::{Envelope, ToolChoice};
-use crate::decode::turn::TurnRequest;
+use crate::decode::request::TurnRequest;
 use crate::decode::{DecodeError, Decoding, Grammars, Sampler, SamplerConfig, Session};
 use crate::strategy::choice::Calibrated;
 use crate::strategy::copy::{defaults, CopyBias, CopyIndex};
 use crate::strategy::ground::Grounding;
 use crate::strategy::repeats::{LoopGuard, RepeatGuard};
-use crate::strategy::turn::{run, Engine};
 use crate::strategy::verify::Verification;
 use crate::strategy::Pipeline;
 use crate::tool::{ToolCall, ToolSpec};
+use crate::turn::{run, Engine};
 use bfcl::Case;
 
 /// The system message of every BFCL question (the tool list is appended to it).
@@ -121,19 +121,7 @@ pub fn run_case(
     rules: TurnRules,
     case: &Case,
 ) -> Result<CaseResult, DecodeError> {
-    let mut messages = vec![ChatMessage::new(Role::System, SYSTEM)];
-    for (role, content) in &case.messages {
-        let role = match role.as_str() {
-            "system" => Role::System,
-            "assistant" => Role::Assistant,
-            _ => Role::User,
-        };
-        if role == Role::System {
-            messages[0].content = format!("{}\n{content}", messages[0].content);
-        } else {
-            messages.push(ChatMessage::new(role, content.clone()));
-        }
-    }
+    let messages = case_messages(case);
     let mut specs = case.functions.clone();
     let choice = match rules.answer_mode {
         _ if rules.force_call => ToolChoice::Required,
@@ -180,20 +168,8 @@ pub fn run_case(
         // A question whose functions give no grammar fails alone; the run goes on.
         Err(DecodeError::Constraint(e)) => {
             tracing::warn!(case = %case.id, "no grammar for this case: {e}");
-            return Ok(CaseResult {
-                id: case.id.clone(),
-                category: case.category.clone(),
-                decoding: format!("{decoding:?}").to_lowercase(),
-                pass: false,
-                reason: Some(format!("grammar: {e}")),
-                attempted_call: false,
-                valid_call: false,
-                calls: Vec::new(),
-                text: String::new(),
-                ms: start.elapsed().as_secs_f64() * 1e3,
-                generated_tokens: 0,
-                tok_per_s: 0.0,
-            });
+            let ms = start.elapsed().as_secs_f64() * 1e3;
+            return Ok(no_grammar(case, decoding, &e.to_string(), ms));
         }
         r => r?,
     };
@@ -202,32 +178,7 @@ pub fn run_case(
         Envelope::Json => r.text.trim_start().starts_with('{'),
         _ => r.text.contains("<tool_call>"),
     } && !matches!(&r.turn, Ok(t) if t.calls.iter().all(|c| c.name == ANSWER_TOOL));
-    let (calls, valid_call, verdict) = match &r.turn {
-        Ok(turn) => {
-            let mut calls: Vec<ToolCall> = turn
-                .calls
-                .iter()
-                .filter(|c| c.name != ANSWER_TOOL)
-                .cloned()
-                .collect();
-            if rules.ground {
-                let grounding = Grounding::new(questions.iter().copied()).with_numbers();
-                for c in &mut calls {
-                    if let Some(spec) = case.functions.iter().find(|s| s.name == c.name) {
-                        grounding.drop_ungrounded(c, spec);
-                    }
-                }
-            }
-            let v = score::check(case, &calls);
-            let valid = !calls.is_empty();
-            (calls, valid, v)
-        }
-        Err(e) => (
-            Vec::new(),
-            false,
-            score::Verdict::Fail(format!("unparseable turn: {e}")),
-        ),
-    };
+    let (calls, valid_call, verdict) = score_turn(case, &r.turn, rules.ground, &questions);
     Ok(CaseResult {
         id: case.id.clone(),
         category: case.category.clone(),
@@ -245,6 +196,79 @@ pub fn run_case(
         generated_tokens: r.stats.generated_tokens,
         tok_per_s: r.stats.output_tok_per_s(),
     })
+}
+
+/// A case whose functions give no grammar: failed, with no turn.
+fn no_grammar(case: &Case, decoding: Decoding, error: &str, ms: f64) -> CaseResult {
+    CaseResult {
+        id: case.id.clone(),
+        category: case.category.clone(),
+        decoding: format!("{decoding:?}").to_lowercase(),
+        pass: false,
+        reason: Some(format!("grammar: {error}")),
+        attempted_call: false,
+        valid_call: false,
+        calls: Vec::new(),
+        text: String::new(),
+        ms,
+        generated_tokens: 0,
+        tok_per_s: 0.0,
+    }
+}
+
+/// The case's conversation after the evaluation's system message (a case's own system
+/// text joins it).
+fn case_messages(case: &Case) -> Vec<ChatMessage> {
+    let mut messages = vec![ChatMessage::new(Role::System, SYSTEM)];
+    for (role, content) in &case.messages {
+        let role = match role.as_str() {
+            "system" => Role::System,
+            "assistant" => Role::Assistant,
+            _ => Role::User,
+        };
+        if role == Role::System {
+            messages[0].content = format!("{}\n{content}", messages[0].content);
+        } else {
+            messages.push(ChatMessage::new(role, content.clone()));
+        }
+    }
+    messages
+}
+
+/// A turn's calls (the answer pseudo-call left out; with `ground`, arguments the
+/// questions do not ground dropped), whether there are any, and the verdict.
+fn score_turn(
+    case: &Case,
+    turn: &Result<crate::decode::Turn, crate::decode::envelope::EnvelopeError>,
+    ground: bool,
+    questions: &[&str],
+) -> (Vec<ToolCall>, bool, score::Verdict) {
+    match turn {
+        Ok(turn) => {
+            let mut calls: Vec<ToolCall> = turn
+                .calls
+                .iter()
+                .filter(|c| c.name != ANSWER_TOOL)
+                .cloned()
+                .collect();
+            if ground {
+                let grounding = Grounding::new(questions.iter().copied()).with_numbers();
+                for c in &mut calls {
+                    if let Some(spec) = case.functions.iter().find(|s| s.name == c.name) {
+                        grounding.drop_ungrounded(c, spec);
+                    }
+                }
+            }
+            let v = score::check(case, &calls);
+            let valid = !calls.is_empty();
+            (calls, valid, v)
+        }
+        Err(e) => (
+            Vec::new(),
+            false,
+            score::Verdict::Fail(format!("unparseable turn: {e}")),
+        ),
+    }
 }
 
 /// Per category and decoding mode.

@@ -34,7 +34,7 @@ use serde_json::{json, Value};
 
 use crate::backend::{Backend, TokenId};
 use crate::decode::envelope::{EnvelopeError, MAX_PARALLEL};
-use crate::decode::turn::{render_prompt_split, with_tools, TurnRequest, TurnResult};
+use crate::decode::request::{render_prompt_split, with_tools, TurnRequest, TurnResult};
 use crate::decode::{
     DecodeError, Decoding, Finish, GenerationStats, SamplerConfig, ToolChoice, Turn,
 };

@@ -106,7 +106,7 @@ pub fn calibrated_choice(
 
 /// The weighed choice as a strategy: the model's log-probability of each candidate
 /// name plus `weight` times the candidate's log prior (in the candidates' order; the
-/// agent's prior is the tool retrieval's share, `agent::select::prior`). A small model
+/// agent's prior is the tool retrieval's share, `reading::select::prior`). A small model
 /// reads a list of tools as much as the request: on the project's ROS suite the
 /// retrieval's best tool was the expected first tool more often than the model's
 /// likeliest, and the model still tells apart tools the retrieval scores alike.

@@ -4,8 +4,8 @@
 //!
 //! Every strategy implements `Strategy`, whose methods are the points of a turn where it
 //! may act; each has a default that does nothing, and each implementation documents its
-//! cost per token and per turn. A `Pipeline` runs several in order, and `turn::run` drives
-//! a turn through them. Strategies are tested with scripted logits and texts, never with a
+//! cost per token and per turn. A `Pipeline` runs several in order, and `crate::turn::run`
+//! drives a turn through them. Strategies are tested with scripted logits and texts, never with a
 //! model's output.
 //!
 //! Layout:
@@ -18,7 +18,6 @@
 //! - `ground`: grounding (optional arguments nobody asked for are dropped)
 //! - `default`: what a parameter's schema declares as its default (shared knowledge)
 //! - `likelihood`: the model's log-probabilities of continuations (for calibrated choices)
-//! - `turn`: the turn driver
 
 pub mod choice;
 pub mod copy;
@@ -26,7 +25,6 @@ pub mod default;
 pub mod ground;
 pub mod likelihood;
 pub mod repeats;
-pub mod turn;
 pub mod verify;
 
 use crate::backend::{Backend, BackendError, TokenId};

@@ -2,7 +2,7 @@
 //! is the one to call, one data file per language (`data/examples/<lang>.toml`, a list
 //! per tool name), compiled in. `ToolSpec::new` gives a tool the examples of its name;
 //! declared tool files and robot prompt files add their own. Tool choice compares a
-//! request with them by meaning (`agent::select`, with `embed`).
+//! request with them by meaning (`reading::select`, with `embed`).
 //!
 //! The answer tool's (`reply`) are the small-talk kinds' (`data/replies/<lang>.toml`:
 //! per kind, its examples and what the agent says to it, `replies`).

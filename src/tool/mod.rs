@@ -28,6 +28,10 @@ pub use policy::{Confirm, Decision, Policy, PolicyError};
 pub use registry::{DynTool, Package, Registry};
 pub use spec::{specs_from_json, SpecError, ToolCall, ToolSpec};
 
+/// The name of the tool that stops the robot (`Effect::Stops`; `tools::stop`), which
+/// every robot's tools include and every request is offered.
+pub const STOP_TOOL: &str = "robot_stop";
+
 /// What a tool does to the world: the policy confirms every `Actuates` call.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
 #[serde(rename_all = "lowercase")]

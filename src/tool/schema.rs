@@ -7,7 +7,7 @@ use serde_json::{json, Value};
 
 /// The mark of a string argument that quotes the operator (a fact to keep), in a tool's
 /// live parameters (`Tool::live_parameters`): the agent holds it to words the request
-/// ends with (`agent::bound`). The prompt never shows it.
+/// ends with (`reading::bound`). The prompt never shows it.
 pub const QUOTE: &str = "x-quote";
 
 /// The cleaned schema of `T`'s JSON form.

@@ -113,7 +113,7 @@ struct ToolDecl {
     #[serde(default)]
     parameters: Option<Value>,
     /// Requests an operator makes when this tool is the one to call: tool choice
-    /// compares requests with them by meaning (`agent::meaning`).
+    /// compares requests with them by meaning (`reading::meaning`).
     #[serde(default)]
     examples: Vec<String>,
     effect: EffectDecl,

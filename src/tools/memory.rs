@@ -52,7 +52,7 @@ impl Tool for MemoryNote {
     fn description(&self) -> String {
         "Keep a fact the operator states, across restarts, for memory_recall. Moves nothing.".into()
     }
-    /// The fact as the grammar takes it: words the request ends with (`agent::bound`'s
+    /// The fact as the grammar takes it: words the request ends with (`reading::bound`'s
     /// quote), not whatever the model makes of them. The prompt shows `NoteArgs`.
     fn live_parameters(&self) -> Option<Value> {
         let mut schema = crate::tool::schema::schema_for::<NoteArgs>();

@@ -188,7 +188,7 @@ impl Places {
     }
 
     /// Arguments of one required property `key` that takes a place: one of the names and
-    /// aliases of the places `kept` accepts, or any other string (`agent::bound` reads
+    /// aliases of the places `kept` accepts, or any other string (`reading::bound` reads
     /// this form as names to hold the value to). `None` when there are no such places,
     /// unless `new` (a name not yet given is what the property is for).
     fn named(&self, key: &str, kept: impl Fn(Kept) -> bool, new: bool) -> Option<Value> {
@@ -545,36 +545,7 @@ impl Places {
                 &place.frame,
             )
         });
-        let summary = match outcome.status {
-            GoalStatus::Succeeded => match at {
-                Some((_, x, y, _)) => format!("arrived at {name}, ({}, {})", round2(x), round2(y)),
-                None => format!("arrived at {name}"),
-            },
-            GoalStatus::Running => format!(
-                "still driving to {name} after {:.0} s{}; it goes on (robot_stop stops it)",
-                wait.as_secs_f64(),
-                remaining
-                    .map(|r| format!(", {r} m to go"))
-                    .unwrap_or_default()
-            ),
-            GoalStatus::Canceled => format!(
-                "the drive to {name} was canceled{}",
-                remaining
-                    .map(|r| format!(" {r} m short of it"))
-                    .unwrap_or_default()
-            ),
-            GoalStatus::Rejected => format!("the navigation refused to drive to {name}"),
-            GoalStatus::Aborted => {
-                let why = outcome
-                    .result
-                    .as_ref()
-                    .and_then(|r| r["error_msg"].as_str())
-                    .filter(|m| !m.is_empty())
-                    .map(|m| format!(": {m}"))
-                    .unwrap_or_default();
-                format!("the navigation gave up on {name}{why}")
-            }
-        };
+        let summary = leg_summary(name, &outcome, at.as_ref(), remaining, wait);
         let mut out = json!({
             "summary": summary,
             "place": name,
@@ -594,6 +565,47 @@ impl Places {
     }
 }
 
+/// A leg's outcome in one line: where it arrived, how far short it stopped, or why the
+/// navigation gave up.
+fn leg_summary(
+    name: &str,
+    outcome: &crate::ros::GoalOutcome,
+    at: Option<&(String, f64, f64, f64)>,
+    remaining: Option<f64>,
+    wait: Duration,
+) -> String {
+    match outcome.status {
+        GoalStatus::Succeeded => match at {
+            Some(&(_, x, y, _)) => format!("arrived at {name}, ({}, {})", round2(x), round2(y)),
+            None => format!("arrived at {name}"),
+        },
+        GoalStatus::Running => format!(
+            "still driving to {name} after {:.0} s{}; it goes on (robot_stop stops it)",
+            wait.as_secs_f64(),
+            remaining
+                .map(|r| format!(", {r} m to go"))
+                .unwrap_or_default()
+        ),
+        GoalStatus::Canceled => format!(
+            "the drive to {name} was canceled{}",
+            remaining
+                .map(|r| format!(" {r} m short of it"))
+                .unwrap_or_default()
+        ),
+        GoalStatus::Rejected => format!("the navigation refused to drive to {name}"),
+        GoalStatus::Aborted => {
+            let why = outcome
+                .result
+                .as_ref()
+                .and_then(|r| r["error_msg"].as_str())
+                .filter(|m| !m.is_empty())
+                .map(|m| format!(": {m}"))
+                .unwrap_or_default();
+            format!("the navigation gave up on {name}{why}")
+        }
+    }
+}
+
 #[derive(Deserialize, JsonSchema)]
 pub struct RememberArgs {
     /// The new place's name, as the operator said it.
@@ -609,7 +621,7 @@ impl Tool for PlaceRemember {
     fn description(&self) -> String {
         "Remember where the robot is now as a named place, kept across restarts, so it can be sent back there by name.".into()
     }
-    /// The taught places' names (to move one) or a new name: `agent::bound` holds a new
+    /// The taught places' names (to move one) or a new name: `reading::bound` holds a new
     /// one to the words the operator said.
     fn live_parameters(&self) -> Option<Value> {
         self.0.named("name", |k| k == Kept::Memory, true)

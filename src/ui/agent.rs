@@ -16,12 +16,12 @@ use super::progress::View;
 use super::robot;
 pub use super::robot::{connect, Listing, Robot, RobotLink};
 use super::term::{clean, Input, TerminalConfirm};
-use crate::agent::meaning::Meaning;
 use crate::agent::prompt::RobotPrompt;
 use crate::agent::trace::Trace;
 use crate::agent::{Agent, AgentConfig, AnswerMode, Journal, NameSource, RunResult};
 use crate::decode::Decoding;
 use crate::estop::EStop;
+use crate::reading::meaning::Meaning;
 use crate::ros::ros2::Ros2Options;
 use crate::ros::sim::Sim;
 use crate::ros::RosGraph;
@@ -49,7 +49,7 @@ pub struct AgentArgs {
     pub copy_bias: f32,
     pub pick: crate::agent::config::Pick,
     /// The language answers are written in; `None`: each request's own.
-    pub language: Option<crate::agent::language::Language>,
+    pub language: Option<crate::reading::language::Language>,
     /// Show the model's text as it writes it and each call's arguments and result
     /// (`progress`).
     pub verbose: bool,

@@ -12,11 +12,11 @@ use std::sync::Arc;
 use anyhow::Context;
 
 use super::agent::Robot;
-use crate::agent::language::Language;
 use crate::agent::Event;
 use crate::decode::envelope::Envelope;
 use crate::decode::{Decoding, Grammars, Session};
 use crate::eval::{self, bfcl, CaseResult};
+use crate::reading::language::Language;
 use crate::ros::switch::SwitchGraph;
 use crate::ros::RosGraph;
 use crate::tool::{Confirm, Decision, ToolCall};
@@ -271,13 +271,13 @@ pub fn ros(args: &RosArgs) -> anyhow::Result<()> {
     let mut used = false;
     let (jsonl, mut file) = case_file(&args.out, "ros_cases.jsonl")?;
     let mut results: Vec<CaseResult> = Vec::new();
-    // The answers to requests in another language than English: in it, in another one,
-    // or data alone (names and numbers, words no language shows).
-    let mut answered_in = [0usize; 3];
-    // The cases that latched the e-stop (released before the next case).
-    let mut latched: Vec<String> = Vec::new();
+    let mut run = SuiteRun {
+        model: String::new(),
+        fixture: fixture.describe(robot),
+        answered_in: [0; 3],
+        latched: Vec::new(),
+    };
     let total = cases.len() * args.decoding.modes().len();
-    let mut model_name = String::new();
     for &mode in args.decoding.modes() {
         let mut agent_args = base.clone();
         agent_args.decoding = mode;
@@ -287,14 +287,12 @@ pub fn ros(args: &RosArgs) -> anyhow::Result<()> {
             Some(switch.clone()),
             crate::estop::EStop::new(),
         )?;
-        if fixture == Fixture::Shared {
-            // As `ask` does: what the graph asks of other nodes by itself stays outside
-            // the fence.
-            if let Some(g) = &link.graph {
-                g.set_fence(agent.fence().clone());
-            }
+        // As `ask` does: what a shared robot's graph asks of other nodes by itself stays
+        // outside the fence.
+        if let Some(g) = link.graph.as_ref().filter(|_| fixture == Fixture::Shared) {
+            g.set_fence(agent.fence().clone());
         }
-        model_name = format!(
+        run.model = format!(
             "{} ({})",
             args.agent.model.model.as_deref().unwrap_or("default"),
             agent.backend().name()
@@ -302,20 +300,8 @@ pub fn ros(args: &RosArgs) -> anyhow::Result<()> {
         for (i, case) in cases.iter().enumerate() {
             match fixture {
                 Fixture::FreshSim => {
-                    // A fresh robot: a new sim and a new participant to see it; the old
-                    // pair goes.
                     if used {
-                        if robot == Robot::SimRos1 {
-                            // On ROS 1 the new robot takes the old one's node name: the
-                            // old one leaves the master first.
-                            drop(std::mem::replace(
-                                &mut link,
-                                super::robot::RobotLink::none(),
-                            ));
-                        }
-                        let fresh = connect(robot, false)?;
-                        switch.replace(fresh.graph.clone().context("the sim has no graph")?);
-                        link = fresh;
+                        link = fresh_sim(robot, link, &switch)?;
                     }
                     // A fresh robot starts released.
                     agent.estop().reset();
@@ -325,68 +311,19 @@ pub fn ros(args: &RosArgs) -> anyhow::Result<()> {
             used = true;
             agent.clear();
             approve.store(case.confirm, Ordering::SeqCst);
-            let (mut calls, mut invalid) = (Vec::new(), 0usize);
-            let r = agent.ask(&case.query, &mut |e| match e {
-                Event::ToolCall {
-                    name,
-                    arguments,
-                    decision,
-                    ..
-                } => {
-                    if matches!(decision, Decision::Refused(w) if w.starts_with("invalid arguments")) {
-                        invalid += 1;
-                    }
-                    calls.push(ToolCall {
-                        name: name.clone(),
-                        arguments: arguments.clone(),
-                    });
-                }
-                Event::Error { message } if message.contains("did not parse") => invalid += 1,
-                _ => {}
-            })?;
+            let (r, calls, invalid) = ask_case(&mut agent, case)?;
             // The operator releases an e-stop the case engaged before the next one.
             if release_case_estop(&agent.estop(), fixture, case, args.skip + i)? {
                 eprintln!(
                     "\ncase {}: the e-stop it engaged is released for the next case",
                     case.id
                 );
-                latched.push(case.id.clone());
+                run.latched.push(case.id.clone());
             }
-            let tokens = r.timings.generated_tokens;
-            let verdict = eval::ros::check(case, &calls, &r.answer);
-            match Language::of(&case.query) {
-                Some(l) if l != Language::English => {
-                    let i = match Language::of(&r.answer) {
-                        Some(a) if a == l => 0,
-                        _ if l.differs(&r.answer) => 1,
-                        _ => 2,
-                    };
-                    answered_in[i] += 1;
-                }
-                _ => {}
+            if let Some(i) = answered_in_index(&case.query, &r.answer) {
+                run.answered_in[i] += 1;
             }
-            let model_s = r.timings.model_ms / 1e3;
-            let result = CaseResult {
-                id: case.id.clone(),
-                category: case.category(),
-                decoding: format!("{mode:?}").to_lowercase(),
-                pass: verdict.passed(),
-                reason: match verdict {
-                    eval::score::Verdict::Fail(why) => Some(why),
-                    eval::score::Verdict::Pass => None,
-                },
-                attempted_call: !calls.is_empty() || invalid > 0,
-                valid_call: invalid == 0 && !calls.is_empty(),
-                calls,
-                text: r.answer.clone(),
-                ms: r.timings.total_ms,
-                generated_tokens: tokens,
-                tok_per_s: if model_s > 0.0 {
-                    tokens as f64 / model_s
-                } else {
-                    0.0
-                },
-            };
+            let result = case_result(case, mode, &r, calls, invalid);
             writeln!(file, "{}", serde_json::to_string(&result)?)?;
             results.push(result);
             let passed = results.iter().filter(|r| r.pass).count();
@@ -395,7 +332,126 @@ pub fn ros(args: &RosArgs) -> anyhow::Result<()> {
     }
     drop(link);
     eprintln!();
-    let summaries = eval::summarize(&results);
+    report(args, &cases, &results, &run)?;
+    eprintln!("per-case results: {}", jsonl.display());
+    Ok(())
+}
+
+/// One case asked of the agent (as cleared, with the case's answer to confirmation set):
+/// the run, the calls it made, and how many calls were not valid.
+fn ask_case(
+    agent: &mut crate::agent::Agent,
+    case: &eval::ros::RosCase,
+) -> anyhow::Result<(crate::agent::RunResult, Vec<ToolCall>, usize)> {
+    let (mut calls, mut invalid) = (Vec::new(), 0usize);
+    let r = agent.ask(&case.query, &mut |e| match e {
+        Event::ToolCall {
+            name,
+            arguments,
+            decision,
+            ..
+        } => {
+            if matches!(decision, Decision::Refused(w) if w.starts_with("invalid arguments")) {
+                invalid += 1;
+            }
+            calls.push(ToolCall {
+                name: name.clone(),
+                arguments: arguments.clone(),
+            });
+        }
+        Event::Error { message } if message.contains("did not parse") => invalid += 1,
+        _ => {}
+    })?;
+    Ok((r, calls, invalid))
+}
+
+/// For a request not in English, whether its answer is in its language (0), in another
+/// (1), or data alone (2).
+fn answered_in_index(query: &str, answer: &str) -> Option<usize> {
+    match Language::of(query) {
+        Some(l) if l != Language::English => Some(match Language::of(answer) {
+            Some(a) if a == l => 0,
+            _ if l.differs(answer) => 1,
+            _ => 2,
+        }),
+        _ => None,
+    }
+}
+
+/// A case's line of the per-case results.
+fn case_result(
+    case: &eval::ros::RosCase,
+    mode: Decoding,
+    r: &crate::agent::RunResult,
+    calls: Vec<ToolCall>,
+    invalid: usize,
+) -> CaseResult {
+    let tokens = r.timings.generated_tokens;
+    let verdict = eval::ros::check(case, &calls, &r.answer);
+    let model_s = r.timings.model_ms / 1e3;
+    CaseResult {
+        id: case.id.clone(),
+        category: case.category(),
+        decoding: format!("{mode:?}").to_lowercase(),
+        pass: verdict.passed(),
+        reason: match verdict {
+            eval::score::Verdict::Fail(why) => Some(why),
+            eval::score::Verdict::Pass => None,
+        },
+        attempted_call: !calls.is_empty() || invalid > 0,
+        valid_call: invalid == 0 && !calls.is_empty(),
+        calls,
+        text: r.answer.clone(),
+        ms: r.timings.total_ms,
+        generated_tokens: tokens,
+        tok_per_s: if model_s > 0.0 {
+            tokens as f64 / model_s
+        } else {
+            0.0
+        },
+    }
+}
+
+/// A new sim robot and a new participant to see it, in place of the old pair.
+fn fresh_sim(
+    robot: Robot,
+    mut link: super::robot::RobotLink,
+    switch: &SwitchGraph,
+) -> anyhow::Result<super::robot::RobotLink> {
+    if robot == Robot::SimRos1 {
+        // On ROS 1 the new robot takes the old one's node name: the old one leaves the
+        // master first.
+        drop(std::mem::replace(
+            &mut link,
+            super::robot::RobotLink::none(),
+        ));
+    }
+    let fresh = super::agent::connect(robot, false)?;
+    switch.replace(fresh.graph.clone().context("the sim has no graph")?);
+    drop(link);
+    Ok(fresh)
+}
+
+/// What a suite run saw besides its cases' results.
+struct SuiteRun {
+    model: String,
+    fixture: String,
+    /// Answers to requests not in English: in their language, in another one, or data
+    /// alone (names and numbers, words no language shows).
+    answered_in: [usize; 3],
+    /// The cases that latched the e-stop (released before the next case).
+    latched: Vec<String>,
+}
+
+/// The suite's summary: per category and decoding mode, per half, overall; the
+/// languages of the answers; the e-stops cases latched.
+fn report(
+    args: &RosArgs,
+    cases: &[eval::ros::RosCase],
+    results: &[CaseResult],
+    run: &SuiteRun,
+) -> anyhow::Result<()> {
+    let summaries = eval::summarize(results);
     std::fs::write(
         args.out.join("ros_summary.json"),
         serde_json::to_string_pretty(&summaries)?,
@@ -406,14 +462,15 @@ pub fn ros(args: &RosArgs) -> anyhow::Result<()> {
     };
     let pick = format!("{:?}", args.agent.pick).to_lowercase();
     println!(
-        "model {model_name} | suite {}{copy} | tool pick {pick} | {} | {} cases per mode\n",
+        "model {} | suite {}{copy} | tool pick {pick} | {} | {} cases per mode\n",
+        run.model,
         args.suite.display(),
-        fixture.describe(robot),
+        run.fixture,
         cases.len()
     );
-    let overall = eval::summarize_overall(&results);
+    let overall = eval::summarize_overall(results);
     // Each half on its own (see `eval::ros::halves`): tune on one, report the other.
-    let halves = eval::ros::halves(&cases);
+    let halves = eval::ros::halves(cases);
     let mut by_half = Vec::new();
     for (half, label) in [
         (eval::ros::Half::Tune, "tune half"),
@@ -439,21 +496,20 @@ pub fn ros(args: &RosArgs) -> anyhow::Result<()> {
         "{}",
         eval::markdown(&[summaries, by_half, overall].concat())
     );
-    let [own, other, data] = answered_in;
+    let [own, other, data] = run.answered_in;
     if own + other + data > 0 {
         println!(
             "\nanswers to the {} requests not in English: {own} in their language, {other} in another, {data} data alone (names and numbers; the agent's lead word)",
             own + other + data
         );
     }
-    if !latched.is_empty() {
+    if !run.latched.is_empty() {
         println!(
             "\ne-stop: engaged by {} case(s) ({}), released before the next case",
-            latched.len(),
-            latched.join(", ")
+            run.latched.len(),
+            run.latched.join(", ")
         );
     }
-    eprintln!("per-case results: {}", jsonl.display());
     Ok(())
 }
 

@@ -13,13 +13,14 @@ use anyhow::Context;
 use crate::backend::{Backend, Detokenizer};
 use crate::chat::{ChatMessage, Role};
 use crate::decode::envelope::{Envelope, ToolChoice};
-use crate::decode::turn::{assistant_turn, render_prompt, TurnRequest};
+use crate::decode::request::{render_prompt, TurnRequest};
 use crate::decode::{
     self, Decoding, Finish, GenerationStats, Grammars, JsonScan, NoHook, Sampler, SamplerConfig,
     Session, Steering,
 };
 use crate::metrics;
 use crate::tool::specs_from_json;
+use crate::turn::assistant_turn;
 
 #[derive(Debug, Clone)]
 pub struct GenerateArgs {

@@ -34,7 +34,7 @@ pub struct Input {
 
 impl Input {
     /// Start reading standard input. `/stop` (and `/estop`), and any line that is not a
-    /// command and asks to stop in words (`agent::concepts::operator_stops`: "stop", "hold on",
+    /// command and asks to stop in words (`reading::concepts::operator_stops`: "stop", "hold on",
     /// "¡para!"), trigger `estop` at once
     /// and set `cancel`, whatever is running or waiting for an answer; every line (those
     /// too) is also passed on.
@@ -49,7 +49,7 @@ impl Input {
                     // A command (`/call NAME {json}`, `/reset`) is not read as words: its
                     // JSON may hold any ("wait_s").
                     let command = line.trim_start().starts_with('/');
-                    let said = !command && crate::agent::concepts::operator_stops(&line);
+                    let said = !command && crate::reading::concepts::operator_stops(&line);
                     if said || matches!(line.trim(), "/stop" | "/estop") {
                         let source = match said {
                             true => "the operator (typed a stop)",

@@ -199,47 +199,12 @@ impl Model {
         let gemma = family == Family::Gemma3;
         let mut layers = Vec::with_capacity(n_layer);
         for i in 0..n_layer {
-            let mut t = |s: &str| get(&format!("blk.{i}.{s}.weight"));
             let global = !gemma || i % GEMMA3_GLOBAL_EVERY == GEMMA3_GLOBAL_EVERY - 1;
-            let mut gemma_norm = |s: &str| -> Result<Option<Tensor>, String> {
-                if gemma {
-                    Ok(Some(dequant(t(s)?)?))
-                } else {
-                    Ok(None)
-                }
-            };
-            let q_norm = gemma_norm("attn_q_norm")?;
-            let k_norm = gemma_norm("attn_k_norm")?;
-            let post_attn_norm = gemma_norm("post_attention_norm")?;
-            let post_ffn_norm = gemma_norm("post_ffw_norm")?;
-            let mut lin =
-                |s: &str| -> Result<Linear, String> { Linear::new(t(s)?, &device).map_err(e) };
-            let (wq, wk, wv, wo) = (
-                lin("attn_q")?,
-                lin("attn_k")?,
-                lin("attn_v")?,
-                lin("attn_output")?,
-            );
-            let (gate, up, down) = (lin("ffn_gate")?, lin("ffn_up")?, lin("ffn_down")?);
-            layers.push(Layer {
-                attn_norm: dequant(t("attn_norm")?)?,
-                wq,
-                wk,
-                wv,
-                wo,
-                ffn_norm: dequant(t("ffn_norm")?)?,
-                gate,
-                up,
-                down,
-                q_norm,
-                k_norm,
-                post_attn_norm,
-                post_ffn_norm,
-                window: if global { None } else { window },
-                rope: usize::from(!global),
-                k_cache: None,
-                v_cache: None,
-            });
+            let mut t = |s: &str| get(&format!("blk.{i}.{s}.weight"));
+            let mut layer = Layer::load(&mut t, gemma, &device)?;
+            layer.window = if global { None } else { window };
+            layer.rope = usize::from(!global);
+            layers.push(layer);
         }
         let mut ropes = vec![rope_tables(head_dim, base, scale, n_ctx, &device).map_err(e)?];
         if gemma {
@@ -276,50 +241,17 @@ impl Model {
             .iter()
             .map(|(c, s)| Ok((c.narrow(0, pos, seq)?, s.narrow(0, pos, seq)?)))
             .collect::<candle_core::Result<_>>()?;
-        let kv_len = pos + seq;
+        let pass = Pass {
+            ropes: &ropes,
+            pos,
+            seq,
+            heads: (self.n_head, self.n_kv_head, self.head_dim),
+            eps: self.eps as f32,
+            gemma,
+        };
         let mut masks: Vec<(Option<usize>, Option<Tensor>)> = Vec::new();
-        let (nh, nkv, hd) = (self.n_head, self.n_kv_head, self.head_dim);
-        let eps = self.eps as f32;
         for layer in &mut self.layers {
             let _span = tracing::trace_span!("layer").entered();
-            let h = candle_nn::ops::rms_norm(&x, &layer.attn_norm, eps)?;
-            let heads = |w: &Linear, n: usize| -> candle_core::Result<Tensor> {
-                w.forward(&h)?
-                    .reshape((1, seq, n, hd))?
-                    .transpose(1, 2)?
-                    .contiguous()
-            };
-            let (mut q, mut k, v) = (
-                heads(&layer.wq, nh)?,
-                heads(&layer.wk, nkv)?,
-                heads(&layer.wv, nkv)?,
-            );
-            if let (Some(qn), Some(kn)) = (&layer.q_norm, &layer.k_norm) {
-                q = candle_nn::ops::rms_norm(&q, qn, eps)?;
-                k = candle_nn::ops::rms_norm(&k, kn, eps)?;
-            }
-            let (cos, sin) = &ropes[layer.rope];
-            let (q, k) = if gemma {
-                (
-                    candle_nn::rotary_emb::rope(&q, cos, sin)?,
-                    candle_nn::rotary_emb::rope(&k, cos, sin)?,
-                )
-            } else {
-                (
-                    candle_nn::rotary_emb::rope_i(&q, cos, sin)?,
-                    candle_nn::rotary_emb::rope_i(&k, cos, sin)?,
-                )
-            };
-            let (k_all, v_all) = layer.append_kv(&k, &v, pos)?;
-            // A single query on a sliding-window layer needs only the window's keys.
-            let from = match layer.window {
-                Some(w) if seq == 1 => kv_len.saturating_sub(w),
-                _ => 0,
-            };
-            let (k_all, v_all) = (
-                k_all.narrow(2, from, kv_len - from)?,
-                v_all.narrow(2, from, kv_len - from)?,
-            );
             let mask = if seq > 1 {
                 let window = layer.window;
                 match masks.iter().find(|(w, _)| *w == window) {
@@ -333,44 +265,167 @@ impl Model {
             } else {
                 None
             };
-            // Grouped-query attention: each KV head serves nh / nkv query heads.
-            let rep = nh / nkv;
-            let q = q.reshape((nkv, rep * seq, hd))?;
-            let k_all = k_all.squeeze(0)?;
-            let v_all = v_all.squeeze(0)?;
-            let keys = kv_len - from;
-            let att = (q.matmul(&k_all.t()?)? / (hd as f64).sqrt())?; // (nkv, rep*seq, keys)
-            let att = match &mask {
-                Some(m) => att
-                    .reshape((nkv, rep, seq, keys))?
-                    .broadcast_add(m)?
-                    .reshape((nkv, rep * seq, keys))?,
-                None => att,
-            };
-            let att = candle_nn::ops::softmax_last_dim(&att)?;
-            let y = att.matmul(&v_all)?; // (nkv, rep*seq, hd)
-            let y = y
-                .reshape((1, nh, seq, hd))?
-                .transpose(1, 2)?
-                .reshape((1, seq, nh * hd))?;
-            let mut a = layer.wo.forward(&y)?;
+            let h = candle_nn::ops::rms_norm(&x, &layer.attn_norm, pass.eps)?;
+            let mut a = layer.attention(&h, &pass, mask.as_ref())?;
             if let Some(n) = &layer.post_attn_norm {
-                a = candle_nn::ops::rms_norm(&a, n, eps)?;
+                a = candle_nn::ops::rms_norm(&a, n, pass.eps)?;
             }
             x = (x + a)?;
-            let h = candle_nn::ops::rms_norm(&x, &layer.ffn_norm, eps)?;
-            let g = layer.gate.forward(&h)?;
-            let g = if gemma { g.gelu()? } else { g.silu()? };
-            let u = layer.up.forward(&h)?;
-            let mut f = layer.down.forward(&(g * u)?)?;
-            if let Some(n) = &layer.post_ffn_norm {
-                f = candle_nn::ops::rms_norm(&f, n, eps)?;
-            }
+            let f = layer.feed_forward(&x, &pass)?;
             x = (x + f)?;
         }
         let last = x.narrow(1, seq - 1, 1)?;
-        let last = candle_nn::ops::rms_norm(&last, &self.norm, eps)?;
+        let last = candle_nn::ops::rms_norm(&last, &self.norm, pass.eps)?;
         self.output.forward(&last)?.flatten_all()
+    }
+}
+
+impl Layer {
+    /// A layer's weights, `t` giving each by its name within the layer ("attn_q"); a
+    /// global layer with the first RoPE table (the caller sets a local one's).
+    fn load(
+        t: &mut dyn FnMut(&str) -> Result<QTensor, String>,
+        gemma: bool,
+        device: &Device,
+    ) -> Result<Layer, String> {
+        let e = |e: candle_core::Error| e.to_string();
+        let dequant = |t: QTensor| t.dequantize(device).map_err(e);
+        let mut gemma_norm = |s: &str| -> Result<Option<Tensor>, String> {
+            if gemma {
+                Ok(Some(dequant(t(s)?)?))
+            } else {
+                Ok(None)
+            }
+        };
+        let q_norm = gemma_norm("attn_q_norm")?;
+        let k_norm = gemma_norm("attn_k_norm")?;
+        let post_attn_norm = gemma_norm("post_attention_norm")?;
+        let post_ffn_norm = gemma_norm("post_ffw_norm")?;
+        let mut lin = |s: &str| -> Result<Linear, String> { Linear::new(t(s)?, device).map_err(e) };
+        let (wq, wk, wv, wo) = (
+            lin("attn_q")?,
+            lin("attn_k")?,
+            lin("attn_v")?,
+            lin("attn_output")?,
+        );
+        let (gate, up, down) = (lin("ffn_gate")?, lin("ffn_up")?, lin("ffn_down")?);
+        Ok(Layer {
+            attn_norm: dequant(t("attn_norm")?)?,
+            wq,
+            wk,
+            wv,
+            wo,
+            ffn_norm: dequant(t("ffn_norm")?)?,
+            gate,
+            up,
+            down,
+            q_norm,
+            k_norm,
+            post_attn_norm,
+            post_ffn_norm,
+            window: None,
+            rope: 0,
+            k_cache: None,
+            v_cache: None,
+        })
+    }
+}
+
+/// What every layer of one forward pass shares.
+struct Pass<'a> {
+    /// cos and sin per RoPE base, at the pass's positions.
+    ropes: &'a [(Tensor, Tensor)],
+    pos: usize,
+    seq: usize,
+    /// Query heads, key/value heads, head size.
+    heads: (usize, usize, usize),
+    eps: f32,
+    gemma: bool,
+}
+
+impl Layer {
+    /// Self-attention of the normed input `h` over the cached keys and this pass's,
+    /// through the output projection.
+    fn attention(
+        &mut self,
+        h: &Tensor,
+        pass: &Pass,
+        mask: Option<&Tensor>,
+    ) -> candle_core::Result<Tensor> {
+        let (nh, nkv, hd) = pass.heads;
+        let (seq, pos, eps) = (pass.seq, pass.pos, pass.eps);
+        let kv_len = pos + seq;
+        let heads = |w: &Linear, n: usize| -> candle_core::Result<Tensor> {
+            w.forward(h)?
+                .reshape((1, seq, n, hd))?
+                .transpose(1, 2)?
+                .contiguous()
+        };
+        let (mut q, mut k, v) = (
+            heads(&self.wq, nh)?,
+            heads(&self.wk, nkv)?,
+            heads(&self.wv, nkv)?,
+        );
+        if let (Some(qn), Some(kn)) = (&self.q_norm, &self.k_norm) {
+            q = candle_nn::ops::rms_norm(&q, qn, eps)?;
+            k = candle_nn::ops::rms_norm(&k, kn, eps)?;
+        }
+        let (cos, sin) = &pass.ropes[self.rope];
+        let (q, k) = if pass.gemma {
+            (
+                candle_nn::rotary_emb::rope(&q, cos, sin)?,
+                candle_nn::rotary_emb::rope(&k, cos, sin)?,
+            )
+        } else {
+            (
+                candle_nn::rotary_emb::rope_i(&q, cos, sin)?,
+                candle_nn::rotary_emb::rope_i(&k, cos, sin)?,
+            )
+        };
+        let (k_all, v_all) = self.append_kv(&k, &v, pos)?;
+        // A single query on a sliding-window layer needs only the window's keys.
+        let from = match self.window {
+            Some(w) if seq == 1 => kv_len.saturating_sub(w),
+            _ => 0,
+        };
+        let (k_all, v_all) = (
+            k_all.narrow(2, from, kv_len - from)?,
+            v_all.narrow(2, from, kv_len - from)?,
+        );
+        // Grouped-query attention: each KV head serves nh / nkv query heads.
+        let rep = nh / nkv;
+        let q = q.reshape((nkv, rep * seq, hd))?;
+        let k_all = k_all.squeeze(0)?;
+        let v_all = v_all.squeeze(0)?;
+        let keys = kv_len - from;
+        let att = (q.matmul(&k_all.t()?)? / (hd as f64).sqrt())?; // (nkv, rep*seq, keys)
+        let att = match mask {
+            Some(m) => att
+                .reshape((nkv, rep, seq, keys))?
+                .broadcast_add(m)?
+                .reshape((nkv, rep * seq, keys))?,
+            None => att,
+        };
+        let att = candle_nn::ops::softmax_last_dim(&att)?;
+        let y = att.matmul(&v_all)?; // (nkv, rep*seq, hd)
+        let y = y
+            .reshape((1, nh, seq, hd))?
+            .transpose(1, 2)?
+            .reshape((1, seq, nh * hd))?;
+        self.wo.forward(&y)
+    }
+
+    /// The feed-forward block on `x` (normed here), its own post-norm applied.
+    fn feed_forward(&self, x: &Tensor, pass: &Pass) -> candle_core::Result<Tensor> {
+        let h = candle_nn::ops::rms_norm(x, &self.ffn_norm, pass.eps)?;
+        let g = self.gate.forward(&h)?;
+        let g = if pass.gemma { g.gelu()? } else { g.silu()? };
+        let u = self.up.forward(&h)?;
+        let mut f = self.down.forward(&(g * u)?)?;
+        if let Some(n) = &self.post_ffn_norm {
+            f = candle_nn::ops::rms_norm(&f, n, pass.eps)?;
+        }
+        Ok(f)
     }
 }
 

@@ -254,6 +254,21 @@ impl Ros2Graph {
         })
     }
 
+    /// The writers of `dds_topic`, waited for until `until` when there are none yet.
+    async fn writers_of(&self, dds_topic: &str, until: Instant) -> Vec<DdsEndpoint> {
+        loop {
+            let writers: Vec<DdsEndpoint> = self
+                .endpoints()
+                .into_iter()
+                .filter(|e| e.writer && e.dds_topic == dds_topic)
+                .collect();
+            if !writers.is_empty() || Instant::now() >= until {
+                return writers;
+            }
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        }
+    }
+
     async fn do_subscribe(
         &self,
         topic: &str,
@@ -272,18 +287,9 @@ impl Ros2Graph {
             }
         );
         // Wait (briefly) for a publisher, to learn the type and the QoS it offers.
-        let discover_until = start + window.min(Duration::from_secs(3));
-        let offered: Vec<DdsEndpoint> = loop {
-            let writers: Vec<DdsEndpoint> = self
-                .endpoints()
-                .into_iter()
-                .filter(|e| e.writer && e.dds_topic == dds_topic)
-                .collect();
-            if !writers.is_empty() || Instant::now() >= discover_until {
-                break writers;
-            }
-            tokio::time::sleep(Duration::from_millis(50)).await;
-        };
+        let offered = self
+            .writers_of(&dds_topic, start + window.min(Duration::from_secs(3)))
+            .await;
         let ty = match (type_name, offered.first()) {
             (Some(t), _) => normalize_type(t),
             (None, Some(w)) => normalize_type(&w.dds_type),
@@ -296,26 +302,7 @@ impl Ros2Graph {
             type_name: ty.clone(),
             reason: e.to_string(),
         })?;
-        // As `ros2 topic echo` does: best effort if any publisher is, transient local only
-        // if every publisher is.
-        let best_effort = offered
-            .iter()
-            .any(|w| w.qos.reliability == Reliability::BestEffort);
-        let latched = !offered.is_empty()
-            && offered
-                .iter()
-                .all(|w| w.qos.durability == Durability::TransientLocal);
-        let mut qos = reliable_qos(
-            if latched {
-                QDurability::TransientLocal
-            } else {
-                QDurability::Volatile
-            },
-            max.clamp(10, 1000),
-        );
-        if best_effort {
-            qos = qos.reliability(QReliability::BestEffort);
-        }
+        let (qos, latched) = echo_qos(&offered, max);
         let (pkg, _, short) = split_type(&ty)?;
         let name = ros_name(topic)?;
         // RustDDS keeps a participant-wide cache per topic, so a new reader also sees
@@ -671,4 +658,29 @@ impl RosGraph for Ros2Graph {
 /// services (get, list, describe, set to a value) and type descriptions.
 fn idempotent_service(ty: &str) -> bool {
     ty.starts_with("rcl_interfaces/srv/") || ty.starts_with("type_description_interfaces/srv/")
+}
+
+/// The QoS to read a topic with, as `ros2 topic echo` chooses it: best effort if any
+/// publisher is, transient local only if every publisher is (then `true`: samples from
+/// before the reader count).
+fn echo_qos(offered: &[DdsEndpoint], max: usize) -> (ros2_client::QosProfile, bool) {
+    let best_effort = offered
+        .iter()
+        .any(|w| w.qos.reliability == Reliability::BestEffort);
+    let latched = !offered.is_empty()
+        && offered
+            .iter()
+            .all(|w| w.qos.durability == Durability::TransientLocal);
+    let mut qos = reliable_qos(
+        if latched {
+            QDurability::TransientLocal
+        } else {
+            QDurability::Volatile
+        },
+        max.clamp(10, 1000),
+    );
+    if best_effort {
+        qos = qos.reliability(QReliability::BestEffort);
+    }
+    (qos, latched)
 }

@@ -486,66 +486,11 @@ async fn handle(
 ) -> Value {
     let name = service.rsplit('/').next().unwrap_or_default();
     if let Some(who) = turtle {
-        let mut world = s.world.lock().expect("world");
-        let Some(t) = world.turtles.get_mut(who) else {
-            return json!({});
-        };
-        match name {
-            "set_pen" => t.pen_on = req["off"].as_u64().unwrap_or(0) == 0,
-            "teleport_absolute" => {
-                t.x = f(req, "x").clamp(0.0, ARENA);
-                t.y = f(req, "y").clamp(0.0, ARENA);
-                t.theta = normalize_angle(f(req, "theta"));
-            }
-            "teleport_relative" => {
-                t.theta = normalize_angle(t.theta + f(req, "angular"));
-                t.x = (t.x + t.theta.cos() * f(req, "linear")).clamp(0.0, ARENA);
-                t.y = (t.y + t.theta.sin() * f(req, "linear")).clamp(0.0, ARENA);
-            }
-            _ => {}
-        }
+        turtle_service(s, who, name, req);
         return json!({});
     }
     match name {
-        "spawn" => {
-            let mut who = req["name"].as_str().unwrap_or("").to_string();
-            {
-                let world = s.world.lock().expect("world");
-                if who.is_empty() {
-                    who = (2..)
-                        .map(|i| format!("turtle{i}"))
-                        .find(|n| !world.turtles.contains_key(n))
-                        .expect("a free name");
-                } else if world.turtles.contains_key(&who) {
-                    drop(world);
-                    s.log(
-                        LogLevel::Error,
-                        &format!("A turtle named [{who}] already exists"),
-                    );
-                    return json!({"name": ""});
-                }
-            }
-            let turtle = Turtle::at(
-                f(req, "x").clamp(0.0, ARENA),
-                f(req, "y").clamp(0.0, ARENA),
-                f(req, "theta"),
-            );
-            let mut node = s.node.lock().await;
-            if let Err(e) = add_turtle(rt, s, &mut node, &who, turtle) {
-                s.log(LogLevel::Error, &format!("spawn {who}: {e}"));
-                return json!({"name": ""});
-            }
-            s.log(
-                LogLevel::Info,
-                &format!(
-                    "Spawning turtle [{who}] at x=[{}], y=[{}], theta=[{}]",
-                    f(req, "x"),
-                    f(req, "y"),
-                    f(req, "theta")
-                ),
-            );
-            json!({"name": who})
-        }
+        "spawn" => spawn(rt, s, req).await,
         "kill" => {
             let who = req["name"].as_str().unwrap_or("");
             let removed = {
@@ -562,46 +507,113 @@ async fn handle(
             }
             json!({})
         }
-        "reset" => {
-            let others: Vec<String> = {
-                let mut world = s.world.lock().expect("world");
-                let others: Vec<String> = world
-                    .turtles
-                    .keys()
-                    .filter(|n| *n != "turtle1")
-                    .cloned()
-                    .collect();
-                for n in &others {
-                    world.turtles.remove(n);
-                    if let Some(tasks) = world.tasks.remove(n) {
-                        tasks.iter().for_each(JoinHandle::abort);
-                    }
-                }
-                world
-                    .turtles
-                    .insert("turtle1".into(), Turtle::at(CENTER, CENTER, 0.0));
-                // Goals under way end (aborted) with the turtles they turned.
-                world.rotations.clear();
-                world.navigations.clear();
-                others
-            };
-            let turtle1_running = s.world.lock().expect("world").tasks.contains_key("turtle1");
-            if !turtle1_running {
-                let mut node = s.node.lock().await;
-                let _ = add_turtle(rt, s, &mut node, "turtle1", Turtle::at(CENTER, CENTER, 0.0));
-            }
-            s.log(
-                LogLevel::Info,
-                &format!("Resetting turtlesim (removed {} turtles)", others.len()),
-            );
-            json!({})
-        }
+        "reset" => reset(rt, s).await,
         "clear" => {
             s.log(LogLevel::Info, "Clearing turtlesim.");
             json!({})
         }
         _ => json!({}),
     }
+}
+
+/// A turtle's own service (`/<turtle>/set_pen`, `teleport_absolute`, `teleport_relative`).
+fn turtle_service(s: &Shared, who: &str, name: &str, req: &Value) {
+    let mut world = s.world.lock().expect("world");
+    let Some(t) = world.turtles.get_mut(who) else {
+        return;
+    };
+    match name {
+        "set_pen" => t.pen_on = req["off"].as_u64().unwrap_or(0) == 0,
+        "teleport_absolute" => {
+            t.x = f(req, "x").clamp(0.0, ARENA);
+            t.y = f(req, "y").clamp(0.0, ARENA);
+            t.theta = normalize_angle(f(req, "theta"));
+        }
+        "teleport_relative" => {
+            t.theta = normalize_angle(t.theta + f(req, "angular"));
+            t.x = (t.x + t.theta.cos() * f(req, "linear")).clamp(0.0, ARENA);
+            t.y = (t.y + t.theta.sin() * f(req, "linear")).clamp(0.0, ARENA);
+        }
+        _ => {}
+    }
+}
+
+/// `/spawn`: a new turtle (named, or the first free `turtleN`); an empty name when the
+/// name is taken.
+async fn spawn(rt: &tokio::runtime::Handle, s: &Arc<Shared>, req: &Value) -> Value {
+    let mut who = req["name"].as_str().unwrap_or("").to_string();
+    {
+        let world = s.world.lock().expect("world");
+        if who.is_empty() {
+            who = (2..)
+                .map(|i| format!("turtle{i}"))
+                .find(|n| !world.turtles.contains_key(n))
+                .expect("a free name");
+        } else if world.turtles.contains_key(&who) {
+            drop(world);
+            s.log(
+                LogLevel::Error,
+                &format!("A turtle named [{who}] already exists"),
+            );
+            return json!({"name": ""});
+        }
+    }
+    let turtle = Turtle::at(
+        f(req, "x").clamp(0.0, ARENA),
+        f(req, "y").clamp(0.0, ARENA),
+        f(req, "theta"),
+    );
+    let mut node = s.node.lock().await;
+    if let Err(e) = add_turtle(rt, s, &mut node, &who, turtle) {
+        s.log(LogLevel::Error, &format!("spawn {who}: {e}"));
+        return json!({"name": ""});
+    }
+    s.log(
+        LogLevel::Info,
+        &format!(
+            "Spawning turtle [{who}] at x=[{}], y=[{}], theta=[{}]",
+            f(req, "x"),
+            f(req, "y"),
+            f(req, "theta")
+        ),
+    );
+    json!({"name": who})
+}
+
+/// `/reset`: turtle1 alone, at the centre; goals under way end.
+async fn reset(rt: &tokio::runtime::Handle, s: &Arc<Shared>) -> Value {
+    let others: Vec<String> = {
+        let mut world = s.world.lock().expect("world");
+        let others: Vec<String> = world
+            .turtles
+            .keys()
+            .filter(|n| *n != "turtle1")
+            .cloned()
+            .collect();
+        for n in &others {
+            world.turtles.remove(n);
+            if let Some(tasks) = world.tasks.remove(n) {
+                tasks.iter().for_each(JoinHandle::abort);
+            }
+        }
+        world
+            .turtles
+            .insert("turtle1".into(), Turtle::at(CENTER, CENTER, 0.0));
+        // Goals under way end (aborted) with the turtles they turned.
+        world.rotations.clear();
+        world.navigations.clear();
+        others
+    };
+    let turtle1_running = s.world.lock().expect("world").tasks.contains_key("turtle1");
+    if !turtle1_running {
+        let mut node = s.node.lock().await;
+        let _ = add_turtle(rt, s, &mut node, "turtle1", Turtle::at(CENTER, CENTER, 0.0));
+    }
+    s.log(
+        LogLevel::Info,
+        &format!("Resetting turtlesim (removed {} turtles)", others.len()),
+    );
+    json!({})
 }
 
 #[cfg(test)]

@@ -156,7 +156,7 @@ impl Tool for ActionSendGoal {
     }
 
     /// One branch per action the robot offers, its goal typed by the action's `_Goal`
-    /// definition, and one for an action the robot lacks (`agent::bound` holds its name
+    /// definition, and one for an action the robot lacks (`reading::bound` holds its name
     /// to those the operator wrote), as for `ros_service_call`.
     fn live_parameters(&self) -> Option<Value> {
         let g = crate::ros::graph_now(self.0.graph.as_ref())?;

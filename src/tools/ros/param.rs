@@ -248,8 +248,8 @@ impl Tool for ParamSet {
 
 /// A parameter tool's arguments as the robot can take them: one branch per node whose
 /// parameters are known (`ParamNames`), its `name` one of them or another (which
-/// `agent::bound` holds to those the request points at and those the operator wrote),
-/// and one for a node the robot lacks (`agent::bound` holds its node to names the operator
+/// `reading::bound` holds to those the request points at and those the operator wrote),
+/// and one for a node the robot lacks (`reading::bound` holds its node to names the operator
 /// wrote; the call then reports it missing). `more`: the tool's other arguments, all
 /// required. `None` when no node's parameters are known.
 fn by_node(ros: &Ros, more: &[(&str, Value)]) -> Option<Value> {

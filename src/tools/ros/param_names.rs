@@ -1,7 +1,7 @@
 //! The parameter names of the robot's nodes, for what is built inside a model's turn:
 //! the parameter tools' arguments as the robot can take them (`Tool::live_parameters`),
 //! so "make the background's blue 255" can only name a parameter `/turtlesim` has, and
-//! `agent::bound` can hold it to `background_b`.
+//! `reading::bound` can hold it to `background_b`.
 //!
 //! Listing a node's parameters is a service call (`<node>/list_parameters`), and a turn
 //! never waits on the robot for long: the catalog answers from what it knows, and

@@ -44,7 +44,7 @@ impl Tool for ServiceCall {
 
     /// One branch per service the robot offers, its request typed by the service's
     /// type (a small model otherwise fills a free request with the schema's own words),
-    /// and one for a service the robot lacks (`agent::bound` holds its name to those
+    /// and one for a service the robot lacks (`reading::bound` holds its name to those
     /// the operator wrote; the call then reports it missing).
     fn live_parameters(&self) -> Option<Value> {
         let g = crate::ros::graph_now(self.0.graph.as_ref())?;

@@ -28,7 +28,7 @@ fn published(g: &Graph) -> Vec<String> {
 }
 
 /// `Args`'s schema with its `topic` a choice of the topics published now, or any other
-/// (`agent::bound` holds it to those the request points at, and keeps a name the
+/// (`reading::bound` holds it to those the request points at, and keeps a name the
 /// operator writes): a reading tool is offered the topics it can hear. `None` while
 /// nothing is published.
 fn reading<A: JsonSchema>(ros: &Ros) -> Option<Value> {
@@ -218,7 +218,7 @@ impl Tool for TopicPublish {
     /// One branch per topic of a known type that some node subscribes to (a message
     /// nobody reads moves nothing; publishing on a topic the robot only publishes
     /// would feign its state), its message typed by that type, and one for any other
-    /// topic (`agent::bound` holds its name to those the operator wrote), which needs
+    /// topic (`reading::bound` holds its name to those the operator wrote), which needs
     /// `message_type`. Every topic when none is subscribed to.
     fn live_parameters(&self) -> Option<Value> {
         let g = crate::ros::graph_now(self.0.graph.as_ref())?;

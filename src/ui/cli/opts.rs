@@ -117,13 +117,13 @@ pub(super) struct AgentOpts {
 }
 
 /// `--lang`: `None` for auto.
-type LanguageArg = Option<crate::agent::language::Language>;
+type LanguageArg = Option<crate::reading::language::Language>;
 
 fn parse_language(text: &str) -> Result<LanguageArg, String> {
     if text.trim().eq_ignore_ascii_case("auto") {
         return Ok(None);
     }
-    crate::agent::language::Language::parse(text).map(Some)
+    crate::reading::language::Language::parse(text).map(Some)
 }
 
 impl AgentOpts {

@@ -44,7 +44,7 @@ use super::ears::{Ears, SpeechFailure};
 use super::hub::{Hub, Logged};
 use super::memory::{Forget, Memory};
 use super::worker::Job;
-use crate::agent::language::Language;
+use crate::reading::language::Language;
 use crate::ui::secret::{bearer, Secret};
 
 /// The longest request the console takes, in characters.
@@ -460,7 +460,7 @@ async fn ask(State(app): State<App>, bytes: Bytes) -> Result<Response, Failure> 
     // Stop wins: the e-stop first, whatever is running or waiting, and no model (a
     // dictated stop that runs on past the length limit too).
     let head: String = text.chars().take(MAX_REQUEST_CHARS).collect();
-    if crate::agent::concepts::operator_stops(&head) {
+    if crate::reading::concepts::operator_stops(&head) {
         let estop = app.hub.estop.clone();
         let _ = tokio::task::spawn_blocking(move || {
             estop.trigger("the operator (a stop sent to the web console)")

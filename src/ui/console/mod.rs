@@ -40,9 +40,9 @@ use anyhow::Context;
 use serde_json::{json, Value};
 
 use super::agent::{build_with, connect, AgentArgs};
-use crate::agent::language::Language;
 use crate::agent::Agent;
 use crate::estop::EStop;
+use crate::reading::language::Language;
 use crate::ui::secret::Secret;
 use hub::Hub;
 use pose::View;
@@ -169,7 +169,7 @@ fn view(args: &ServeArgs, agent: &Agent) -> anyhow::Result<Option<View>> {
 
 /// What the page shows of this console at start.
 fn info(agent: &Agent, args: &AgentArgs, view: Option<&View>) -> Value {
-    let languages: Vec<Value> = crate::agent::language::ALL
+    let languages: Vec<Value> = crate::reading::language::ALL
         .iter()
         .map(|l| json!({"code": l.code(), "name": l.name()}))
         .collect();

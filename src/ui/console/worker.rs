@@ -6,8 +6,8 @@ use std::sync::mpsc::Receiver;
 use serde_json::json;
 
 use super::hub::Hub;
-use crate::agent::language::Language;
 use crate::agent::Agent;
+use crate::reading::language::Language;
 
 /// What the agent's thread is asked to do.
 pub enum Job {

@@ -1,4 +1,7 @@
-//! The turn driver: one assistant turn through a `Pipeline`.
+//! One assistant turn, from the conversation to parsed calls: the prompt is rendered
+//! (`decode::request`), the turn decoded token by token under the tool-call grammar
+//! (`decoder::TurnDecoder`) with the strategies of a `strategy::Pipeline` plugged in, or
+//! written by a model on a server (`remote`), and the text parsed back into calls.
 //!
 //! Without a strategy that decides (`Strategy::decides`), or when the turn may answer in
 //! prose, the turn is decoded to its end with the pipeline as the logits hook. Otherwise,
@@ -12,16 +15,18 @@
 
 use std::ops::ControlFlow;
 
-use super::choice::CONTENT_FREE;
-use super::{Pipeline, Review, Scorer};
 use crate::backend::{Backend, TokenId};
 use crate::chat::Role;
-use crate::decode::turn::{
-    render_prompt, with_tools, Mark, TurnDecoder, TurnRequest, TurnResult, Until,
-};
+use crate::decode::request::{render_prompt, with_tools, TurnRequest, TurnResult};
 use crate::decode::{DecodeError, Envelope, Finish, Grammars, Sampler, Session, ToolChoice};
 use crate::remote::Remote;
+use crate::strategy::choice::CONTENT_FREE;
+use crate::strategy::{Pipeline, Review, Scorer};
 use crate::tool::ToolCall;
+
+mod decoder;
+
+pub use decoder::{assistant_turn, Mark, TurnDecoder, Until};
 
 /// The model and what decoding it needs.
 pub struct Engine<'a> {
@@ -226,49 +231,86 @@ impl Gate {
             }
             check_first = false;
             calls.push(call);
-            // Does the list go on? The endings are scored as the model would spell them:
-            // what was written since the opening plus each ending, tokenized whole (the
-            // brace that closed the call often shares a token with what follows it).
-            let since = &turn.scan().text()[opening.bytes()..call_end];
-            let since = String::from_utf8_lossy(since).into_owned();
-            let with = |ending: &str| engine.backend.tokenize(&format!("{since}{ending}"), false);
-            let options = [with(more)?, with(close)?];
-            let common = options[0]
-                .iter()
-                .zip(&options[1])
-                .take_while(|(a, b)| a == b)
-                .count();
-            turn.rewind(opening)?;
-            let tails = [options[0][common..].to_vec(), options[1][common..].to_vec()];
-            let both = [&options[0], &options[1]].map(|o| turn.allows(o));
-            turn.force_prefix(engine.backend, &options[0][..common])?;
-            if !turn.flush_to(call_end, on_text) {
-                return Ok(());
-            }
-            if !both.iter().all(|&ok| ok) {
-                // The list is full (or cannot end here): the grammar decides.
-                return decode_rest(engine, turn, pipeline, on_text);
-            }
-            let written = turn.written().to_vec();
-            let go_on = pipeline.go_on(&mut self.scorer(engine, turn), &written, &tails)?;
-            match go_on {
-                Some(true) => {
-                    let before = turn.mark();
-                    turn.force(engine.backend, &tails[0])?;
-                    proposal = Some(Proposal {
-                        before,
-                        close: tails[1].clone(),
-                        after: turn.mark(),
-                    });
-                }
-                Some(false) => {
-                    turn.force(engine.backend, &tails[1])?;
-                    return decode_rest(engine, turn, pipeline, on_text);
-                }
-                None => return decode_rest(engine, turn, pipeline, on_text),
+            match self.after_call(
+                engine,
+                turn,
+                pipeline,
+                on_text,
+                opening,
+                call_end,
+                (more, close),
+            )? {
+                After::Done => return Ok(()),
+                After::Rest => return decode_rest(engine, turn, pipeline, on_text),
+                After::Another(p) => proposal = Some(p),
             }
         }
     }
+
+    /// After a call kept in a list: does the list go on? The endings are scored as the
+    /// model would spell them: what was written since the `opening` plus each ending,
+    /// tokenized whole (the brace that closed the call often shares a token with what
+    /// follows it).
+    #[allow(clippy::too_many_arguments)]
+    fn after_call(
+        &self,
+        engine: &mut Engine,
+        turn: &mut TurnDecoder,
+        pipeline: &mut Pipeline,
+        on_text: &mut dyn FnMut(&str) -> ControlFlow<()>,
+        opening: Mark,
+        call_end: usize,
+        (more, close): (&str, &str),
+    ) -> Result<After, DecodeError> {
+        let since = &turn.scan().text()[opening.bytes()..call_end];
+        let since = String::from_utf8_lossy(since).into_owned();
+        let with = |ending: &str| engine.backend.tokenize(&format!("{since}{ending}"), false);
+        let options = [with(more)?, with(close)?];
+        let common = options[0]
+            .iter()
+            .zip(&options[1])
+            .take_while(|(a, b)| a == b)
+            .count();
+        turn.rewind(opening)?;
+        let tails = [options[0][common..].to_vec(), options[1][common..].to_vec()];
+        let both = [&options[0], &options[1]].map(|o| turn.allows(o));
+        turn.force_prefix(engine.backend, &options[0][..common])?;
+        if !turn.flush_to(call_end, on_text) {
+            return Ok(After::Done);
+        }
+        if !both.iter().all(|&ok| ok) {
+            // The list is full (or cannot end here): the grammar decides.
+            return Ok(After::Rest);
+        }
+        let written = turn.written().to_vec();
+        let go_on = pipeline.go_on(&mut self.scorer(engine, turn), &written, &tails)?;
+        Ok(match go_on {
+            Some(true) => {
+                let before = turn.mark();
+                turn.force(engine.backend, &tails[0])?;
+                After::Another(Proposal {
+                    before,
+                    close: tails[1].clone(),
+                    after: turn.mark(),
+                })
+            }
+            Some(false) => {
+                turn.force(engine.backend, &tails[1])?;
+                After::Rest
+            }
+            None => After::Rest,
+        })
+    }
+}
+
+/// What follows a call kept in a list.
+enum After {
+    /// The caller broke: the turn is over.
+    Done,
+    /// The grammar (and the model) write the rest.
+    Rest,
+    /// A further call, proposed.
+    Another(Proposal),
 }
 
 /// What `envelope` writes from the start of a turn to the end of the first call's tool

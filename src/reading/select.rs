@@ -25,7 +25,7 @@ use crate::lexicon::folded_words;
 use crate::tool::ToolSpec;
 
 use super::concepts::{acts_of, word_matches, Act};
-use super::config::STOP_TOOL;
+use crate::tool::STOP_TOOL;
 
 /// Concepts of the robot's domain: the words (folded prefixes, whole words when three
 /// letters or fewer) that say each, in English, Spanish, French, German, Italian and

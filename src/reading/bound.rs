@@ -304,7 +304,7 @@ fn suggested_names(schema: &Value, out: &mut Vec<(String, String)>) {
 /// The names a property suggests, when it is a choice of known names or any other
 /// (`{"anyOf": [{"enum": [...]}, {"type": "string"}]}`: a node's parameters, which the
 /// node may lack one of).
-pub(super) fn suggested(prop: &Value) -> Option<Vec<String>> {
+pub(crate) fn suggested(prop: &Value) -> Option<Vec<String>> {
     let [known, other] = prop.get("anyOf")?.as_array()?.as_slice() else {
         return None;
     };

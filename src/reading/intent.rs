@@ -34,19 +34,19 @@ pub fn vocabulary<'a>(tools: impl IntoIterator<Item = &'a ToolSpec>) -> BTreeSet
 }
 
 /// The folded words of a tool's name (`turtle_move`: turtle, move).
-pub(super) fn name_words(name: &str) -> Vec<String> {
+pub(crate) fn name_words(name: &str) -> Vec<String> {
     folded_words(&name.replace(['_', '.'], " "))
 }
 
 /// String arguments that name what a generic tool acts on: a ROS thing, or a place.
-pub(super) const TARGET_KEYS: &[&str] = &[
+pub(crate) const TARGET_KEYS: &[&str] = &[
     "service", "topic", "action", "node", "name", "goal_id", "place",
 ];
 
 /// A tool that acts on a thing its arguments name (a service call, a publish, a drive
 /// to a place). Not one whose name says it deletes (`place_forget`): naming what it
 /// deletes is not asking to delete it, the act must be asked for.
-pub(super) fn is_generic(spec: &ToolSpec) -> bool {
+pub(crate) fn is_generic(spec: &ToolSpec) -> bool {
     !acts_of(&name_words(&spec.name)).contains(&Act::Forget)
         && spec.parameters["properties"].as_object().is_some_and(|p| {
             TARGET_KEYS
@@ -57,7 +57,7 @@ pub(super) fn is_generic(spec: &ToolSpec) -> bool {
 
 /// Whether every target `call` names in words (no ROS name) is one of `known`, compared
 /// folded.
-pub(super) fn targets_known(call: &ToolCall, known: &[String]) -> bool {
+pub(crate) fn targets_known(call: &ToolCall, known: &[String]) -> bool {
     let known: Vec<Vec<String>> = known.iter().map(|k| folded_words(k)).collect();
     TARGET_KEYS
         .iter()
