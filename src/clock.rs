@@ -3,7 +3,7 @@
 //! Depends on nothing else in the crate.
 
 /// Seconds since the Unix epoch, now.
-pub fn unix_now() -> std::time::Duration {
+pub(crate) fn unix_now() -> std::time::Duration {
     std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
         .unwrap_or_default()
@@ -11,7 +11,7 @@ pub fn unix_now() -> std::time::Duration {
 
 /// A moment in UTC, split into calendar fields.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct Utc {
+pub(crate) struct Utc {
     pub year: i64,
     pub month: u32,
     pub day: u32,
@@ -22,7 +22,7 @@ pub struct Utc {
 
 impl Utc {
     /// The calendar fields of `secs` seconds since the epoch.
-    pub fn from_unix(secs: i64) -> Utc {
+    pub(crate) fn from_unix(secs: i64) -> Utc {
         let (year, month, day) = civil_from_days(secs.div_euclid(86_400));
         let tod = secs.rem_euclid(86_400) as u32;
         Utc {
@@ -40,7 +40,7 @@ impl Utc {
     }
 
     /// ISO 8601, `2026-11-24T09:05:00Z`.
-    pub fn iso(&self) -> String {
+    pub(crate) fn iso(&self) -> String {
         format!(
             "{:04}-{:02}-{:02}T{:02}:{:02}:{:02}Z",
             self.year, self.month, self.day, self.hour, self.minute, self.second

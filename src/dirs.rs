@@ -11,10 +11,10 @@
 use std::path::PathBuf;
 
 /// Environment variable naming the cache directory outright.
-pub const CACHE_DIR_ENV: &str = "FERROSA_CACHE_DIR";
+pub(crate) const CACHE_DIR_ENV: &str = "FERROSA_CACHE_DIR";
 
 /// The cache directory, if this machine has one.
-pub fn cache_dir() -> Option<PathBuf> {
+pub(crate) fn cache_dir() -> Option<PathBuf> {
     let set = |name: &str| std::env::var_os(name).filter(|v| !v.is_empty());
     if let Some(dir) = set(CACHE_DIR_ENV) {
         return Some(PathBuf::from(dir));
@@ -37,16 +37,16 @@ fn xdg(var: &str, under: &[&str]) -> Option<PathBuf> {
 }
 
 /// The data directory, if this machine has one.
-pub fn data_dir() -> Option<PathBuf> {
+pub(crate) fn data_dir() -> Option<PathBuf> {
     xdg("XDG_DATA_HOME", &[".local", "share"])
 }
 
 /// Where prompt cache entries go (`backend::prompt_cache`).
-pub fn prompt_cache_dir() -> Option<PathBuf> {
+pub(crate) fn prompt_cache_dir() -> Option<PathBuf> {
     cache_dir().map(|d| d.join("prompts"))
 }
 
 /// Where `ferrosa serve` keeps session traces unless `--trace-dir` says otherwise.
-pub fn traces_dir() -> Option<PathBuf> {
+pub(crate) fn traces_dir() -> Option<PathBuf> {
     data_dir().map(|d| d.join("traces"))
 }

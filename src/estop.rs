@@ -42,7 +42,7 @@ impl EStop {
     /// Run `f` (with the trigger's source) every time the e-stop is triggered. Reactions
     /// must be quick and must not block on the network for long: they run before
     /// `trigger` returns.
-    pub fn on_trigger(&self, f: impl Fn(&str) + Send + Sync + 'static) {
+    pub(crate) fn on_trigger(&self, f: impl Fn(&str) + Send + Sync + 'static) {
         self.reactions
             .lock()
             .expect("e-stop reactions")

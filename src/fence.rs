@@ -63,7 +63,7 @@ fn compile(p: &str) -> Result<Regex, FenceError> {
 
 /// What is wrong with a pattern, in one line: the regex crate draws a multi-line caret
 /// diagram, and its last line says what.
-pub fn regex_error(e: &regex::Error) -> String {
+pub(crate) fn regex_error(e: &regex::Error) -> String {
     e.to_string()
         .lines()
         .rfind(|l| !l.trim().is_empty())
@@ -103,7 +103,7 @@ impl Fence {
     }
 
     /// Whether any pattern denies `name` in any of its forms (see the module header).
-    pub fn denies(&self, name: &str) -> bool {
+    pub(crate) fn denies(&self, name: &str) -> bool {
         let forms = variants(name);
         let hit = |re: &Regex| forms.iter().any(|f| re.is_match(f));
         self.operator.iter().any(hit) || self.model.read().expect("fence lock").iter().any(hit)
@@ -115,14 +115,14 @@ impl Fence {
 
     /// Whether parameter `param` of `node` is denied: its full name (`parameter_name`)
     /// or the node is.
-    pub fn denies_parameter(&self, node: &str, param: &str) -> bool {
+    pub(crate) fn denies_parameter(&self, node: &str, param: &str) -> bool {
         self.denies(node) || self.denies(&parameter_name(node, param))
     }
 
     /// `text` with every denied name-like word replaced by `[off limits]`. Words are
     /// found in the text as shown (`visible`): a word a hidden character splits is one
     /// word, replaced with the hidden characters inside it.
-    pub fn redact<'a>(&self, text: &'a str) -> Cow<'a, str> {
+    pub(crate) fn redact<'a>(&self, text: &'a str) -> Cow<'a, str> {
         if self.is_empty() {
             return Cow::Borrowed(text);
         }
@@ -176,7 +176,7 @@ impl Fence {
     /// Redact a JSON value in place: array items that are denied names, or objects whose
     /// name-like fields are, are removed; every other string is redacted. Returns how many
     /// strings or items were hidden.
-    pub fn redact_json(&self, v: &mut Value) -> usize {
+    pub(crate) fn redact_json(&self, v: &mut Value) -> usize {
         if self.is_empty() {
             return 0;
         }
@@ -230,7 +230,7 @@ impl Fence {
 /// dropped), trimmed, absolute, single slashes, no trailing slash. Names with characters
 /// ROS does not allow are an error (`~` private names and `{}` substitutions are not
 /// resolved here: they are refused).
-pub fn canonical(name: &str) -> Result<String, FenceError> {
+pub(crate) fn canonical(name: &str) -> Result<String, FenceError> {
     let shown = visible(name);
     let t = shown.trim();
     let ok = |c: char| c.is_ascii_alphanumeric() || c == '_' || c == '/';
@@ -249,7 +249,7 @@ pub fn canonical(name: &str) -> Result<String, FenceError> {
 
 /// The full name of parameter `param` of node `node`, as ROS 1's parameter server keys
 /// it: `/turtlesim` and `background_r` give `/turtlesim/background_r`.
-pub fn parameter_name(node: &str, param: &str) -> String {
+pub(crate) fn parameter_name(node: &str, param: &str) -> String {
     format!(
         "/{}/{}",
         node.trim().trim_matches('/'),
@@ -260,7 +260,7 @@ pub fn parameter_name(node: &str, param: &str) -> String {
 /// Whether `c` is a Unicode format character (general category Cf): zero-width space,
 /// non-joiner and joiner, word joiner, bidi marks, embeddings, overrides and isolates,
 /// the BOM, the soft hyphen, invisible operators, tag characters and the like.
-pub fn is_format(c: char) -> bool {
+pub(crate) fn is_format(c: char) -> bool {
     static CF: LazyLock<Regex> = LazyLock::new(|| {
         // The pattern is a constant the regex crate's Unicode tables compile.
         Regex::new(r"\p{Cf}").expect("\\p{Cf} compiles")
@@ -278,7 +278,7 @@ fn hidden(c: char) -> bool {
 /// `ESC ] … BEL or ESC \`), control characters but newline and tab, and format
 /// characters (`is_format`) left out. The one definition of "shown" that name matching,
 /// redaction and the terminal's cleaning share.
-pub fn visible(text: &str) -> Cow<'_, str> {
+pub(crate) fn visible(text: &str) -> Cow<'_, str> {
     if !text.chars().any(hidden) {
         return Cow::Borrowed(text);
     }
@@ -353,7 +353,7 @@ fn variants(name: &str) -> Vec<String> {
 /// Whether `c` continues a name-like word: a letter, a digit, `_`, `/`, `.`, `~`, `-`, or
 /// a character a terminal hides (one inside a word splits it for no reader, so text
 /// streamed a word at a time must hold it with the word).
-pub fn name_char(c: char) -> bool {
+pub(crate) fn name_char(c: char) -> bool {
     c.is_alphanumeric() || matches!(c, '_' | '/' | '.' | '~' | '-') || hidden(c)
 }
 

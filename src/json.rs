@@ -122,7 +122,7 @@ impl JsonScan {
         self.stack.len() + self.deep
     }
 
-    pub fn in_string(&self) -> bool {
+    pub(crate) fn in_string(&self) -> bool {
         matches!(self.open, Some((_, true)))
     }
 
@@ -150,7 +150,7 @@ impl JsonScan {
     }
 
     /// Where each closed call's text starts and ends.
-    pub fn closed_call_spans(&self) -> &[(usize, usize)] {
+    pub(crate) fn closed_call_spans(&self) -> &[(usize, usize)] {
         &self.calls
     }
 

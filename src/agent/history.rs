@@ -11,13 +11,13 @@
 use crate::chat::{ChatMessage, Role};
 
 #[derive(Debug, Clone, PartialEq)]
-pub struct Exchange {
+pub(crate) struct Exchange {
     pub query: String,
     pub answer: String,
 }
 
 #[derive(Debug, Clone, Default)]
-pub struct History {
+pub(crate) struct History {
     exchanges: Vec<Exchange>,
 }
 
@@ -42,6 +42,7 @@ impl History {
         self.exchanges.len()
     }
 
+    #[cfg(test)]
     pub fn is_empty(&self) -> bool {
         self.exchanges.is_empty()
     }
@@ -83,7 +84,7 @@ impl History {
 }
 
 /// `text` cut to `limit` characters (at a char boundary) with a note if anything was cut.
-pub fn truncate_output(text: &str, limit: usize) -> String {
+pub(crate) fn truncate_output(text: &str, limit: usize) -> String {
     let total = text.chars().count();
     if total <= limit {
         return text.to_string();

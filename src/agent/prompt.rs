@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 
 use serde::Deserialize;
 
-pub const DEFAULT: &str = include_str!("../../prompts/default.toml");
+pub(crate) const DEFAULT: &str = include_str!("../../prompts/default.toml");
 
 #[derive(Debug, thiserror::Error)]
 #[error("robot prompt {origin}: {message}")]
@@ -80,7 +80,7 @@ impl RobotPrompt {
         Ok(prompt)
     }
 
-    pub fn default_robot() -> RobotPrompt {
+    pub(crate) fn default_robot() -> RobotPrompt {
         RobotPrompt::parse(DEFAULT, "built-in").expect("built-in prompt parses")
     }
 

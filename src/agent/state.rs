@@ -148,7 +148,7 @@ impl Agent {
 
     /// Have `remote`'s server write every turn (the agent loaded only the model's
     /// vocabulary). Where the model runs is said in each trace's header.
-    pub fn with_remote(mut self, remote: crate::remote::Remote) -> Agent {
+    pub(crate) fn with_remote(mut self, remote: crate::remote::Remote) -> Agent {
         self.remote = Some(remote);
         self
     }
@@ -165,7 +165,7 @@ impl Agent {
     }
 
     /// Use `cancel` as the run's cancel flag (one the front end also sets).
-    pub fn with_cancel(mut self, cancel: Arc<AtomicBool>) -> Agent {
+    pub(crate) fn with_cancel(mut self, cancel: Arc<AtomicBool>) -> Agent {
         self.cancel = cancel;
         self
     }
@@ -212,7 +212,7 @@ impl Agent {
 
     /// Tell `journal` of every finished run (the memory file's run log), in place of
     /// the one before.
-    pub fn set_journal(&mut self, journal: Journal) {
+    pub(crate) fn set_journal(&mut self, journal: Journal) {
         self.journal = Some(journal);
     }
 
@@ -324,7 +324,7 @@ impl Agent {
     /// Read requests by meaning (`meaning`): tool choice compares each with the tools'
     /// descriptions and examples instead of their words. The tools' sentences are
     /// encoded now.
-    pub fn with_meaning(mut self, meaning: Arc<crate::reading::meaning::Meaning>) -> Agent {
+    pub(crate) fn with_meaning(mut self, meaning: Arc<crate::reading::meaning::Meaning>) -> Agent {
         meaning.prepare(&self.retrievable());
         self.meaning = Some(meaning);
         self

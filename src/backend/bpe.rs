@@ -30,7 +30,7 @@ pub struct Bpe {
 /// The regexes llama.cpp splits text with before byte-level BPE, in order (each splits
 /// the pieces of the one before, keeping matches and gaps), for the file's
 /// `tokenizer.ggml.pre`.
-pub fn pre_tokenizer(g: &Gguf) -> Result<&'static [&'static str], String> {
+pub(crate) fn pre_tokenizer(g: &Gguf) -> Result<&'static [&'static str], String> {
     match g.get_str("tokenizer.ggml.pre").unwrap_or("default") {
         "smollm" | "starcoder" | "refact" | "command-r" | "codeshell" | "exaone" | "minerva-7b" => {
             Ok(&[r"\p{N}", GPT2_WORDS])

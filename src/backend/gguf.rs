@@ -298,11 +298,11 @@ impl Gguf {
         self.metadata.get(key)
     }
 
-    pub fn get_str(&self, key: &str) -> Option<&str> {
+    pub(crate) fn get_str(&self, key: &str) -> Option<&str> {
         self.get(key).and_then(MetaValue::as_str)
     }
 
-    pub fn get_u64(&self, key: &str) -> Option<u64> {
+    pub(crate) fn get_u64(&self, key: &str) -> Option<u64> {
         self.get(key).and_then(MetaValue::as_u64)
     }
 
@@ -312,7 +312,7 @@ impl Gguf {
     }
 
     /// A per-architecture key such as `llama.context_length`.
-    pub fn arch_u64(&self, suffix: &str) -> Option<u64> {
+    pub(crate) fn arch_u64(&self, suffix: &str) -> Option<u64> {
         let arch = self.architecture()?;
         self.get_u64(&format!("{arch}.{suffix}"))
     }
@@ -332,7 +332,7 @@ impl Gguf {
             .try_fold(n_ctx as u64, u64::checked_mul)
     }
 
-    pub fn context_length(&self) -> Option<u64> {
+    pub(crate) fn context_length(&self) -> Option<u64> {
         self.arch_u64("context_length")
     }
 
@@ -347,7 +347,7 @@ impl Gguf {
     }
 
     /// Strings of an array-of-strings key (tokens, merges); `None` if absent or mistyped.
-    pub fn str_array(&self, key: &str) -> Option<Vec<&str>> {
+    pub(crate) fn str_array(&self, key: &str) -> Option<Vec<&str>> {
         self.get(key)?
             .as_array()?
             .iter()

@@ -51,7 +51,7 @@ fn runtime() -> Result<&'static LlamaBackend, BackendError> {
         })
 }
 
-pub struct LlamaCpp {
+pub(crate) struct LlamaCpp {
     // Field order is drop order: the context borrows the model, so it goes first.
     ctx: ManuallyDrop<LlamaContext<'static>>,
     /// Shared with tokenizers handed out by `tokenizer()`; the context borrows it through
@@ -469,7 +469,7 @@ const LLAMA_CPP_2: &str = "0.1.160";
 /// A model's vocabulary and chat template without its weights (llama.cpp's vocab-only
 /// load: the tensors are not read): what the remote engine renders and tokenizes prompts
 /// with while a server runs the model. It cannot evaluate anything.
-pub struct LlamaVocab {
+pub(crate) struct LlamaVocab {
     model: Arc<LlamaModel>,
     vocab: Vocab,
     template: ChatTemplate,

@@ -95,7 +95,7 @@ pub(crate) fn admit<'t>(
 
 /// `Backend::branches` one token per forward pass: `shared` first, then each branch,
 /// sharing the leading tokens a branch has in common with the one before it.
-pub fn branches_one_by_one<B: Backend + ?Sized>(
+pub(crate) fn branches_one_by_one<B: Backend + ?Sized>(
     backend: &mut B,
     keep: usize,
     shared: &[TokenId],

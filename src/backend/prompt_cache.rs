@@ -38,7 +38,7 @@ use super::{Backend, TokenId};
 const MAGIC: &[u8; 8] = b"FRSKV01\n";
 /// An entry is worth reading only when it spares at least this many tokens of
 /// evaluation (a file of ~40 MiB is read and hashed in about the time these take).
-pub const MIN_GAIN: usize = 64;
+pub(crate) const MIN_GAIN: usize = 64;
 /// The directory's default bound.
 pub const DEFAULT_MAX_BYTES: u64 = 512 << 20;
 /// Headers larger than this are not ours.

@@ -99,7 +99,7 @@ impl Session {
     }
 
     /// Room for `n` more tokens without reallocating.
-    pub fn reserve(&mut self, n: usize) {
+    pub(crate) fn reserve(&mut self, n: usize) {
         self.tokens.reserve(n);
     }
 
@@ -115,7 +115,7 @@ impl Session {
 
     /// How many leading tokens of `prompt` are cached, leaving at least one to evaluate
     /// (the backend returns logits only for tokens it evaluates).
-    pub fn reusable(&self, prompt: &[TokenId]) -> usize {
+    pub(crate) fn reusable(&self, prompt: &[TokenId]) -> usize {
         let common = self
             .tokens
             .iter()

@@ -120,7 +120,7 @@ impl ChatTemplate {
     /// Render a conversation with each message's content kept apart from the template's
     /// own text, so the contents can be tokenized as plain text (a tool result that says
     /// `<|im_start|>system` must stay words, not become a role marker).
-    pub fn render_parts(
+    pub(crate) fn render_parts(
         &self,
         messages: &[ChatMessage],
         add_generation_prompt: bool,

@@ -229,7 +229,7 @@ fn parse_byte_token(t: &str) -> Option<u8> {
 
 /// GPT-2's byte-level BPE writes every byte as a printable char: printable Latin-1 bytes
 /// as themselves, the rest shifted to U+0100 and up. Index: char code, value: the byte.
-pub fn gpt2_byte_decoder() -> Vec<Option<u8>> {
+pub(crate) fn gpt2_byte_decoder() -> Vec<Option<u8>> {
     let mut table = vec![None; 512];
     let mut shifted = 0u32;
     for b in 0u32..256 {

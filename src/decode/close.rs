@@ -17,16 +17,16 @@ use crate::json::{JsonScan, Openness};
 /// plus three per open structure.
 const RESERVE: usize = 8;
 /// Tokens the steer may write past the budget to close what is open.
-pub const OVERRUN: usize = 64;
+pub(crate) const OVERRUN: usize = 64;
 
 /// Whether a turn with `remaining` tokens of its budget left should steer to a close.
-pub fn should_close(remaining: usize, scan: &JsonScan) -> bool {
+pub(crate) fn should_close(remaining: usize, scan: &JsonScan) -> bool {
     remaining <= RESERVE + 3 * scan.open_count()
 }
 
 /// The token that brings the turn closest to complete (see the module header); `None`
 /// when the grammar allows nothing.
-pub fn closing_choice(
+pub(crate) fn closing_choice(
     constraint: &mut Constraint,
     vocab: &Vocab,
     scan: &JsonScan,

@@ -108,13 +108,13 @@ impl Constraint {
 
     /// Tokens the grammar forces before anything is sampled (e.g. the whole opening of a
     /// required call), already committed: they can join the prompt's batch.
-    pub fn forced_at_start(&mut self) -> Result<&[TokenId], ConstraintError> {
+    pub(crate) fn forced_at_start(&mut self) -> Result<&[TokenId], ConstraintError> {
         self.take_forced()
     }
 
     /// The tokens the grammar forces from here (after tokens committed with `advance`),
     /// already committed.
-    pub fn take_forced(&mut self) -> Result<&[TokenId], ConstraintError> {
+    pub(crate) fn take_forced(&mut self) -> Result<&[TokenId], ConstraintError> {
         self.forced.clear();
         if self.fast_forward && !self.matcher.is_stopped() {
             let ff = self.matcher.compute_ff_tokens();
@@ -158,7 +158,7 @@ impl Constraint {
 
     /// Undo the last `n` committed tokens (forced ones included): the grammar state is
     /// as it was before them.
-    pub fn rollback(&mut self, n: usize) -> Result<(), ConstraintError> {
+    pub(crate) fn rollback(&mut self, n: usize) -> Result<(), ConstraintError> {
         if n == 0 {
             return Ok(());
         }

@@ -13,7 +13,7 @@ const JSON: &str = include_str!("../../grammars/json.lark");
 
 /// Calls one turn may make at most: a small model that starts repeating a call would
 /// otherwise fill its whole turn with copies.
-pub const MAX_PARALLEL: usize = 4;
+pub(crate) const MAX_PARALLEL: usize = 4;
 
 /// A tool-call format.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -64,7 +64,7 @@ pub enum EnvelopeError {
 /// JSON as the envelopes write it: `", "` between items and `": "` after keys, which is
 /// also what the grammar enforces and what these models saw in training (Python's
 /// `json.dumps` default).
-pub fn to_json_spaced(v: &Value) -> String {
+pub(crate) fn to_json_spaced(v: &Value) -> String {
     let mut out = String::new();
     write_spaced(v, &mut out);
     out
@@ -123,7 +123,7 @@ impl Envelope {
         }
     }
 
-    pub fn call_any_of(specs: &[&ToolSpec]) -> Value {
+    pub(crate) fn call_any_of(specs: &[&ToolSpec]) -> Value {
         let branches: Vec<Value> = specs.iter().map(|s| s.call_schema()).collect();
         json!({ "anyOf": branches })
     }
@@ -134,7 +134,7 @@ impl Envelope {
 
     /// The tools called alone and the others, and whether the others may be a list:
     /// when every tool is called alone, the list is simply one call long.
-    pub fn split_alone(
+    pub(crate) fn split_alone(
         specs: &[ToolSpec],
         parallel: bool,
     ) -> (Vec<&ToolSpec>, Vec<&ToolSpec>, bool) {
@@ -148,7 +148,7 @@ impl Envelope {
 
     /// The JSON schema of a turn's list of calls: one to `MAX_PARALLEL` (`parallel`) of
     /// `specs`, none allowed when declining, or one tool of `alone` by itself.
-    pub fn list_schema(
+    pub(crate) fn list_schema(
         alone: &[&ToolSpec],
         specs: &[&ToolSpec],
         choice: ToolChoice,
@@ -236,7 +236,7 @@ impl Envelope {
     /// The first of this envelope's special-token markers in `text`, with where it is:
     /// they are the only special tokens a message content may hold (Qwen's
     /// `<tool_call>`; the other envelopes write their markers as plain text).
-    pub fn next_marker(&self, text: &str) -> Option<(usize, &'static str)> {
+    pub(crate) fn next_marker(&self, text: &str) -> Option<(usize, &'static str)> {
         match self {
             Envelope::Qwen => ["<tool_call>", "</tool_call>"]
                 .into_iter()
@@ -247,7 +247,7 @@ impl Envelope {
     }
 
     /// How one tool is listed in the system prompt (one line of JSON).
-    pub fn describe_tool(spec: &ToolSpec) -> String {
+    pub(crate) fn describe_tool(spec: &ToolSpec) -> String {
         to_json_spaced(&json!({
             "name": spec.name,
             "description": spec.description,
@@ -257,7 +257,7 @@ impl Envelope {
 
     /// System-prompt text that lists the tools, shows the call format and says what to
     /// write when no tool fits, as `choice` allows.
-    pub fn describe_tools(&self, specs: &[ToolSpec], choice: ToolChoice) -> String {
+    pub(crate) fn describe_tools(&self, specs: &[ToolSpec], choice: ToolChoice) -> String {
         let listing: Vec<String> = specs.iter().map(Envelope::describe_tool).collect();
         let example = ToolCall {
             name: "function_name1".into(),
@@ -283,7 +283,7 @@ impl Envelope {
     /// What follows one call in a list when another comes, and what closes the list,
     /// for envelopes that write several calls as one list (`None` for Qwen's one block
     /// per call).
-    pub fn list_separators(&self) -> Option<(&'static str, &'static str)> {
+    pub(crate) fn list_separators(&self) -> Option<(&'static str, &'static str)> {
         match self {
             Envelope::Smollm2 => Some((",\n", "\n]</tool_call>")),
             Envelope::Json => Some((", ", "]}")),

@@ -31,7 +31,7 @@ pub struct TurnRequest<'a> {
 
 impl TurnRequest<'_> {
     /// The tools the grammar allows.
-    pub fn allowed_specs(&self) -> &[ToolSpec] {
+    pub(crate) fn allowed_specs(&self) -> &[ToolSpec] {
         self.allowed.unwrap_or(self.specs)
     }
 

@@ -11,7 +11,7 @@ use llguidance::toktrie::{TokEnv, TokRxInfo, TokTrie, TokenizerEnv};
 use crate::backend::vocab::TokenKind;
 use crate::backend::{TokenId, Tokenize, Vocab};
 
-pub struct TokenEnv {
+pub(crate) struct TokenEnv {
     trie: TokTrie,
     tokenizer: Arc<dyn Tokenize>,
 }

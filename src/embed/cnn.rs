@@ -12,14 +12,14 @@ use super::npz::{Array, Data};
 
 /// Row groups of the quantised table: row r is in group r % GROUPS.
 const GROUPS: usize = 17;
-pub const DIM: usize = 512;
+pub(crate) const DIM: usize = 512;
 const BRANCH: usize = 256;
 /// (order, tokens to the left) of each convolution branch.
 const ORDERS: [(usize, usize); 3] = [(2, 0), (3, 1), (5, 2)];
 const FEATURES: usize = DIM + ORDERS.len() * BRANCH;
 
 /// A row-major matrix.
-pub struct Matrix {
+pub(crate) struct Matrix {
     rows: usize,
     cols: usize,
     data: Vec<f32>,
@@ -47,7 +47,7 @@ struct Branch {
     b2: Vec<f32>,
 }
 
-pub struct Network {
+pub(crate) struct Network {
     table: Vec<u8>,
     rows: usize,
     scale: Vec<f32>,

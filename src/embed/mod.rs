@@ -49,7 +49,7 @@ impl Encoder {
     }
 
     /// Load from the two files as they are (no catalog check).
-    pub fn from_files(weights: &Path, vocab: &Path) -> Result<Encoder, EmbedError> {
+    pub(crate) fn from_files(weights: &Path, vocab: &Path) -> Result<Encoder, EmbedError> {
         let bytes = std::fs::read(vocab).map_err(|e| EmbedError::Vocabulary {
             path: vocab.display().to_string(),
             message: e.to_string(),

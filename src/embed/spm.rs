@@ -15,7 +15,7 @@ pub const EOS: u32 = 2;
 /// The escaped space.
 const SPACE: &str = "\u{2581}";
 
-pub struct Tokenizer {
+pub(crate) struct Tokenizer {
     scores: Vec<f32>,
     /// Each piece and each prefix of one (in whole characters): the piece's id + 1, or
     /// 0 for a prefix that is no piece (the walk goes on past it).
@@ -79,7 +79,7 @@ fn fields(mut data: &[u8]) -> Result<Vec<(u64, Field<'_>)>, String> {
 
 impl Tokenizer {
     /// Read a `.model` file's bytes.
-    pub fn from_bytes(data: &[u8], origin: &str) -> Result<Tokenizer, EmbedError> {
+    pub(crate) fn from_bytes(data: &[u8], origin: &str) -> Result<Tokenizer, EmbedError> {
         let bad = |message: String| EmbedError::Vocabulary {
             path: origin.to_string(),
             message,

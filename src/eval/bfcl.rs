@@ -47,7 +47,7 @@ pub struct Case {
 }
 
 /// Category from a file name: `BFCL_v4_simple_python.json` → `simple_python`.
-pub fn category_of(path: &Path) -> String {
+pub(crate) fn category_of(path: &Path) -> String {
     let stem = path
         .file_stem()
         .and_then(|s| s.to_str())
@@ -60,7 +60,7 @@ pub fn category_of(path: &Path) -> String {
 }
 
 /// Python-flavoured BFCL types to JSON schema.
-pub fn to_schema(p: &Value) -> Value {
+pub(crate) fn to_schema(p: &Value) -> Value {
     let Some(obj) = p.as_object() else {
         return json!({});
     };

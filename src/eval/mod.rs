@@ -39,7 +39,7 @@ use bfcl::Case;
 pub const SYSTEM: &str = "You are a function-calling assistant. If the request matches a function, call it with the values from the request. If no function fits, answer in plain text.";
 
 #[derive(Debug, Clone, Serialize)]
-pub struct CaseResult {
+pub(crate) struct CaseResult {
     pub id: String,
     pub category: String,
     pub decoding: String,
@@ -111,7 +111,7 @@ impl TurnRules {
 /// answering is the `answer` pseudo-function, so the turn is always structured; its call
 /// is not counted as a call.
 #[allow(clippy::too_many_arguments)]
-pub fn run_case(
+pub(crate) fn run_case(
     backend: &mut dyn Backend,
     session: &mut Session,
     grammars: &Grammars,
@@ -285,7 +285,7 @@ pub struct Summary {
     pub tok_per_s: f64,
 }
 
-pub fn summarize(results: &[CaseResult]) -> Vec<Summary> {
+pub(crate) fn summarize(results: &[CaseResult]) -> Vec<Summary> {
     let mut keys: Vec<(String, String)> = results
         .iter()
         .map(|r| (r.category.clone(), r.decoding.clone()))
@@ -324,7 +324,7 @@ pub fn summarize(results: &[CaseResult]) -> Vec<Summary> {
 }
 
 /// One row per decoding mode over every category ("all").
-pub fn summarize_overall(results: &[CaseResult]) -> Vec<Summary> {
+pub(crate) fn summarize_overall(results: &[CaseResult]) -> Vec<Summary> {
     let all: Vec<CaseResult> = results
         .iter()
         .cloned()

@@ -103,7 +103,7 @@ pub fn load(path: &Path, skip: usize, limit: Option<usize>) -> Result<Vec<RosCas
 }
 
 /// Is `want` a subset of `got` (objects: every wanted key, recursively)?
-pub fn subset_matches(got: &Value, want: &Value) -> bool {
+pub(crate) fn subset_matches(got: &Value, want: &Value) -> bool {
     match (got, want) {
         (Value::Object(g), Value::Object(w)) => w
             .iter()
@@ -117,7 +117,7 @@ pub fn subset_matches(got: &Value, want: &Value) -> bool {
 }
 
 /// Which half of the suite each case is in (see the module header), in order.
-pub fn halves(cases: &[RosCase]) -> Vec<Half> {
+pub(crate) fn halves(cases: &[RosCase]) -> Vec<Half> {
     let mut seen: std::collections::HashMap<String, usize> = Default::default();
     cases
         .iter()
@@ -135,7 +135,7 @@ pub fn halves(cases: &[RosCase]) -> Vec<Half> {
 
 /// The half of the suite a case is in.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Half {
+pub(crate) enum Half {
     Tune,
     Report,
 }

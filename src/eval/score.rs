@@ -23,7 +23,7 @@ impl Verdict {
 }
 
 /// BFCL's string normalisation: drop spaces and `,./-_*^`, lowercase, `'` → `"`.
-pub fn normalise(s: &str) -> String {
+pub(crate) fn normalise(s: &str) -> String {
     s.chars()
         .filter(|c| !matches!(c, ' ' | ',' | '.' | '/' | '-' | '_' | '*' | '^'))
         .flat_map(char::to_lowercase)
@@ -38,7 +38,7 @@ fn declared_type(decl: Option<&Value>) -> &str {
 }
 
 /// Does the model's `got` equal the allowed `want` for a parameter declared as `decl`?
-pub fn value_matches(got: &Value, want: &Value, decl: Option<&Value>) -> bool {
+pub(crate) fn value_matches(got: &Value, want: &Value, decl: Option<&Value>) -> bool {
     let ty = declared_type(decl);
     match (got, want) {
         (Value::Number(g), Value::Number(w)) => {

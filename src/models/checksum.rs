@@ -28,7 +28,7 @@ pub enum VerifyError {
 }
 
 /// Hex sha256 of a file, calling `progress` with the bytes read so far.
-pub fn sha256_file(path: &Path, mut progress: impl FnMut(u64)) -> std::io::Result<String> {
+pub(crate) fn sha256_file(path: &Path, mut progress: impl FnMut(u64)) -> std::io::Result<String> {
     let mut f = File::open(path)?;
     let mut h = Sha256::new();
     let mut buf = vec![0u8; 1 << 20];
@@ -45,7 +45,7 @@ pub fn sha256_file(path: &Path, mut progress: impl FnMut(u64)) -> std::io::Resul
     Ok(to_hex(&h.finalize()))
 }
 
-pub fn to_hex(bytes: &[u8]) -> String {
+pub(crate) fn to_hex(bytes: &[u8]) -> String {
     bytes.iter().map(|b| format!("{b:02x}")).collect()
 }
 
@@ -69,7 +69,7 @@ fn fingerprint(path: &Path, sha: &str) -> std::io::Result<String> {
 }
 
 /// Record that `path` was hashed and matched `sha`.
-pub fn remember(path: &Path, sha: &str) {
+pub(crate) fn remember(path: &Path, sha: &str) {
     // The stamp is only a cache: failing to write it costs a re-hash next time, nothing more.
     if let Ok(fp) = fingerprint(path, sha) {
         let _ = std::fs::write(stamp_path(path), fp);

@@ -12,7 +12,7 @@ use std::path::{Path, PathBuf};
 pub use catalog::{Catalog, CatalogError, Entry, ModelKind};
 
 /// Environment variable naming the directory that holds the catalog override and weights.
-pub const MODELS_DIR_ENV: &str = "FERROSA_MODELS_DIR";
+pub(crate) const MODELS_DIR_ENV: &str = "FERROSA_MODELS_DIR";
 
 #[derive(Debug, thiserror::Error)]
 pub enum ModelError {

@@ -105,7 +105,7 @@ fn quote(schema: &mut Value, request: &str) {
 
 /// The fields `request` gives a value: a word followed by a number ("at x 2 y 3",
 /// "theta=90", "width: 3", "x tres").
-pub fn given_fields(request: &str) -> BTreeSet<String> {
+pub(crate) fn given_fields(request: &str) -> BTreeSet<String> {
     let words = folded_words(request);
     let number = |w: &str| w.parse::<f64>().is_ok() || number_word(w).is_some();
     words
@@ -422,7 +422,7 @@ fn said_phrases(request: &str) -> Vec<String> {
 /// share its words) is the only one of its key. A key whose names the words meet not
 /// at all keeps them all. The copy bias favours these; the grammar allows only these
 /// (and the names written).
-pub fn pointed(
+pub(crate) fn pointed(
     names: &[(String, String)],
     sources: &[&str],
     written: &[String],
@@ -542,7 +542,7 @@ fn meets(w: &str, own: &BTreeSet<String>, said: &BTreeSet<String>) -> bool {
 /// ("/chatter", "turtle1/pose", "battery_level", "std_msgs/msg/String"), the quotes and
 /// stops around them left off. A bare word is not a name the operator gave: it may be
 /// any word of any language.
-pub fn written_names(request: &str) -> Vec<String> {
+pub(crate) fn written_names(request: &str) -> Vec<String> {
     request
         .split_whitespace()
         .map(|w| w.trim_matches(|c: char| !(c.is_alphanumeric() || c == '/' || c == '_')))

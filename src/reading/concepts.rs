@@ -28,7 +28,7 @@ use crate::lexicon::folded_words;
 /// (`[acts.move]`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Deserialize)]
 #[serde(rename_all = "lowercase")]
-pub enum Act {
+pub(crate) enum Act {
     Move,
     Turn,
     Teleport,
@@ -52,7 +52,7 @@ pub enum Act {
 /// clockwise (to the right) are negative.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Deserialize)]
 #[serde(rename_all = "lowercase")]
-pub enum Direction {
+pub(crate) enum Direction {
     Forward,
     Backward,
     Left,
@@ -192,7 +192,7 @@ fn table() -> &'static Words {
 
 /// How a clause treats an act.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Mood {
+pub(crate) enum Mood {
     /// Asks for it.
     Asked,
     /// Forbids it.
@@ -203,7 +203,7 @@ pub enum Mood {
 
 /// One clause of a request.
 #[derive(Debug, Clone, PartialEq)]
-pub struct Clause {
+pub(crate) struct Clause {
     /// Its folded words.
     pub words: Vec<String>,
     pub acts: Vec<Act>,
@@ -211,7 +211,7 @@ pub struct Clause {
 }
 
 /// Whether `word` (folded) names `prefix`: by prefix, or whole for short prefixes.
-pub fn word_matches(word: &str, prefix: &str) -> bool {
+pub(crate) fn word_matches(word: &str, prefix: &str) -> bool {
     if prefix.len() <= 3 {
         word == prefix
     } else {
@@ -220,7 +220,7 @@ pub fn word_matches(word: &str, prefix: &str) -> bool {
 }
 
 /// The acts `words` (folded) name.
-pub fn acts_of(words: &[String]) -> Vec<Act> {
+pub(crate) fn acts_of(words: &[String]) -> Vec<Act> {
     let table = table();
     let mut acts: Vec<Act> = table
         .acts
@@ -247,7 +247,7 @@ pub fn acts_of(words: &[String]) -> Vec<Act> {
 /// into the clauses that follow ("don't move or turn", "is it moving or turning?",
 /// "do not move, rotate or teleport it") unless one opens with a contrast ("but",
 /// "just", "instead"): read this way a mistake blocks a motion, never allows one.
-pub fn clauses(request: &str) -> Vec<Clause> {
+pub(crate) fn clauses(request: &str) -> Vec<Clause> {
     let table = table();
     let mut out = Vec::new();
     for sentence in request.split_inclusive(['.', ';', '!', '?', '\n']) {
@@ -367,7 +367,7 @@ pub fn chains(word: &str) -> Option<bool> {
 
 /// Whether a folded word can open a request of its own: it asks ("what", "wo"), asks to
 /// be told ("tell", "dime") or names an act ("move", "gira").
-pub fn opens_request(word: &str) -> bool {
+pub(crate) fn opens_request(word: &str) -> bool {
     let table = table();
     table.question_words.contains(word)
         || table.tell.contains(word)
@@ -375,7 +375,7 @@ pub fn opens_request(word: &str) -> bool {
 }
 
 /// Acts the request asks for (in some clause, and forbidden in none).
-pub fn asked_acts(clauses: &[Clause]) -> Vec<Act> {
+pub(crate) fn asked_acts(clauses: &[Clause]) -> Vec<Act> {
     let mut acts: Vec<Act> = clauses
         .iter()
         .filter(|c| c.mood == Mood::Asked)
@@ -392,7 +392,7 @@ pub fn asked_acts(clauses: &[Clause]) -> Vec<Act> {
 }
 
 /// Whether the request, read on its own, asks the robot to stop.
-pub fn asks_to_stop(request: &str) -> bool {
+pub(crate) fn asks_to_stop(request: &str) -> bool {
     asked_acts(&clauses(request)).contains(&Act::Stop)
 }
 
@@ -400,7 +400,7 @@ pub fn asks_to_stop(request: &str) -> bool {
 /// (`stop_intent`, the words operators use) or a clause that asks for the stop act
 /// (`asks_to_stop`). What every channel checks before anything else, the agent's run
 /// included.
-pub fn operator_stops(request: &str) -> bool {
+pub(crate) fn operator_stops(request: &str) -> bool {
     crate::stop_intent::asks_to_stop(request) || asks_to_stop(request)
 }
 

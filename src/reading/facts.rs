@@ -36,7 +36,7 @@ const NOISE: &[&str] = &[
 
 /// `output` with a `summary` first when it had none; an output that is not an object,
 /// or has nothing to say, is left as it is.
-pub fn with_summary(mut output: Value) -> Value {
+pub(crate) fn with_summary(mut output: Value) -> Value {
     if output.get("summary").is_some_and(Value::is_string) {
         return output;
     }
@@ -54,7 +54,7 @@ pub fn with_summary(mut output: Value) -> Value {
 
 /// One line of `output`'s values: "key value, key value, …" (nested keys joined by
 /// dots; of a list of messages, the newest one).
-pub fn summarize(output: &Value) -> Option<String> {
+pub(crate) fn summarize(output: &Value) -> Option<String> {
     let Value::Object(fields) = output else {
         return None;
     };
@@ -207,7 +207,7 @@ pub fn facts(summary: &str) -> Vec<String> {
 /// it states none of the facts of the `summary` of the result it answers (a call that
 /// succeeded), that summary. Facts the `request` itself states ("move 1 m" and a result's
 /// 1.0) do not show the reply read the result, unless there are no others.
-pub fn grounded(reply: &str, summary: Option<&str>, request: &str) -> String {
+pub(crate) fn grounded(reply: &str, summary: Option<&str>, request: &str) -> String {
     let reply = once(unlooped(reply));
     let Some(summary) = summary else {
         return reply;

@@ -75,7 +75,7 @@ fn target_words(call: &ToolCall) -> Vec<String> {
 }
 
 /// The operator's request, read for actuation.
-pub struct Intent {
+pub(crate) struct Intent {
     clauses: Vec<Clause>,
     asked: Vec<Act>,
     /// The numbers the request writes in clauses that ask for something.
@@ -107,7 +107,7 @@ impl Intent {
     }
 
     /// Whether a clause that asks for something says `name`'s words, side by side.
-    pub fn says_name(&self, name: &str) -> bool {
+    pub(crate) fn says_name(&self, name: &str) -> bool {
         let name = folded_words(name);
         !name.is_empty()
             && self
@@ -150,7 +150,7 @@ impl Intent {
 
     /// Whether some call of `spec` could be asked for by this request (tools that
     /// cannot leave the grammar).
-    pub fn may_ask_for(&self, spec: &ToolSpec, observing: &BTreeSet<String>) -> bool {
+    pub(crate) fn may_ask_for(&self, spec: &ToolSpec, observing: &BTreeSet<String>) -> bool {
         let own = name_words(&spec.name);
         let acts = acts_of(&own);
         if is_generic(spec) {
@@ -167,7 +167,13 @@ impl Intent {
     }
 
     /// Whether this call of an actuating tool is what the request asks for.
-    pub fn asks_for(&self, call: &ToolCall, spec: &ToolSpec, observing: &BTreeSet<String>) -> bool {
+    #[cfg(test)]
+    pub(crate) fn asks_for(
+        &self,
+        call: &ToolCall,
+        spec: &ToolSpec,
+        observing: &BTreeSet<String>,
+    ) -> bool {
         self.asks_for_known(call, spec, observing, &[])
     }
 
@@ -175,7 +181,7 @@ impl Intent {
     /// from its live schema). A target said in words that is none of them ("a cake" in
     /// "bake me a cake") is a name the robot lacks, not one that points at the
     /// tool: the request must ask for the tool's own act ("go to the greenhouse").
-    pub fn asks_for_known(
+    pub(crate) fn asks_for_known(
         &self,
         call: &ToolCall,
         spec: &ToolSpec,

@@ -30,7 +30,7 @@ pub enum Language {
 }
 
 /// Every language, in the order of `NAMES` and `WORDS`.
-pub const ALL: [Language; 6] = [
+pub(crate) const ALL: [Language; 6] = [
     Language::English,
     Language::Spanish,
     Language::French,
@@ -232,7 +232,7 @@ impl Language {
 
     /// The language a request's answer is written in: `set`, else the request's own,
     /// else English.
-    pub fn for_request(set: Option<Language>, request: &str) -> Language {
+    pub(crate) fn for_request(set: Option<Language>, request: &str) -> Language {
         set.or_else(|| Language::of(request)).unwrap_or_default()
     }
 
@@ -257,7 +257,7 @@ impl Language {
     /// A result's `summary` given as the answer: led by "Result" in this language, so
     /// the operator reads a sentence in their own; in English, the summary alone (as it
     /// is written).
-    pub fn lead(self, summary: &str) -> String {
+    pub(crate) fn lead(self, summary: &str) -> String {
         match self {
             Language::English => summary.to_string(),
             _ => format!("{}: {summary}", self.say(Phrase::Result)),

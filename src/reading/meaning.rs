@@ -52,7 +52,7 @@ impl Meaning {
     /// the name ("what the arm is doing on /arm/state"). `bound` breaks a tie of the
     /// names a request's words point at with it, and chooses among names they point at
     /// none of.
-    pub fn name_similarity(&self, query: &str, name: &str) -> f64 {
+    pub(crate) fn name_similarity(&self, query: &str, name: &str) -> f64 {
         let q = self.vector(query);
         std::iter::once(words_of_name(name))
             .chain(self.about.iter().filter_map(|c| said_of(c, name)))

@@ -23,7 +23,7 @@ use super::concepts::{chains, clauses, opens_request, Mood};
 use crate::lexicon::folded_words;
 
 /// At most this many parts; a longer request is worked as one.
-pub const MAX_PARTS: usize = 4;
+pub(crate) const MAX_PARTS: usize = 4;
 
 /// One word of the request: where it lies, and how it ends.
 struct Word {

@@ -440,7 +440,7 @@ pub fn select(
 
 /// How much a tool's retrieval share weighs against the model's log-probability of its
 /// name, when the first step of a request picks its tool (`config::Pick::Weighed`).
-pub const PRIOR_WEIGHT: f64 = 8.0;
+pub(crate) const PRIOR_WEIGHT: f64 = 8.0;
 
 /// The share of the best tool's score the answer (`fallback`) is held at: the model
 /// answers without a tool when it likes that better than a tool scoring this share
@@ -487,7 +487,7 @@ fn live_values(live: &ToolSpec, declared: Option<&ToolSpec>) -> Vec<String> {
 /// tools as declared), whether it takes a name `part` writes whole in the shape of a ROS
 /// name (`bound::written_names`) among its live values. A request that names a
 /// parameter or a topic asks for a tool that can be given it.
-pub fn takes_written(part: &str, live: &[ToolSpec], declared: &[ToolSpec]) -> Vec<bool> {
+pub(crate) fn takes_written(part: &str, live: &[ToolSpec], declared: &[ToolSpec]) -> Vec<bool> {
     let bare = |n: &str| n.trim_start_matches('/').to_string();
     let written: Vec<String> = super::bound::written_names(part)
         .iter()
@@ -506,7 +506,12 @@ pub fn takes_written(part: &str, live: &[ToolSpec], declared: &[ToolSpec]) -> Ve
 /// Cut the priors of the candidates that cannot take a name the request writes when
 /// another can (`takes`, from `takes_written`, in the candidates' order); the answer
 /// and the stop tool, which take no names, keep theirs.
-pub fn hold_to_written(prior: &mut [f64], candidates: &[&str], takes: &[bool], fallback: &str) {
+pub(crate) fn hold_to_written(
+    prior: &mut [f64],
+    candidates: &[&str],
+    takes: &[bool],
+    fallback: &str,
+) {
     if takes.len() != prior.len() || !takes.iter().any(|t| *t) {
         return;
     }
@@ -543,7 +548,7 @@ const PRIOR_FLOOR: f64 = 1e-3;
 /// the request asked for is not replaced by one the model went on to fetch ("how charged
 /// is the battery?": the status, not the pose read after it; "which type does /spawn
 /// have?": the service's info, not the list of services after it).
-pub fn grounding(priors: &[f64]) -> Option<usize> {
+pub(crate) fn grounding(priors: &[f64]) -> Option<usize> {
     let best = priors.iter().copied().fold(f64::NEG_INFINITY, f64::max);
     priors.iter().rposition(|p| *p >= best - 1e-9)
 }

@@ -19,7 +19,7 @@ use serde_json::Value;
 use super::error::RemoteError;
 
 /// Where the server is and how to reach it.
-pub struct Client {
+pub(crate) struct Client {
     host: String,
     port: u16,
     /// Path prefix before `/v1/...` (empty, or e.g. `/llm`).
@@ -50,7 +50,7 @@ pub enum StreamLimit {
 const MAX_BODY: usize = 16 << 20;
 
 /// A request's answer once its status is known.
-pub struct Response {
+pub(crate) struct Response {
     pub status: u16,
     body: Incoming,
     timeout: Duration,
@@ -216,7 +216,7 @@ impl Client {
     /// The whole body of `resp` (at most 16 MiB), arrived within the time-out once it has
     /// started: a server that trickles it a byte at a time, each piece within the
     /// time-out, is cut off too.
-    pub fn read_all(&self, resp: Response) -> Result<Vec<u8>, RemoteError> {
+    pub(crate) fn read_all(&self, resp: Response) -> Result<Vec<u8>, RemoteError> {
         let mut out = Vec::new();
         let mut r = resp;
         let start = std::time::Instant::now();
@@ -254,7 +254,7 @@ impl Client {
     }
 
     /// The next piece of `resp`'s body, `None` at its end.
-    pub fn next_chunk(&self, resp: &mut Response) -> Result<Option<Bytes>, RemoteError> {
+    pub(crate) fn next_chunk(&self, resp: &mut Response) -> Result<Option<Bytes>, RemoteError> {
         let timeout = resp.timeout;
         let url = self.url();
         self.rt.block_on(async {
@@ -286,13 +286,13 @@ impl Client {
 
     /// A JSON request's JSON answer; a status other than 2xx is an error carrying the
     /// server's own message.
-    pub fn post_json(&self, path: &str, body: &Value) -> Result<Value, RemoteError> {
+    pub(crate) fn post_json(&self, path: &str, body: &Value) -> Result<Value, RemoteError> {
         let resp = self.post(path, body)?;
         self.json_of(path, resp)
     }
 
     /// `GET path`'s JSON answer (as `post_json`).
-    pub fn get_json(&self, path: &str) -> Result<Value, RemoteError> {
+    pub(crate) fn get_json(&self, path: &str) -> Result<Value, RemoteError> {
         let resp = self.get(path)?;
         self.json_of(path, resp)
     }
@@ -316,7 +316,7 @@ impl Client {
 
 /// The message an error answer carries: OpenAI's `{"error": {"message": ...}}` (or a
 /// plain string there), else the start of the body.
-pub fn server_message(bytes: &[u8]) -> String {
+pub(crate) fn server_message(bytes: &[u8]) -> String {
     let v: Option<Value> = serde_json::from_slice(bytes).ok();
     let message = v.as_ref().and_then(|v| {
         let e = v.get("error")?;
@@ -329,7 +329,7 @@ pub fn server_message(bytes: &[u8]) -> String {
 }
 
 /// The first 300 characters of a body, for messages.
-pub fn preview(bytes: &[u8]) -> String {
+pub(crate) fn preview(bytes: &[u8]) -> String {
     let text = String::from_utf8_lossy(bytes);
     let text = text.trim();
     match text.char_indices().nth(300) {

@@ -20,7 +20,7 @@ use crate::tool::ToolSpec;
 
 /// How one turn is asked for.
 #[derive(Debug, Clone, PartialEq)]
-pub enum Frame {
+pub(crate) enum Frame {
     /// Prose, no grammar (`ToolChoice::None`, or no tools).
     Free,
     /// The whole turn is one JSON value.
@@ -38,7 +38,7 @@ pub enum Frame {
 
 /// Where a freely written turn starts a call.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Marker {
+pub(crate) enum Marker {
     /// At this text.
     Text(&'static str),
     /// When the turn (after spaces) starts with `{` (the JSON envelope).
@@ -65,7 +65,7 @@ impl Marker {
 /// bounds are folded into a pattern of single characters and classes with one `*` (the
 /// shape of the answer tool's). What still cannot be said is caught afterwards: every turn
 /// is checked against the real schema.
-pub fn portable(schema: &Value) -> Value {
+pub(crate) fn portable(schema: &Value) -> Value {
     match schema {
         Value::Object(map) => {
             // Values that are data, not schemas, stay as they are.
@@ -209,7 +209,7 @@ fn bound_star(pattern: &str, min: usize, max: usize) -> Option<String> {
 }
 
 /// The frame of a turn over `specs` (see the module header).
-pub fn for_turn(
+pub(crate) fn for_turn(
     envelope: Envelope,
     specs: &[ToolSpec],
     choice: ToolChoice,

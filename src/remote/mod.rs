@@ -173,7 +173,7 @@ impl Remote {
     }
 
     /// Sample as `config` says (greedy by default).
-    pub fn with_sampler(mut self, config: SamplerConfig) -> Remote {
+    pub(crate) fn with_sampler(mut self, config: SamplerConfig) -> Remote {
         self.sampler = config;
         self
     }
@@ -201,7 +201,7 @@ impl Remote {
     }
 
     /// Where a model runs, in a line: `remote`'s server, or in this process on `backend`.
-    pub fn describe_engine(remote: Option<&Remote>, backend: &dyn Backend) -> String {
+    pub(crate) fn describe_engine(remote: Option<&Remote>, backend: &dyn Backend) -> String {
         remote.map_or_else(
             || format!("in-process {}", backend.name()),
             Remote::describe,

@@ -203,7 +203,7 @@ struct Goal {
 }
 
 /// The guarded graph (see the module header).
-pub struct Guarded {
+pub(crate) struct Guarded {
     inner: Arc<dyn RosGraph>,
     fence: Arc<Fence>,
     estop: Arc<EStop>,

@@ -64,7 +64,7 @@ fn width(p: Primitive) -> usize {
 
 /// The two serialisations the codec writes and reads.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Wire {
+pub(crate) enum Wire {
     /// ROS 2: aligned to each primitive's width, strings NUL-terminated, an empty
     /// structure one placeholder byte.
     Cdr,
@@ -114,7 +114,7 @@ pub fn encode(
 }
 
 /// Encode `value` as `type_name` in ROS 1's serialisation.
-pub fn encode_ros1(
+pub(crate) fn encode_ros1(
     ifaces: &Interfaces,
     type_name: &str,
     value: &Value,
@@ -385,11 +385,11 @@ pub const MAX_DEPTH: usize = 32;
 
 /// Most items of no bytes (elements of an empty message, in ROS 1) one payload decodes
 /// to: every other item takes at least one byte of the payload.
-pub const MAX_EMPTY_ITEMS: usize = 1 << 16;
+pub(crate) const MAX_EMPTY_ITEMS: usize = 1 << 16;
 
 /// Most values a shape built from definitions alone (a default, a template) holds:
 /// nested fixed arrays multiply.
-pub const MAX_SHAPE_VALUES: usize = 1 << 20;
+pub(crate) const MAX_SHAPE_VALUES: usize = 1 << 20;
 
 fn too_large(path: &str) -> CodecError {
     value_err(

@@ -78,7 +78,8 @@ impl FakeGraph {
 
     /// Hold every `publish` up for `delay` before it goes out, as a busy node or a
     /// wait for a subscriber does; `publish_now` (the brake's) goes out at once.
-    pub fn with_publish_delay(mut self, delay: Duration) -> FakeGraph {
+    #[cfg(test)]
+    pub(crate) fn with_publish_delay(mut self, delay: Duration) -> FakeGraph {
         self.publish_delay = delay;
         self
     }

@@ -14,7 +14,7 @@ use serde::Serialize;
 use super::msg::normalize_type;
 
 /// A DDS endpoint GID (GUID prefix + entity id).
-pub type Gid = [u8; 16];
+pub(crate) type Gid = [u8; 16];
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "snake_case")]
@@ -38,7 +38,7 @@ pub struct Qos {
 
 /// One discovered DDS reader or writer.
 #[derive(Debug, Clone, PartialEq)]
-pub struct DdsEndpoint {
+pub(crate) struct DdsEndpoint {
     pub gid: Gid,
     pub writer: bool,
     pub dds_topic: String,
@@ -50,7 +50,7 @@ pub struct DdsEndpoint {
 
 /// The `typehash=RIHS01_…;` entry ROS 2 (Iron and newer) puts in an endpoint's USER_DATA
 /// (an octet sequence: the text follows its length, so it is searched for).
-pub fn type_hash_from_user_data(user_data: &[u8]) -> Option<String> {
+pub(crate) fn type_hash_from_user_data(user_data: &[u8]) -> Option<String> {
     const KEY: &[u8] = b"typehash=";
     let at = user_data.windows(KEY.len()).position(|w| w == KEY)? + KEY.len();
     let value: Vec<u8> = user_data[at..]
@@ -64,7 +64,7 @@ pub fn type_hash_from_user_data(user_data: &[u8]) -> Option<String> {
 
 /// A node's entities as announced on `ros_discovery_info`.
 #[derive(Debug, Clone, PartialEq)]
-pub struct NodeEntities {
+pub(crate) struct NodeEntities {
     pub name: String,
     pub namespace: String,
     pub readers: Vec<Gid>,
@@ -72,7 +72,7 @@ pub struct NodeEntities {
 }
 
 impl NodeEntities {
-    pub fn full_name(&self) -> String {
+    pub(crate) fn full_name(&self) -> String {
         if self.namespace.ends_with('/') {
             format!("{}{}", self.namespace, self.name)
         } else {
@@ -174,7 +174,7 @@ impl Graph {
     }
 
     /// The type published on `topic`, if one is known.
-    pub fn topic_type(&self, topic: &str) -> Option<String> {
+    pub(crate) fn topic_type(&self, topic: &str) -> Option<String> {
         self.publishers
             .iter()
             .chain(&self.subscribers)
@@ -185,7 +185,7 @@ impl Graph {
 
 /// What DDS and `ros_discovery_info` have said so far.
 #[derive(Debug, Default, Clone)]
-pub struct GraphCache {
+pub(crate) struct GraphCache {
     /// Per participant (by GID), the nodes it last announced.
     participants: BTreeMap<Gid, Vec<NodeEntities>>,
 }
@@ -224,17 +224,18 @@ fn service_type(dds_type: &str) -> String {
 
 impl GraphCache {
     /// Replace what participant `participant` announced.
-    pub fn update_participant(&mut self, participant: Gid, nodes: Vec<NodeEntities>) {
+    pub(crate) fn update_participant(&mut self, participant: Gid, nodes: Vec<NodeEntities>) {
         self.participants.insert(participant, nodes);
     }
 
     /// Keep only the participants `live` accepts.
-    pub fn retain_participants(&mut self, mut live: impl FnMut(&Gid) -> bool) {
+    pub(crate) fn retain_participants(&mut self, mut live: impl FnMut(&Gid) -> bool) {
         self.participants.retain(|gid, _| live(gid));
     }
 
     /// Forget a participant that left.
-    pub fn remove_participant(&mut self, participant: &Gid) {
+    #[cfg(test)]
+    pub(crate) fn remove_participant(&mut self, participant: &Gid) {
         self.participants.remove(participant);
     }
 
@@ -310,14 +311,14 @@ pub(crate) mod testing {
     use super::*;
 
     /// The GID whose last byte is `n`.
-    pub fn gid(n: u8) -> Gid {
+    pub(crate) fn gid(n: u8) -> Gid {
         let mut g = [0u8; 16];
         g[15] = n;
         g
     }
 
     /// A reliable, volatile endpoint with GID `gid(n)`.
-    pub fn ep(n: u8, writer: bool, topic: &str, ty: &str) -> DdsEndpoint {
+    pub(crate) fn ep(n: u8, writer: bool, topic: &str, ty: &str) -> DdsEndpoint {
         DdsEndpoint {
             gid: gid(n),
             writer,

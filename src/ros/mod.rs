@@ -263,7 +263,7 @@ impl From<Value> for Reply {
 }
 
 /// Messages of a watched topic, as they arrive.
-pub type Watch = tokio::sync::mpsc::UnboundedReceiver<Value>;
+pub(crate) type Watch = tokio::sync::mpsc::UnboundedReceiver<Value>;
 
 /// Where a goal's feedback messages go as they come (`send_goal_watched`), decoded.
-pub type FeedbackSink = tokio::sync::mpsc::UnboundedSender<Value>;
+pub(crate) type FeedbackSink = tokio::sync::mpsc::UnboundedSender<Value>;

@@ -56,17 +56,17 @@ pub enum MsgError {
 
 /// Most bytes of definition text parsed at once (a whole ROS 1 `message_definition`
 /// with every nested type; MoveIt's largest are tens of KB).
-pub const MAX_DEFINITION_BYTES: usize = 1 << 20;
+pub(crate) const MAX_DEFINITION_BYTES: usize = 1 << 20;
 
 /// Most fields and constants one message may declare.
-pub const MAX_FIELDS: usize = 1024;
+pub(crate) const MAX_FIELDS: usize = 1024;
 
 /// Most levels of message inside message (ROS types nest about ten deep at most).
 pub const MAX_DEPTH: usize = 32;
 
 /// Most types one definition may bring with it (a ROS 1 `message_definition`'s sections,
 /// a ROS 2 description's referenced types).
-pub const MAX_TYPES: usize = 256;
+pub(crate) const MAX_TYPES: usize = 256;
 
 /// The most values (scalars and strings, every fixed array counted in full, a sequence
 /// as one element) one message type may hold: a peer's type must not make a template
@@ -180,7 +180,7 @@ pub struct MessageDef {
 }
 
 /// Every spelling of a type name resolved to `pkg/kind/Name`; `kind` defaults to `msg`.
-pub fn normalize_type(name: &str) -> String {
+pub(crate) fn normalize_type(name: &str) -> String {
     let name = name.trim();
     if let Some(rest) = name.strip_suffix('_') {
         // DDS form: pkg::msg::dds_::Name_
@@ -226,7 +226,7 @@ fn parse_base(token: &str, package: &str) -> Result<(BaseType, Option<usize>), S
 
 /// Largest fixed array a definition may declare: a message of a billion zeros (a peer
 /// may claim one) would be allocated whole before a single byte is read.
-pub const MAX_FIXED_ARRAY: usize = 1 << 16;
+pub(crate) const MAX_FIXED_ARRAY: usize = 1 << 16;
 
 fn parse_shape(token: &str) -> Result<(&str, Shape), String> {
     let Some(open) = token.find('[') else {

@@ -8,7 +8,7 @@ use serde_json::Value;
 
 use super::{BoxFuture, CancelOutcome, GoalOutcome, Graph, Interfaces, RosError, RosGraph, Sample};
 
-pub struct SwitchGraph {
+pub(crate) struct SwitchGraph {
     current: RwLock<Arc<dyn RosGraph>>,
     interfaces: Interfaces,
 }

@@ -19,7 +19,7 @@ use super::msg::{
 };
 
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
-pub enum TypeDescError {
+pub(crate) enum TypeDescError {
     #[error("the type description of {0} is malformed")]
     Malformed(String),
     #[error("the type description of {name} hashes to {computed}, not the {announced} its node announced; it is not used")]
@@ -41,7 +41,7 @@ pub enum TypeDescError {
 /// The RIHS01 hash of a `type_description_interfaces/msg/TypeDescription` (as JSON): a
 /// SHA-256 of its fields without default values, written as Python's `json.dumps` writes
 /// them, the referenced types sorted by name.
-pub fn rihs01(description: &Value) -> Result<String, TypeDescError> {
+pub(crate) fn rihs01(description: &Value) -> Result<String, TypeDescError> {
     let main = &description["type_description"];
     let name = main["type_name"].as_str().unwrap_or_default().to_string();
     let malformed = || TypeDescError::Malformed(name.clone());
@@ -109,7 +109,7 @@ fn ascii_json(s: &str) -> String {
 
 /// Verify `description` against the hash the node `announced`, and build the message
 /// definitions it describes (the type and every type it references).
-pub fn verified_definitions(
+pub(crate) fn verified_definitions(
     description: &Value,
     announced: &str,
 ) -> Result<Vec<MessageDef>, TypeDescError> {

@@ -16,7 +16,7 @@ use std::time::{Duration, Instant};
 use super::wav::{self, Audio};
 
 /// The longest text spoken at once, in characters.
-pub const MAX_CHARS: usize = 2000;
+pub(crate) const MAX_CHARS: usize = 2000;
 /// How long espeak-ng may take.
 const LIMIT: Duration = Duration::from_secs(30);
 
@@ -37,7 +37,7 @@ pub enum VoiceError {
 }
 
 /// espeak-ng's voice for a language code the agent knows, else `voice` as given.
-pub fn voice_for(voice: &str) -> &str {
+pub(crate) fn voice_for(voice: &str) -> &str {
     match voice {
         "en" if piper().is_some() => "piper",
         "en" => "en-us",

@@ -31,7 +31,7 @@ use crate::backend::TokenId;
 use crate::decode::DecodeError;
 
 /// What stands in for the request in the baseline prompt.
-pub const CONTENT_FREE: &str = "N/A";
+pub(crate) const CONTENT_FREE: &str = "N/A";
 
 /// The calibrated choice as a strategy (see the module header).
 #[derive(Debug, Default)]
@@ -86,7 +86,7 @@ impl Strategy for Calibrated {
 /// Plain decoding would take the likeliest tool; the most raised one is the calibrated
 /// choice. On BFCL multiple with SmolLM2-135M the expected function is the likeliest in
 /// 41 of questions 51-110 and the most raised in 48.
-pub fn calibrated_choice(
+pub(crate) fn calibrated_choice(
     with_request: &[f64],
     baseline: &[f64],
     fallback: Option<usize>,
@@ -147,7 +147,7 @@ impl Strategy for Weighed {
 
 /// The candidate with the best `logprob + weight * prior` (the first of equals);
 /// `None` with no candidates.
-pub fn weighed_choice(logprob: &[f64], prior: &[f64], weight: f64) -> Option<usize> {
+pub(crate) fn weighed_choice(logprob: &[f64], prior: &[f64], weight: f64) -> Option<usize> {
     let n = logprob.len().min(prior.len());
     argmax(n, |i| logprob[i] + weight * prior[i], None)
 }

@@ -50,7 +50,7 @@ struct Entry {
 /// The sources of one turn, indexed against a vocabulary: built once per turn (a few
 /// milliseconds at a 49k vocabulary), read at every step of a value.
 #[derive(Debug)]
-pub struct CopyIndex {
+pub(crate) struct CopyIndex {
     sources: Vec<Vec<u8>>,
     /// Per source: the one tool parameter it is for (a declared default), or any.
     scope: Vec<Option<(Vec<u8>, Vec<u8>)>>,
@@ -312,7 +312,7 @@ pub fn defaults(specs: &[ToolSpec]) -> Vec<Scoped> {
 }
 
 /// The copy bias as a strategy: an index of one turn's sources and the bonus.
-pub struct CopyBias {
+pub(crate) struct CopyBias {
     index: CopyIndex,
     /// The bonus in force (the index's own, or the strict one while a call is redone).
     bonus: f32,
@@ -322,7 +322,7 @@ pub struct CopyBias {
 /// Logit bonus of the copy bias when a turned-down call is written again: above the gap
 /// between a 135M model's first and second choices at nearly every step, so a value the
 /// request spells is written wherever the grammar allows one.
-pub const STRICT_BONUS: f32 = 12.0;
+pub(crate) const STRICT_BONUS: f32 = 12.0;
 
 impl CopyBias {
     pub fn new(index: CopyIndex) -> CopyBias {

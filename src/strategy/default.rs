@@ -139,7 +139,7 @@ fn value_after(sentence: &str) -> Option<(Value, String)> {
 impl Declared {
     /// A string whose words all occur, in a row, in the default (its value, or the
     /// description's clause when the value did not read as one).
-    pub fn spells_words(&self, v: &str) -> bool {
+    pub(crate) fn spells_words(&self, v: &str) -> bool {
         let w = words(v);
         if w.is_empty() {
             return false;

@@ -27,7 +27,7 @@ const MIN_WORD: usize = 3;
 /// What optional arguments may draw on: the operator's words and what tools returned,
 /// kept lowercased as it grows.
 #[derive(Debug, Clone, Default)]
-pub struct Grounding {
+pub(crate) struct Grounding {
     text: String,
     /// Each piece of text added, read for numbers; `None` while numbers are left alone.
     numbers: Option<Vec<Request>>,
@@ -45,7 +45,7 @@ impl Grounding {
 
     /// Hold optional numbers to the rule too (from here on, and for the text already
     /// added).
-    pub fn with_numbers(mut self) -> Grounding {
+    pub(crate) fn with_numbers(mut self) -> Grounding {
         self.numbers = Some(
             self.text
                 .split('\n')
@@ -92,7 +92,7 @@ impl Grounding {
     /// Drop the optional string (and, `with_numbers`, number) arguments of `call` never
     /// mentioned here nor declared as their default; returns the names of the dropped
     /// arguments.
-    pub fn drop_ungrounded(&self, call: &mut ToolCall, spec: &ToolSpec) -> Vec<String> {
+    pub(crate) fn drop_ungrounded(&self, call: &mut ToolCall, spec: &ToolSpec) -> Vec<String> {
         let required: Vec<&str> = spec.parameters["required"]
             .as_array()
             .map(|r| r.iter().filter_map(Value::as_str).collect())

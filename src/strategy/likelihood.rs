@@ -11,7 +11,7 @@ use crate::decode::Session;
 
 /// The log-probability of each continuation after `context`. Leaves `session` describing
 /// what the KV cache holds.
-pub fn continuation_logprobs(
+pub(crate) fn continuation_logprobs(
     backend: &mut dyn Backend,
     session: &mut Session,
     context: &[TokenId],
@@ -67,7 +67,7 @@ fn log_sum_exp(logits: &[f32]) -> f32 {
     max + sum.ln()
 }
 
-pub fn log_softmax(logits: &[f32]) -> Vec<f32> {
+pub(crate) fn log_softmax(logits: &[f32]) -> Vec<f32> {
     let norm = log_sum_exp(logits);
     logits.iter().map(|&l| l - norm).collect()
 }

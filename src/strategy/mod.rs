@@ -12,8 +12,7 @@
 //! - `choice`: which tool a turn calls, calibrated (against a content-free request, list
 //!   length too) or weighed with a prior (the agent's tool retrieval)
 //! - `copy`: the copy bias (values lean towards spans of the request or a tool result)
-//! - `repeats`: guards on what a turn writes (no looping arrays, no repeated call, no
-//!   repeated phrase in an answer)
+//! - `repeats`: guards on what a turn writes (no looping arrays, no repeated call)
 //! - `verify`: call verification (a call's values must come from the request)
 //! - `ground`: grounding (optional arguments nobody asked for are dropped)
 //! - `default`: what a parameter's schema declares as its default (shared knowledge)
@@ -149,7 +148,7 @@ impl Pipeline {
     }
 
     /// The first strategy's view on going on that has one.
-    pub fn go_on(
+    pub(crate) fn go_on(
         &mut self,
         scorer: &mut Scorer,
         written: &[TokenId],
@@ -164,7 +163,7 @@ impl Pipeline {
     }
 
     /// The sternest review.
-    pub fn review(&mut self, call: &ToolCall, earlier: &[ToolCall], first: bool) -> Review {
+    pub(crate) fn review(&mut self, call: &ToolCall, earlier: &[ToolCall], first: bool) -> Review {
         self.strategies
             .iter_mut()
             .map(|s| s.review(call, earlier, first))
@@ -173,7 +172,7 @@ impl Pipeline {
     }
 
     /// Whether any strategy could be stricter.
-    pub fn strict(&mut self, on: bool) -> bool {
+    pub(crate) fn strict(&mut self, on: bool) -> bool {
         let mut any = false;
         for s in &mut self.strategies {
             any |= s.strict(on);

@@ -12,8 +12,6 @@
 //!   after a call with 10 is allowed for "5,10 and 15"). The earlier arguments are left
 //!   to the model: a list mostly shares its first values and varies a later one ("for
 //!   10, 20 and 30 years").
-//! - `PhraseGuard`: the answer text may not repeat a run of words it already wrote ("the
-//!   turtle is facing the direction of the direction of the ...").
 //!
 //! Pushed down, never to −∞: if the grammar allows nothing else, the model still may.
 
@@ -28,7 +26,7 @@ const PENALTY: f32 = 1.0e4;
 
 /// See the module header. Cost: per token of an array, a look at the scan; the token
 /// lists are read from the vocabulary once.
-pub struct LoopGuard {
+pub(crate) struct LoopGuard {
     /// Tokens that go on to another item (start with `,`), and those that close a string
     /// item and go on (start with `",`).
     commas: Vec<TokenId>,
@@ -75,7 +73,7 @@ impl Strategy for LoopGuard {
 /// See the module header. Cost: the earlier calls are read once per call; per token of
 /// a call that matches an earlier one up to its last plain argument, a pass over the
 /// vocabulary.
-pub struct RepeatGuard {
+pub(crate) struct RepeatGuard {
     /// The request, as written and with its digit groups joined.
     request: [Vec<u8>; 2],
     /// The earlier calls and the key of each one's last string or number argument, for
@@ -225,108 +223,6 @@ fn last_plain_argument(call: &[u8]) -> Option<&[u8]> {
     Some(&call[at + 1..at + 1 + key.len()])
 }
 
-/// See the module header. Cost: per token of the answer tool's text, a scan of that
-/// text for the words just written.
-pub struct PhraseGuard {
-    /// The tool whose text is guarded (the one that answers in words).
-    tool: String,
-    /// Words in a row that may not appear twice.
-    run: usize,
-}
-
-impl PhraseGuard {
-    pub fn new(tool: &str, run: usize) -> PhraseGuard {
-        PhraseGuard {
-            tool: tool.to_string(),
-            run: run.max(2),
-        }
-    }
-
-    /// The tokens that would complete, in `text`, a repeat of a run of `self.run` words
-    /// it already holds: the text ends with the first `run - 1` words of such a run, and
-    /// the token starts its last word.
-    fn banned(&self, vocab: &Vocab, text: &[u8]) -> Vec<TokenId> {
-        let words = word_spans(text);
-        let n = self.run - 1;
-        // Only at a word boundary: the text ends with a space after `n` words.
-        if words.len() < self.run || !text.last().is_some_and(u8::is_ascii_whitespace) {
-            return Vec::new();
-        }
-        let tail: Vec<&[u8]> = words[words.len() - n..]
-            .iter()
-            .map(|&(a, b)| &text[a..b])
-            .collect();
-        let mut next_words: Vec<&[u8]> = Vec::new();
-        for i in 0..words.len() - n {
-            let same = (0..n).all(|k| {
-                let (a, b) = words[i + k];
-                text[a..b].eq_ignore_ascii_case(tail[k])
-            });
-            if same {
-                let (a, b) = words[i + n];
-                next_words.push(&text[a..b]);
-            }
-        }
-        if next_words.is_empty() {
-            return Vec::new();
-        }
-        (0..vocab.len() as TokenId)
-            .filter(|&t| {
-                let p = vocab.piece(t);
-                let p = p.strip_prefix(b" ").unwrap_or(p);
-                !p.is_empty()
-                    && p[0].is_ascii_alphanumeric()
-                    && next_words.iter().any(|w| {
-                        let k = p.len().min(w.len());
-                        p[..k].eq_ignore_ascii_case(&w[..k])
-                            && (p.len() <= w.len() || !p[w.len()].is_ascii_alphanumeric())
-                    })
-            })
-            .collect()
-    }
-}
-
-/// Byte spans of the words (alphanumeric runs) of `text`.
-fn word_spans(text: &[u8]) -> Vec<(usize, usize)> {
-    let mut out = Vec::new();
-    let mut start = None;
-    for (i, &b) in text.iter().enumerate() {
-        match (b.is_ascii_alphanumeric() || b >= 0x80, start) {
-            (true, None) => start = Some(i),
-            (false, Some(s)) => {
-                out.push((s, i));
-                start = None;
-            }
-            _ => {}
-        }
-    }
-    if let Some(s) = start {
-        out.push((s, text.len()));
-    }
-    out
-}
-
-impl Strategy for PhraseGuard {
-    fn name(&self) -> &'static str {
-        "phrase-guard"
-    }
-
-    fn adjust(&mut self, cx: &TokenContext, logits: &mut [f32]) {
-        let Some(v) = cx.scan.context() else {
-            return;
-        };
-        let Value::String(text) = v.value else {
-            return;
-        };
-        if v.tool != self.tool.as_bytes() {
-            return;
-        }
-        for t in self.banned(cx.vocab, text) {
-            logits[t as usize] -= PENALTY;
-        }
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -407,23 +303,5 @@ mod tests {
             [",", ", \""]
         );
         assert_eq!(adjusted(&mut g, &v, &format!("{call}1, 1")), [",", ", \""]);
-    }
-
-    #[test]
-    fn an_answer_does_not_say_the_same_words_twice() {
-        let v = vocab(&[" direction", " dir", "direction", " facing", " north", "."]);
-        let mut g = PhraseGuard::new("reply", 3);
-        let reply = |t: &str| format!(r#"[{{"name": "reply", "arguments": {{"text": "{t}"#);
-        let said = "The turtle is facing the direction of the ";
-        assert_eq!(
-            adjusted(&mut g, &v, &reply(said)),
-            Vec::<String>::new(),
-            "no run of two words repeats yet"
-        );
-        let looping = "The turtle is facing the direction of the turtle is ";
-        assert_eq!(adjusted(&mut g, &v, &reply(looping)), [" facing"]);
-        // Other tools' strings are theirs.
-        let other = r#"[{"name": "f", "arguments": {"text": "a b c a b "#;
-        assert!(adjusted(&mut g, &v, other).is_empty());
     }
 }

@@ -31,7 +31,7 @@ pub struct Request {
 
 /// What a proposed call brings that no earlier call had.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
-pub struct Novelty {
+pub(crate) struct Novelty {
     /// New values the request spells.
     pub grounded: usize,
     /// New values it does not.
@@ -40,7 +40,7 @@ pub struct Novelty {
 
 impl Novelty {
     /// The call adds something the operator asked for and nothing they did not.
-    pub fn earns_its_place(&self) -> bool {
+    pub(crate) fn earns_its_place(&self) -> bool {
         self.grounded > 0 && self.ungrounded == 0
     }
 }
@@ -82,7 +82,12 @@ impl Request {
     /// What `call`'s arguments bring that none of `earlier` had.
     /// Values the schema enumerates (units, modes) or declares as a parameter's default
     /// come from the schema, not the request, and count for nothing.
-    pub fn novelty(&self, call: &Value, earlier: &[Value], schema: Option<&Value>) -> Novelty {
+    pub(crate) fn novelty(
+        &self,
+        call: &Value,
+        earlier: &[Value],
+        schema: Option<&Value>,
+    ) -> Novelty {
         let mut leaves = Vec::new();
         flatten(call, &mut String::new(), &mut leaves);
         let mut before = Vec::new();

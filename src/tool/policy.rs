@@ -227,7 +227,7 @@ impl Policy {
     }
 
     /// Share `estop` (the process's one latch) instead of a latch of its own.
-    pub fn with_estop(mut self, estop: Arc<EStop>) -> Policy {
+    pub(crate) fn with_estop(mut self, estop: Arc<EStop>) -> Policy {
         self.estop = estop;
         self
     }
@@ -252,7 +252,7 @@ impl Policy {
     }
 
     /// Whether some calls of `tool` count as observing (an `observes` rule names it).
-    pub fn may_observe(&self, tool: &str) -> bool {
+    pub(crate) fn may_observe(&self, tool: &str) -> bool {
         self.observes.iter().any(|(re, _, _)| re.is_match(tool))
     }
 
@@ -338,7 +338,7 @@ impl Policy {
     /// Why `call` is refused when it names a name off limits (the deny-list), as the
     /// model reads it. That reason comes before any other: the model is told the name is
     /// out of reach, not that the operator did not ask for it.
-    pub fn off_limits(&self, call: &ToolCall) -> Option<String> {
+    pub(crate) fn off_limits(&self, call: &ToolCall) -> Option<String> {
         let mut strings = Vec::new();
         collect_strings(&call.arguments, &mut strings);
         (strings.iter().any(|s| self.fence.denies(s)) || self.names_denied_parameter(call))
@@ -392,13 +392,13 @@ impl Policy {
 
     /// Hide what the fence covers in a tool's output: array items that are denied
     /// names are dropped and every string is redacted. Returns how many were hidden.
-    pub fn redact(&self, output: &mut Value) -> usize {
+    pub(crate) fn redact(&self, output: &mut Value) -> usize {
         self.fence.redact_json(output)
     }
 
     /// The time limit of a call of a tool that asks for `own` (`Tool::time_limit`): the
     /// policy file's when it sets one, else the tool's own, else the default.
-    pub fn time_limit(&self, own: Option<Duration>) -> Duration {
+    pub(crate) fn time_limit(&self, own: Option<Duration>) -> Duration {
         match own {
             Some(own) if !self.timeout_given => own,
             _ => self.timeout,
@@ -406,7 +406,7 @@ impl Policy {
     }
 
     /// `text` with denied names redacted (answers, errors, anything shown).
-    pub fn redact_text<'a>(&self, text: &'a str) -> std::borrow::Cow<'a, str> {
+    pub(crate) fn redact_text<'a>(&self, text: &'a str) -> std::borrow::Cow<'a, str> {
         self.fence.redact(text)
     }
 }

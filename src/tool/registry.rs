@@ -72,7 +72,7 @@ impl<T: Tool> DynTool for Typed<T> {
 }
 
 /// Erase a typed tool; its schema comes from `T::Args`.
-pub fn erase<T: Tool>(tool: T) -> Arc<dyn DynTool> {
+pub(crate) fn erase<T: Tool>(tool: T) -> Arc<dyn DynTool> {
     let spec = ToolSpec::new(T::NAME, tool.description(), schema::schema_for::<T::Args>())
         .unwrap_or_else(|e| panic!("tool {} has an invalid schema: {e}", T::NAME));
     Arc::new(Typed { tool, spec })
@@ -143,7 +143,7 @@ impl Registry {
     /// Drop every tool that actuates (`--read-only`).
     /// Only the observing tools, and the actuating ones `keep` names (those some of
     /// whose calls the policy counts as observing).
-    pub fn without_actuators(&self, keep: impl Fn(&str) -> bool) -> Registry {
+    pub(crate) fn without_actuators(&self, keep: impl Fn(&str) -> bool) -> Registry {
         Registry {
             tools: self
                 .tools

@@ -8,10 +8,10 @@ use serde_json::{json, Value};
 /// The mark of a string argument that quotes the operator (a fact to keep), in a tool's
 /// live parameters (`Tool::live_parameters`): the agent holds it to words the request
 /// ends with (`reading::bound`). The prompt never shows it.
-pub const QUOTE: &str = "x-quote";
+pub(crate) const QUOTE: &str = "x-quote";
 
 /// The cleaned schema of `T`'s JSON form.
-pub fn schema_for<T: schemars::JsonSchema>() -> Value {
+pub(crate) fn schema_for<T: schemars::JsonSchema>() -> Value {
     let settings = SchemaSettings::draft2020_12().with(|s| {
         s.inline_subschemas = true;
     });

@@ -73,7 +73,7 @@ impl ToolSpec {
     }
 
     /// This tool, called alone (see `alone`).
-    pub fn called_alone(self) -> ToolSpec {
+    pub(crate) fn called_alone(self) -> ToolSpec {
         ToolSpec {
             alone: true,
             ..self
@@ -83,7 +83,7 @@ impl ToolSpec {
     /// The schema of one call as the grammar enforces it: `{"name": <this name>,
     /// "arguments": <parameters>}`, name first (the grammar emits properties in schema
     /// order), and every unbounded number given finite bounds (see `bound_values`).
-    pub fn call_schema(&self) -> Value {
+    pub(crate) fn call_schema(&self) -> Value {
         let mut arguments = self.parameters.clone();
         bound_values(&mut arguments);
         json!({
@@ -98,7 +98,7 @@ impl ToolSpec {
     }
 
     /// Check `arguments` against the schema; the error lists every violation.
-    pub fn validate(&self, arguments: &Value) -> Result<(), String> {
+    pub(crate) fn validate(&self, arguments: &Value) -> Result<(), String> {
         let v = jsonschema::validator_for(&self.parameters).map_err(|e| e.to_string())?;
         let errors: Vec<String> = v
             .iter_errors(arguments)

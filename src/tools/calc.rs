@@ -17,10 +17,10 @@ pub fn package() -> Package {
         .with(CalcGeometry)
 }
 
-pub struct CalcEval;
+pub(crate) struct CalcEval;
 
 #[derive(Deserialize, JsonSchema)]
-pub struct EvalArgs {
+pub(crate) struct EvalArgs {
     /// An arithmetic expression, e.g. "(3 + 5) * 2", "2^10", "sqrt(2)", "sin(rad(30))".
     pub expression: String,
 }
@@ -46,11 +46,11 @@ impl Tool for CalcEval {
     }
 }
 
-pub struct CalcStats;
+pub(crate) struct CalcStats;
 
 #[derive(Deserialize, JsonSchema, Clone, Copy, PartialEq, Eq)]
 #[serde(rename_all = "lowercase")]
-pub enum Stat {
+pub(crate) enum Stat {
     Mean,
     Median,
     Min,
@@ -63,7 +63,7 @@ pub enum Stat {
 }
 
 #[derive(Deserialize, JsonSchema)]
-pub struct StatsArgs {
+pub(crate) struct StatsArgs {
     /// The numbers, e.g. [3, 5, 10].
     #[schemars(length(min = 1))]
     pub values: Vec<f64>,
@@ -123,10 +123,10 @@ impl Tool for CalcStats {
     }
 }
 
-pub struct CalcConvert;
+pub(crate) struct CalcConvert;
 
 #[derive(Deserialize, JsonSchema)]
-pub struct ConvertArgs {
+pub(crate) struct ConvertArgs {
     pub value: f64,
     /// Unit of `value`: m, cm, mm, km, in, ft, mi, rad, deg, m/s, km/h, mph, kn, C, F, K, s, min, h, kg, g, lb.
     pub from: String,
@@ -215,11 +215,11 @@ impl Tool for CalcConvert {
     }
 }
 
-pub struct CalcGeometry;
+pub(crate) struct CalcGeometry;
 
 #[derive(Deserialize, JsonSchema, Clone, Copy)]
 #[serde(rename_all = "lowercase")]
-pub enum GeoOp {
+pub(crate) enum GeoOp {
     /// Straight-line distance from a to b.
     Distance,
     /// Direction from a to b, radians and degrees, counter-clockwise from +x.
@@ -229,7 +229,7 @@ pub enum GeoOp {
 }
 
 #[derive(Deserialize, JsonSchema)]
-pub struct GeometryArgs {
+pub(crate) struct GeometryArgs {
     pub op: GeoOp,
     /// First point [x, y].
     pub a: [f64; 2],

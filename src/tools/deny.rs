@@ -12,7 +12,7 @@ use serde_json::{json, Value};
 
 use crate::tool::{Effect, Package, Policy, Tool, ToolContext, ToolError};
 
-pub struct PolicyDenyAdd {
+pub(crate) struct PolicyDenyAdd {
     policy: Arc<Policy>,
 }
 
@@ -21,7 +21,7 @@ pub fn package(policy: Arc<Policy>) -> Package {
 }
 
 #[derive(Deserialize, JsonSchema)]
-pub struct DenyArgs {
+pub(crate) struct DenyArgs {
     /// A regular expression of ROS names to stay away from, e.g. "^/camera".
     pub pattern: String,
 }

@@ -8,7 +8,7 @@
 //! of signs (`--1`) is read in a loop, not by recursion.
 
 /// Longest expression read, in characters (a model writes a few dozen).
-pub const MAX_LEN: usize = 4096;
+pub(crate) const MAX_LEN: usize = 4096;
 /// Deepest nesting of parentheses, function calls and powers evaluated.
 pub const MAX_DEPTH: usize = 64;
 

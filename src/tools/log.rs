@@ -31,7 +31,7 @@ fn tail(path: &Path) -> std::io::Result<String> {
     })
 }
 
-pub struct LogRead {
+pub(crate) struct LogRead {
     dirs: Vec<PathBuf>,
 }
 
@@ -109,7 +109,7 @@ fn level_of(line: &str) -> Option<Level> {
 }
 
 #[derive(Deserialize, JsonSchema)]
-pub struct LogArgs {
+pub(crate) struct LogArgs {
     /// Log file name, e.g. "robot.log".
     pub file: String,
     /// How many of the last matching lines, 1 to 200.

@@ -38,12 +38,12 @@ pub(crate) fn failed(e: crate::store::StoreError) -> ToolError {
 }
 
 #[derive(Deserialize, JsonSchema)]
-pub struct NoteArgs {
+pub(crate) struct NoteArgs {
     /// The fact, in the operator's words ("the charger sits in aisle 3").
     pub fact: String,
 }
 
-pub struct MemoryNote(Arc<Store>);
+pub(crate) struct MemoryNote(Arc<Store>);
 
 impl Tool for MemoryNote {
     type Args = NoteArgs;
@@ -72,13 +72,13 @@ impl Tool for MemoryNote {
 }
 
 #[derive(Deserialize, JsonSchema)]
-pub struct RecallArgs {
+pub(crate) struct RecallArgs {
     /// The subject, in the operator's words ("charger"); left out: the latest.
     #[serde(default)]
     pub about: Option<String>,
 }
 
-pub struct MemoryRecall(Arc<Store>);
+pub(crate) struct MemoryRecall(Arc<Store>);
 
 /// The words of `text` that pick what is recalled.
 fn subject_words(text: &str) -> Vec<String> {

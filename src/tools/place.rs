@@ -28,7 +28,7 @@ use crate::tools::ros::{failed, send_goal_reporting};
 use crate::tools::system::NoArgs;
 
 /// The action type a robot navigates with.
-pub const NAVIGATE_TYPE: &str = "nav2_msgs/action/NavigateToPose";
+pub(crate) const NAVIGATE_TYPE: &str = "nav2_msgs/action/NavigateToPose";
 /// Where Nav2 serves it.
 const NAVIGATE_ACTION: &str = "/navigate_to_pose";
 /// Message types a pose is read from, with where each holds its pose (a
@@ -47,7 +47,7 @@ const POSE_WAIT: Duration = Duration::from_secs(3);
 
 /// Where the robot's places come from and how it is driven to them.
 #[derive(Clone)]
-pub struct Places {
+pub(crate) struct Places {
     graph: Arc<dyn RosGraph>,
     /// The robot file's places.
     fixed: Arc<Vec<Place>>,
@@ -293,7 +293,7 @@ fn pose_of(m: &Value, ty: &str, frame: &str) -> Option<(String, f64, f64, f64)> 
     ))
 }
 
-pub struct PlaceList(Places);
+pub(crate) struct PlaceList(Places);
 
 impl Tool for PlaceList {
     type Args = NoArgs;
@@ -319,7 +319,7 @@ impl Tool for PlaceList {
 }
 
 #[derive(Deserialize, JsonSchema)]
-pub struct GoArgs {
+pub(crate) struct GoArgs {
     /// The place's name or one of its aliases, as the operator said it.
     pub place: String,
     /// Places to go to after it, in order.
@@ -335,7 +335,7 @@ const MAX_LEGS: usize = 8;
 /// How long a drive may take unless the policy file sets a time limit.
 const ROUTE_TIME: Duration = Duration::from_secs(300);
 
-pub struct PlaceGo(Places);
+pub(crate) struct PlaceGo(Places);
 
 impl Tool for PlaceGo {
     type Args = GoArgs;
@@ -607,12 +607,12 @@ fn leg_summary(
 }
 
 #[derive(Deserialize, JsonSchema)]
-pub struct RememberArgs {
+pub(crate) struct RememberArgs {
     /// The new place's name, as the operator said it.
     pub name: String,
 }
 
-pub struct PlaceRemember(Places);
+pub(crate) struct PlaceRemember(Places);
 
 impl Tool for PlaceRemember {
     type Args = RememberArgs;
@@ -668,12 +668,12 @@ impl Tool for PlaceRemember {
 }
 
 #[derive(Deserialize, JsonSchema)]
-pub struct ForgetArgs {
+pub(crate) struct ForgetArgs {
     /// The taught place to forget, e.g. "loading bay".
     pub name: String,
 }
 
-pub struct PlaceForget(Places);
+pub(crate) struct PlaceForget(Places);
 
 impl Tool for PlaceForget {
     type Args = ForgetArgs;

@@ -12,7 +12,7 @@ use serde_json::{json, Value};
 use crate::estop::EStop;
 use crate::tool::{Effect, Package, Tool, ToolContext, ToolError};
 
-pub struct RobotStop {
+pub(crate) struct RobotStop {
     estop: Arc<EStop>,
 }
 
@@ -21,7 +21,7 @@ pub fn package(estop: Arc<EStop>) -> Package {
 }
 
 #[derive(Deserialize, JsonSchema)]
-pub struct StopArgs {}
+pub(crate) struct StopArgs {}
 
 impl Tool for RobotStop {
     type Args = StopArgs;

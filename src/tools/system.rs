@@ -35,10 +35,10 @@ impl Tool for SystemTime {
     }
 }
 
-pub struct SystemWait;
+pub(crate) struct SystemWait;
 
 #[derive(Deserialize, JsonSchema)]
-pub struct WaitArgs {
+pub(crate) struct WaitArgs {
     /// Seconds to wait, 0.1 to 60.
     #[schemars(range(min = 0.1, max = 60.0))]
     pub seconds: f64,

@@ -214,13 +214,13 @@ impl Tool for Move {
 }
 
 #[derive(Deserialize, JsonSchema)]
-pub struct RotateArgs {
+pub(crate) struct RotateArgs {
     /// Degrees to turn, -180 to 180 (positive is counter-clockwise, to the left).
     #[schemars(range(min = -180.0, max = 180.0))]
     pub degrees: f64,
 }
 
-pub struct Rotate(Turtle);
+pub(crate) struct Rotate(Turtle);
 
 impl Tool for Rotate {
     type Args = RotateArgs;
@@ -298,7 +298,7 @@ impl Tool for Teleport {
 }
 
 #[derive(Deserialize, JsonSchema)]
-pub struct PenArgs {
+pub(crate) struct PenArgs {
     /// Pen colour, red 0-255.
     #[serde(default)]
     #[schemars(range(min = 0, max = 255))]
@@ -322,7 +322,7 @@ pub struct PenArgs {
 
 #[derive(Deserialize, JsonSchema, Clone, Copy, PartialEq, Eq)]
 #[serde(rename_all = "lowercase")]
-pub enum PenPosition {
+pub(crate) enum PenPosition {
     Up,
     Down,
 }
@@ -362,7 +362,7 @@ impl PenState {
     }
 }
 
-pub struct Pen(Turtle, std::sync::Mutex<PenState>);
+pub(crate) struct Pen(Turtle, std::sync::Mutex<PenState>);
 
 impl Tool for Pen {
     type Args = PenArgs;
@@ -389,7 +389,7 @@ impl Tool for Pen {
     }
 }
 
-pub struct Reset(Turtle);
+pub(crate) struct Reset(Turtle);
 
 impl Tool for Reset {
     type Args = NoArgs;

@@ -91,7 +91,7 @@ impl TurnDecoder {
     }
 
     /// The prompt's leading tokens that do not depend on the conversation.
-    pub fn stable_prefix(&self) -> &[TokenId] {
+    pub(crate) fn stable_prefix(&self) -> &[TokenId] {
         &self.prompt[..self.stable]
     }
 
@@ -110,7 +110,7 @@ impl TurnDecoder {
     }
 
     /// Nothing but end-of-generation may follow.
-    pub fn is_done(&self) -> bool {
+    pub(crate) fn is_done(&self) -> bool {
         self.constraint.as_ref().is_some_and(Constraint::is_stopped)
     }
 
@@ -137,7 +137,7 @@ impl TurnDecoder {
 
     /// Write `tokens` and nothing after them, even what the grammar forces: a shared
     /// prefix of several continuations, one of which follows.
-    pub fn force_prefix(
+    pub(crate) fn force_prefix(
         &mut self,
         backend: &dyn Backend,
         tokens: &[TokenId],
@@ -175,7 +175,7 @@ impl TurnDecoder {
     /// Go back to `mark`: the grammar, the tokens and the text are as they were. Text
     /// already shown (`flush`) cannot be taken back: a caller that rewinds before it
     /// must write the same text again.
-    pub fn rewind(&mut self, mark: Mark) -> Result<(), DecodeError> {
+    pub(crate) fn rewind(&mut self, mark: Mark) -> Result<(), DecodeError> {
         let n = self.written.len().saturating_sub(mark.tokens);
         if let Some(c) = self.constraint.as_mut() {
             c.rollback(n)?;
@@ -192,7 +192,7 @@ impl TurnDecoder {
 
     /// Hand the caller the text not yet shown up to byte `upto`; `false` if it asked to
     /// stop.
-    pub fn flush_to(
+    pub(crate) fn flush_to(
         &mut self,
         upto: usize,
         on_text: &mut dyn FnMut(&str) -> ControlFlow<()>,

@@ -157,7 +157,7 @@ fn place_tools(args: &AgentArgs, prompt: &RobotPrompt, graph: Arc<dyn RosGraph>)
 }
 
 /// The memory file `args` use: `--memory`, else `memory.sqlite` in the data directory.
-pub fn memory_path(args: &AgentArgs) -> Option<PathBuf> {
+pub(crate) fn memory_path(args: &AgentArgs) -> Option<PathBuf> {
     args.memory.clone().or_else(crate::store::default_path)
 }
 
@@ -172,7 +172,7 @@ fn remembered(args: &AgentArgs) -> Vec<String> {
 
 /// The robot's memory, opened once per process for each file and robot (the tools,
 /// the journal and tool choice share it); why there is none is said once per process.
-pub fn open_memory(args: &AgentArgs) -> Result<Arc<Store>, String> {
+pub(crate) fn open_memory(args: &AgentArgs) -> Result<Arc<Store>, String> {
     static OPEN: std::sync::Mutex<Vec<(PathBuf, String, Arc<Store>)>> =
         std::sync::Mutex::new(Vec::new());
     let Some(path) = memory_path(args) else {
@@ -200,7 +200,11 @@ fn said_once(why: String) -> String {
 
 /// A journal that logs each run of `session` in `store`: the request, the calls (with
 /// their decisions) and the answer, every name off limits redacted by `fence`.
-pub fn journal(store: Arc<Store>, session: String, fence: Arc<crate::fence::Fence>) -> Journal {
+pub(crate) fn journal(
+    store: Arc<Store>,
+    session: String,
+    fence: Arc<crate::fence::Fence>,
+) -> Journal {
     Box::new(move |request: &str, result: &RunResult| {
         let calls: Vec<String> = result
             .steps
@@ -226,13 +230,13 @@ pub fn journal(store: Arc<Store>, session: String, fence: Arc<crate::fence::Fenc
 }
 
 /// A new session's name: when it began, and this process.
-pub fn new_session() -> String {
+pub(crate) fn new_session() -> String {
     format!("{}-{}", crate::clock::Utc::now().iso(), std::process::id())
 }
 
 /// Whose memory this is: the robot kind, and its robot file's name when one is given
 /// (places taught to one robot are not another's).
-pub fn memory_key(args: &AgentArgs) -> String {
+pub(crate) fn memory_key(args: &AgentArgs) -> String {
     let kind = match args.robot {
         Robot::Sim | Robot::SimRos1 => "sim",
         Robot::Ros2 => "ros2",
@@ -246,7 +250,7 @@ pub fn memory_key(args: &AgentArgs) -> String {
 }
 
 /// The places the robot file names (the console draws them).
-pub fn robot_places(args: &AgentArgs) -> anyhow::Result<Vec<crate::store::Place>> {
+pub(crate) fn robot_places(args: &AgentArgs) -> anyhow::Result<Vec<crate::store::Place>> {
     Ok(robot_prompt(args)?.places)
 }
 

@@ -51,7 +51,7 @@ use crate::tool::exec::Executor;
 use crate::tool::{Confirm, Effect, ToolCall};
 
 /// The environment variable that sets the HTTP server's secret (else one is drawn).
-pub const TOKEN_ENV: &str = "FERROSA_MCP_TOKEN";
+pub(crate) const TOKEN_ENV: &str = "FERROSA_MCP_TOKEN";
 
 /// How long the operator has to answer an approval request.
 const APPROVAL_WAIT: Duration = Duration::from_secs(120);

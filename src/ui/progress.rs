@@ -73,7 +73,7 @@ fn erase(l: &mut Live) {
 }
 
 /// Show `what` on the live line from now (on a terminal only), until `hold`.
-pub fn begin(what: String) {
+pub(crate) fn begin(what: String) {
     if !std::io::stderr().is_terminal() {
         return;
     }
@@ -126,7 +126,7 @@ fn tail(text: &str, width: usize) -> String {
 
 /// A call as one short line: its name and its arguments' values (`ros_topic_echo
 /// /turtle1/pose`, `turtle_move distance=1 speed=0.5`).
-pub fn call_line(name: &str, arguments: &Value) -> String {
+pub(crate) fn call_line(name: &str, arguments: &Value) -> String {
     let mut line = clean(name);
     if let Some(args) = arguments.as_object() {
         let one = args.len() == 1;

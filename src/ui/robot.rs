@@ -17,10 +17,10 @@ use crate::ros::RosGraph;
 use crate::tool::{Policy, Registry};
 
 /// The topic any node publishes `true` on to engage the e-stop.
-pub const ESTOP_TOPIC: &str = "/ferrosa/estop";
+pub(crate) const ESTOP_TOPIC: &str = "/ferrosa/estop";
 
 /// Who engaged the e-stop when a node published on `ESTOP_TOPIC` (the e-stop's source).
-pub fn estop_topic_source() -> String {
+pub(crate) fn estop_topic_source() -> String {
     format!("a ROS node on {ESTOP_TOPIC}")
 }
 
@@ -49,7 +49,7 @@ pub enum Robot {
 
 impl Robot {
     /// The built-in sim, over either ROS.
-    pub fn is_sim(self) -> bool {
+    pub(crate) fn is_sim(self) -> bool {
         matches!(self, Robot::Sim | Robot::SimRos1)
     }
 }
@@ -197,7 +197,7 @@ fn connect_sim_ros1(verbose: bool) -> anyhow::Result<RobotLink> {
 /// The built-in sim's motion wiring, where the policy file says nothing: its velocity
 /// topic goes through its mux (the operator's `/turtle1/cmd_vel` over the agent's
 /// `/turtle1/cmd_vel_agent`), and absolute teleports stay in the arena.
-pub fn sim_motion(mut m: Motion) -> Motion {
+pub(crate) fn sim_motion(mut m: Motion) -> Motion {
     if m.velocity_topics.is_empty() {
         m.velocity_topics = vec!["/turtle1/cmd_vel".into()];
     }
@@ -245,7 +245,7 @@ fn follow_estop_topic(raw: Arc<dyn RosGraph>, estop: Arc<EStop>) {
 }
 
 /// The ROS tools over `graph` (already guarded), and the turtle's own for the sim.
-pub fn add_ros_tools(registry: &mut Registry, graph: Arc<dyn RosGraph>, robot: Robot) {
+pub(crate) fn add_ros_tools(registry: &mut Registry, graph: Arc<dyn RosGraph>, robot: Robot) {
     registry.add(crate::tools::ros::package(graph.clone()));
     if robot.is_sim() {
         registry.add(crate::tools::turtle::package(graph, "turtle1"));

@@ -18,7 +18,7 @@ use std::path::{Path, PathBuf};
 use anyhow::Context;
 
 /// A surface's secret and the file it is kept in.
-pub struct Secret {
+pub(crate) struct Secret {
     token: String,
     file: Option<PathBuf>,
 }
@@ -49,22 +49,13 @@ impl Secret {
         Ok(Secret { token, file })
     }
 
-    pub fn token(&self) -> &str {
-        &self.token
-    }
-
-    /// Where the secret is kept, if this machine has a place for it.
-    pub fn file(&self) -> Option<&Path> {
-        self.file.as_deref()
-    }
-
     /// Whether `given` is the secret.
     pub fn matches(&self, given: &str) -> bool {
         same(given, &self.token)
     }
 
     /// Where to find the secret, for a line the operator reads.
-    pub fn where_kept(&self) -> String {
+    pub(crate) fn where_kept(&self) -> String {
         match &self.file {
             Some(f) => format!("the token is in {}", f.display()),
             None => "no directory to keep the token in: set it yourself next time".into(),
@@ -120,7 +111,7 @@ fn keep(dir: &Path, name: &str, token: &str) -> anyhow::Result<PathBuf> {
 }
 
 /// `bytes` random bytes from the kernel, in hex.
-pub fn random_hex(bytes: usize) -> std::io::Result<String> {
+pub(crate) fn random_hex(bytes: usize) -> std::io::Result<String> {
     let mut buf = vec![0u8; bytes];
     std::fs::File::open("/dev/urandom")?.read_exact(&mut buf)?;
     Ok(buf.iter().map(|b| format!("{b:02x}")).collect())

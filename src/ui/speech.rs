@@ -12,7 +12,7 @@ pub const DEFAULT_SPEECH_MODEL: &str = "whisper-base-en";
 
 /// Resolve `model` (a catalog name or a path to a whisper.cpp `ggml-*.bin`) and load it.
 #[cfg(feature = "candle")]
-pub fn load_whisper(
+pub(crate) fn load_whisper(
     models_dir: &Path,
     model: Option<&str>,
 ) -> anyhow::Result<crate::speech::whisper::Whisper> {

@@ -70,13 +70,13 @@ impl Input {
     }
 
     /// The next line; `None` at the end of input.
-    pub fn next_line(&self) -> Option<String> {
+    pub(crate) fn next_line(&self) -> Option<String> {
         self.lines.lock().expect("input lock").recv().ok()
     }
 }
 
 /// Resolves at Ctrl-C, or at the TERM a service manager sends (what ends a server).
-pub async fn interrupted() {
+pub(crate) async fn interrupted() {
     use tokio::signal::unix::{signal, SignalKind};
     match signal(SignalKind::terminate()) {
         Ok(mut term) => {
@@ -92,7 +92,7 @@ pub async fn interrupted() {
 }
 
 /// Asks on the terminal: "allow turtle_move {...}? [y/N]", the answer read from `Input`.
-pub struct TerminalConfirm {
+pub(crate) struct TerminalConfirm {
     pub input: Arc<Input>,
 }
 
@@ -130,7 +130,7 @@ pub fn parse_call(text: &str) -> anyhow::Result<ToolCall> {
 }
 
 /// What `ferrosa call` prints for a call.
-pub fn report_call(call: &ToolCall, o: &Outcome) -> Value {
+pub(crate) fn report_call(call: &ToolCall, o: &Outcome) -> Value {
     let decision = serde_json::to_value(&o.decision).unwrap_or_default();
     json!({"name": call.name, "arguments": call.arguments, "decision": decision,
            "output": o.output, "ok": o.ok, "ms": o.ms})

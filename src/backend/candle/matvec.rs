@@ -16,7 +16,7 @@ const QK: usize = 32;
 const Q4_1_BYTES: usize = 20;
 
 /// A Q4_1 matrix of `rows` × `cols`, as the file holds it.
-pub struct Q41 {
+pub(crate) struct Q41 {
     data: Vec<u8>,
     rows: usize,
     cols: usize,
@@ -47,7 +47,7 @@ impl Q41 {
     }
 
     /// W·x, with `x` of `cols` values.
-    pub fn matvec(&self, x: &[f32]) -> Vec<f32> {
+    pub(crate) fn matvec(&self, x: &[f32]) -> Vec<f32> {
         debug_assert_eq!(x.len(), self.cols);
         let xq: Vec<Q81> = x.chunks_exact(QK).map(quantize).collect();
         let row_bytes = self.cols / QK * Q4_1_BYTES;

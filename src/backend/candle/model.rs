@@ -32,7 +32,7 @@ const GEMMA3_LOCAL_BASE: f32 = 10_000.0;
 
 /// The model families this runtime knows.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Family {
+pub(crate) enum Family {
     Llama,
     Gemma3,
 }

@@ -14,24 +14,24 @@ use super::xmlrpc::{self, XValue};
 use crate::ros::RosError;
 
 /// How long one master call may take.
-pub const MASTER_LIMIT: Duration = Duration::from_secs(3);
+pub(crate) const MASTER_LIMIT: Duration = Duration::from_secs(3);
 
 /// The parameter services a node is given, with their types.
-pub const PARAM_SERVICES: [(&str, &str); 3] = [
+pub(crate) const PARAM_SERVICES: [(&str, &str); 3] = [
     ("list_parameters", "rcl_interfaces/srv/ListParameters"),
     ("get_parameters", "rcl_interfaces/srv/GetParameters"),
     ("set_parameters", "rcl_interfaces/srv/SetParameters"),
 ];
 
 #[derive(Debug, Clone)]
-pub struct Master {
+pub(crate) struct Master {
     pub uri: String,
     pub caller_id: String,
 }
 
 /// `getSystemState`: per topic its publishers and subscribers, per service its servers.
 #[derive(Debug, Clone, Default, PartialEq)]
-pub struct SystemState {
+pub(crate) struct SystemState {
     pub publishers: Vec<(String, Vec<String>)>,
     pub subscribers: Vec<(String, Vec<String>)>,
     pub services: Vec<(String, Vec<String>)>,
@@ -93,7 +93,7 @@ impl Master {
         }
     }
 
-    pub async fn system_state(&self) -> Result<SystemState, RosError> {
+    pub(crate) async fn system_state(&self) -> Result<SystemState, RosError> {
         let v = self.call("getSystemState", &[]).await?;
         let [p, s, r] = v.as_array() else {
             return Err(RosError::Other(format!("getSystemState answered {v:?}")));
@@ -106,7 +106,7 @@ impl Master {
     }
 
     /// Every topic's type as the master knows it (`pkg/Name`).
-    pub async fn topic_types(&self) -> Result<Vec<(String, String)>, RosError> {
+    pub(crate) async fn topic_types(&self) -> Result<Vec<(String, String)>, RosError> {
         let v = self.call("getTopicTypes", &[]).await?;
         Ok(v.as_array()
             .iter()
@@ -118,14 +118,14 @@ impl Master {
     }
 
     /// A service's `rosrpc://host:port`, or `NoService`.
-    pub async fn lookup_service(&self, service: &str) -> Result<String, RosError> {
+    pub(crate) async fn lookup_service(&self, service: &str) -> Result<String, RosError> {
         match self.call("lookupService", &[XValue::str(service)]).await {
             Ok(XValue::Str(uri)) if !uri.is_empty() => Ok(uri),
             _ => Err(RosError::NoService(service.to_string())),
         }
     }
 
-    pub async fn param_names(&self) -> Result<Vec<String>, RosError> {
+    pub(crate) async fn param_names(&self) -> Result<Vec<String>, RosError> {
         let v = self.call("getParamNames", &[]).await?;
         Ok(v.as_array()
             .iter()
@@ -134,12 +134,12 @@ impl Master {
     }
 
     /// A parameter's value, `None` when it is not set.
-    pub async fn get_param(&self, key: &str) -> Result<Option<XValue>, RosError> {
+    pub(crate) async fn get_param(&self, key: &str) -> Result<Option<XValue>, RosError> {
         let (code, _, value) = self.raw("getParam", &[XValue::str(key)]).await?;
         Ok((code == 1).then_some(value))
     }
 
-    pub async fn set_param(&self, key: &str, value: XValue) -> Result<(), RosError> {
+    pub(crate) async fn set_param(&self, key: &str, value: XValue) -> Result<(), RosError> {
         self.call("setParam", &[XValue::str(key), value])
             .await
             .map(|_| ())
@@ -148,7 +148,7 @@ impl Master {
 
 /// A parameter server value as `rcl_interfaces/ParameterValue` JSON (a dictionary, or a
 /// list of mixed kinds, as its JSON text).
-pub fn parameter_value(v: &XValue) -> Value {
+pub(crate) fn parameter_value(v: &XValue) -> Value {
     fn plain(v: &XValue) -> Value {
         match v {
             XValue::Int(i) => json!(i),
@@ -184,7 +184,7 @@ pub fn parameter_value(v: &XValue) -> Value {
 }
 
 /// `rcl_interfaces/ParameterValue` JSON as a parameter server value.
-pub fn xml_value(v: &Value) -> Result<XValue, String> {
+pub(crate) fn xml_value(v: &Value) -> Result<XValue, String> {
     fn plain(v: &Value) -> Result<XValue, String> {
         Ok(match v {
             Value::Bool(b) => XValue::Bool(*b),
@@ -217,7 +217,7 @@ pub fn xml_value(v: &Value) -> Result<XValue, String> {
 }
 
 /// The parameter names under `node`, relative to it.
-pub fn names_under(node: &str, all: &[String]) -> Vec<String> {
+pub(crate) fn names_under(node: &str, all: &[String]) -> Vec<String> {
     let prefix = format!("{}/", node.trim_end_matches('/'));
     let mut out: Vec<String> = all
         .iter()
@@ -229,7 +229,7 @@ pub fn names_under(node: &str, all: &[String]) -> Vec<String> {
 }
 
 /// If `service` is one of a node's parameter services, the node and which.
-pub fn param_service(service: &str) -> Option<(&str, &'static str)> {
+pub(crate) fn param_service(service: &str) -> Option<(&str, &'static str)> {
     PARAM_SERVICES.iter().find_map(|(which, _)| {
         let node = service.strip_suffix(which)?.strip_suffix('/')?;
         (!node.is_empty()).then_some((node, *which))
@@ -237,7 +237,7 @@ pub fn param_service(service: &str) -> Option<(&str, &'static str)> {
 }
 
 /// Answer one of a node's parameter services from the parameter server.
-pub async fn param_call(
+pub(crate) async fn param_call(
     master: &Master,
     node: &str,
     which: &str,

@@ -185,7 +185,7 @@ impl Ros1Graph {
     }
 
     /// What unregisters this node when dropped.
-    pub fn leave_on_drop(&self) -> Leave {
+    pub(crate) fn leave_on_drop(&self) -> Leave {
         Leave {
             node: self.node.clone(),
             rt: self.rt.clone(),

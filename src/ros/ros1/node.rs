@@ -77,13 +77,13 @@ where
 }
 
 /// How long a peer has to answer a connection or a call.
-pub const PEER_LIMIT: Duration = Duration::from_secs(3);
+pub(crate) const PEER_LIMIT: Duration = Duration::from_secs(3);
 
 /// How long a persistent service client may wait between requests (others send theirs
 /// within `PEER_LIMIT`).
-pub const SERVICE_IDLE: Duration = Duration::from_secs(600);
+pub(crate) const SERVICE_IDLE: Duration = Duration::from_secs(600);
 
-pub struct Node {
+pub(crate) struct Node {
     this: Weak<Node>,
     /// The ROS 1 runtime (with I/O): every task of the node runs on it.
     rt: tokio::runtime::Handle,
@@ -104,13 +104,13 @@ pub struct Node {
 }
 
 /// One topic this node publishes, and the subscribers connected to it.
-pub struct Publication {
+pub(crate) struct Publication {
     pub type_name: String,
     connections: tokio::sync::Mutex<Vec<(u64, tokio::net::tcp::OwnedWriteHalf)>>,
 }
 
 /// What serves one service: the request in, the response or the failure's text out.
-pub type Handler =
+pub(crate) type Handler =
     Arc<dyn Fn(Value) -> crate::ros::BoxFuture<'static, Result<Value, String>> + Send + Sync>;
 
 struct Served {
@@ -442,7 +442,7 @@ impl Node {
 
     /// ROS 1 definitions of `ty` and what it nests, translated from the bundle where no
     /// peer has sent one.
-    pub fn ensure_definition(&self, ty: &str) -> Result<(), RosError> {
+    pub(crate) fn ensure_definition(&self, ty: &str) -> Result<(), RosError> {
         let ty = normalize_type(ty);
         let kind = ty.split('/').nth(1).unwrap_or("msg");
         if kind == "srv" {
@@ -542,7 +542,7 @@ impl Node {
     }
 
     /// Set a parameter, deleted again when the node leaves.
-    pub async fn set_param(&self, key: &str, value: XValue) -> Result<(), RosError> {
+    pub(crate) async fn set_param(&self, key: &str, value: XValue) -> Result<(), RosError> {
         self.master
             .call("setParam", &[XValue::str(key), value])
             .await?;
@@ -621,7 +621,7 @@ impl Node {
     }
 
     /// Whether `ty` is tried for the first time (and now marked tried).
-    pub fn tried(&self, ty: &str) -> bool {
+    pub(crate) fn tried(&self, ty: &str) -> bool {
         self.tried.lock().expect("tried").insert(ty.to_string())
     }
 
@@ -679,7 +679,7 @@ impl Node {
 
     /// Unregister every service, publication and subscription, and delete the
     /// parameters set (the node is going away).
-    pub async fn shutdown(&self) {
+    pub(crate) async fn shutdown(&self) {
         let services: Vec<String> = self
             .services
             .lock()
@@ -795,7 +795,7 @@ struct Subscription {
 }
 
 /// A listener on a topic; dropping it ends its share of the subscription.
-pub struct Listener {
+pub(crate) struct Listener {
     node: Arc<Node>,
     key: SubKey,
     id: u64,

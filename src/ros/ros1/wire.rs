@@ -25,7 +25,7 @@ use crate::ros::msg::{
 };
 
 /// Largest message frame read from a peer (a point cloud or a camera image fits).
-pub const MAX_FRAME: usize = 64 << 20;
+pub(crate) const MAX_FRAME: usize = 64 << 20;
 
 /// Largest connection header read from a peer (its `message_definition` included).
 pub const MAX_HEADER: usize = 1 << 20;
@@ -38,16 +38,16 @@ pub const MAX_HEADER_FIELDS: usize = 256;
 pub const FIRST_READ: usize = 64 << 10;
 
 /// How long a frame's bytes may take to arrive once its length has.
-pub const FRAME_LIMIT: Duration = Duration::from_secs(30);
+pub(crate) const FRAME_LIMIT: Duration = Duration::from_secs(30);
 
 /// ROS 1's two time types, which its definitions use as primitives.
-pub const TIME_TYPES: [(&str, &str); 2] = [
+pub(crate) const TIME_TYPES: [(&str, &str); 2] = [
     ("rostime/msg/Time", "uint32 secs\nuint32 nsecs\n"),
     ("rostime/msg/Duration", "int32 secs\nint32 nsecs\n"),
 ];
 
 /// ROS 1's `std_msgs/Header` (ROS 2's has no `seq`, and ROS 2's time).
-pub const HEADER: &str = "uint32 seq\ntime stamp\nstring frame_id\n";
+pub(crate) const HEADER: &str = "uint32 seq\ntime stamp\nstring frame_id\n";
 
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum WireError {
@@ -96,7 +96,7 @@ pub fn table() -> Interfaces {
 }
 
 /// `pkg/msg/Name` (any spelling) as ROS 1 writes it: `pkg/Name`.
-pub fn ros1_type(type_name: &str) -> String {
+pub(crate) fn ros1_type(type_name: &str) -> String {
     let full = normalize_type(type_name);
     let parts: Vec<&str> = full.split('/').collect();
     match parts.as_slice() {
@@ -106,7 +106,7 @@ pub fn ros1_type(type_name: &str) -> String {
 }
 
 /// Whether `ty` (normalised) is `pkg/kind/Name` in ROS names' letters.
-pub fn valid_type(ty: &str) -> bool {
+pub(crate) fn valid_type(ty: &str) -> bool {
     let parts: Vec<&str> = ty.split('/').collect();
     parts.len() == 3
         && parts.iter().all(|p| {
@@ -202,11 +202,14 @@ async fn read_bounded<R: AsyncRead + Unpin>(
 }
 
 /// One length-prefixed message frame (at most `MAX_FRAME`).
-pub async fn read_frame<R: AsyncRead + Unpin>(r: &mut R) -> Result<Vec<u8>, WireError> {
+pub(crate) async fn read_frame<R: AsyncRead + Unpin>(r: &mut R) -> Result<Vec<u8>, WireError> {
     read_bounded(r, MAX_FRAME, "frame").await
 }
 
-pub async fn write_frame<W: AsyncWrite + Unpin>(w: &mut W, body: &[u8]) -> std::io::Result<()> {
+pub(crate) async fn write_frame<W: AsyncWrite + Unpin>(
+    w: &mut W,
+    body: &[u8],
+) -> std::io::Result<()> {
     let mut out = (body.len() as u32).to_le_bytes().to_vec();
     out.extend_from_slice(body);
     w.write_all(&out).await
@@ -298,7 +301,7 @@ pub fn md5sum(ifaces: &Interfaces, type_name: &str) -> Result<String, WireError>
 }
 
 /// The md5sum of a service (`pkg/srv/Name`): its request's text and its response's.
-pub fn service_md5sum(ifaces: &Interfaces, service_type: &str) -> Result<String, WireError> {
+pub(crate) fn service_md5sum(ifaces: &Interfaces, service_type: &str) -> Result<String, WireError> {
     let ty = normalize_type(service_type);
     let lookup = in_table(ifaces);
     let mut memo = BTreeMap::new();
@@ -312,7 +315,7 @@ pub fn service_md5sum(ifaces: &Interfaces, service_type: &str) -> Result<String,
 
 /// The full definition a connection carries: the type's text, then each nested type
 /// once under `MSG: pkg/Name`.
-pub fn full_text(ifaces: &Interfaces, type_name: &str) -> Result<String, WireError> {
+pub(crate) fn full_text(ifaces: &Interfaces, type_name: &str) -> Result<String, WireError> {
     let def = ifaces.message(type_name)?;
     let mut out = def.text.clone();
     let mut seen = BTreeSet::new();

@@ -20,19 +20,19 @@ use tokio::net::TcpStream;
 
 /// Largest answer read from the master or a node (a `getSystemState` of a big robot is
 /// ~100 KB; a `getParam` of the whole tree can be more).
-pub const MAX_DOCUMENT: usize = 16 << 20;
+pub(crate) const MAX_DOCUMENT: usize = 16 << 20;
 
 /// Largest call read by the node's API server (ROS's are a few hundred bytes).
-pub const MAX_REQUEST: usize = 1 << 20;
+pub(crate) const MAX_REQUEST: usize = 1 << 20;
 
 /// Largest HTTP head (request or status line and headers).
-pub const MAX_HEAD: usize = 64 << 10;
+pub(crate) const MAX_HEAD: usize = 64 << 10;
 
 /// Deepest nesting of arrays and structs in one value (ROS's go three or four deep).
 pub const MAX_DEPTH: usize = 32;
 
 /// Most tags and texts in one document.
-pub const MAX_ELEMENTS: usize = 1 << 20;
+pub(crate) const MAX_ELEMENTS: usize = 1 << 20;
 
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum XmlRpcError {
@@ -82,7 +82,7 @@ impl XValue {
         }
     }
 
-    pub fn as_int(&self) -> Option<i64> {
+    pub(crate) fn as_int(&self) -> Option<i64> {
         match self {
             XValue::Int(i) => Some(*i),
             _ => None,
@@ -158,7 +158,7 @@ pub fn call_document(method: &str, params: &[XValue]) -> String {
 }
 
 /// A `methodResponse` document with one value.
-pub fn response_document(value: &XValue) -> String {
+pub(crate) fn response_document(value: &XValue) -> String {
     let mut out = String::from("<?xml version=\"1.0\"?>\n<methodResponse><params><param>");
     value.write(&mut out);
     out.push_str("</param></params></methodResponse>\n");
@@ -453,7 +453,7 @@ pub fn parse_response(doc: &str) -> Result<XValue, XmlRpcError> {
 }
 
 /// `http://host:port/` split into the address to connect to and the path.
-pub fn split_uri(uri: &str) -> Result<(String, String), XmlRpcError> {
+pub(crate) fn split_uri(uri: &str) -> Result<(String, String), XmlRpcError> {
     let rest = uri
         .strip_prefix("http://")
         .ok_or_else(|| XmlRpcError::Http(format!("{uri}: not an http:// URI")))?;
@@ -470,7 +470,7 @@ pub fn split_uri(uri: &str) -> Result<(String, String), XmlRpcError> {
 /// Read one HTTP message: a head of at most `MAX_HEAD` bytes, then a body of
 /// `Content-Length` bytes or up to EOF, at most `limit` either way (a declared length
 /// over it is refused before any of it is read).
-pub async fn read_http(
+pub(crate) async fn read_http(
     stream: &mut TcpStream,
     limit: usize,
 ) -> Result<(String, String), XmlRpcError> {

@@ -28,7 +28,7 @@ pub const FRAME: &str = "map";
 /// The turtle that navigates.
 const ROBOT: &str = "turtle1";
 /// Driving speed, m/s, and turning rate, rad/s: inside the default motion limits.
-pub const SPEED: f64 = 0.5;
+pub(crate) const SPEED: f64 = 0.5;
 const TURN: f64 = 1.0;
 /// Close enough: Nav2's default goal checker tolerances (0.25 m, 0.25 rad) made tighter,
 /// as the sim has no noise.

@@ -64,7 +64,7 @@ fn action_type(g: &Graph, action: &str) -> Result<String, ToolError> {
         })
 }
 
-pub struct ActionList(pub(super) Ros);
+pub(crate) struct ActionList(pub(super) Ros);
 
 impl Tool for ActionList {
     type Args = ListArgs;
@@ -86,7 +86,7 @@ impl Tool for ActionList {
 }
 
 #[derive(Deserialize, JsonSchema)]
-pub struct GoalArgs {
+pub(crate) struct GoalArgs {
     /// Action name, e.g. "/turtle1/rotate_absolute".
     pub action: String,
     /// Goal fields, e.g. {"theta": 1.57}; absent fields are zero.
@@ -98,7 +98,7 @@ pub struct GoalArgs {
     pub wait_s: Option<f64>,
 }
 
-pub struct ActionSendGoal(pub(super) Ros);
+pub(crate) struct ActionSendGoal(pub(super) Ros);
 
 impl Tool for ActionSendGoal {
     type Args = GoalArgs;
@@ -183,7 +183,7 @@ impl Tool for ActionSendGoal {
 }
 
 #[derive(Deserialize, JsonSchema)]
-pub struct CancelArgs {
+pub(crate) struct CancelArgs {
     /// Action name, e.g. "/turtle1/rotate_absolute".
     pub action: String,
     /// The goal to cancel (from ros_action_send_goal); leave out to cancel all its goals.
@@ -191,7 +191,7 @@ pub struct CancelArgs {
     pub goal_id: Option<String>,
 }
 
-pub struct ActionCancel(pub(super) Ros);
+pub(crate) struct ActionCancel(pub(super) Ros);
 
 impl Tool for ActionCancel {
     type Args = CancelArgs;

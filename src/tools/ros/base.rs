@@ -13,7 +13,7 @@ use crate::ros::{Graph, RosError, RosGraph};
 use crate::tool::ToolError;
 
 #[derive(Clone)]
-pub struct Ros {
+pub(crate) struct Ros {
     pub(super) graph: Arc<dyn RosGraph>,
     /// The nodes' parameter names, shared by the parameter tools.
     pub(super) params: Arc<super::param_names::ParamNames>,
@@ -360,7 +360,7 @@ pub(super) fn suggest<'a>(wanted: &str, names: impl Iterator<Item = &'a String>)
 }
 
 #[derive(Deserialize, JsonSchema)]
-pub struct ListArgs {
+pub(crate) struct ListArgs {
     /// Only names matching this regular expression; leave out to list all.
     #[serde(default)]
     pub pattern: Option<String>,
@@ -371,13 +371,13 @@ pub struct ListArgs {
 }
 
 #[derive(Deserialize, JsonSchema)]
-pub struct NodeArgs {
+pub(crate) struct NodeArgs {
     /// Node name, e.g. "/turtlesim".
     pub node: String,
 }
 
 #[derive(Deserialize, JsonSchema)]
-pub struct TopicArgs {
+pub(crate) struct TopicArgs {
     /// Topic name, e.g. "/turtle1/pose".
     pub topic: String,
 }
@@ -387,7 +387,7 @@ pub(super) fn no_topic(topic: &str, g: &Graph) -> ToolError {
 }
 
 #[derive(Deserialize, JsonSchema)]
-pub struct ServiceArgs {
+pub(crate) struct ServiceArgs {
     /// Service name, e.g. "/spawn".
     pub service: String,
 }

@@ -12,7 +12,7 @@ use super::base::{
 use crate::ros::cdr;
 use crate::tool::{Effect, Tool, ToolContext, ToolError};
 
-pub struct NodeList(pub(super) Ros);
+pub(crate) struct NodeList(pub(super) Ros);
 
 impl Tool for NodeList {
     type Args = ListArgs;
@@ -29,7 +29,7 @@ impl Tool for NodeList {
     }
 }
 
-pub struct NodeInfo(pub(super) Ros);
+pub(crate) struct NodeInfo(pub(super) Ros);
 
 impl Tool for NodeInfo {
     type Args = NodeArgs;
@@ -91,7 +91,7 @@ impl Tool for NodeInfo {
     }
 }
 
-pub struct TopicList(pub(super) Ros);
+pub(crate) struct TopicList(pub(super) Ros);
 
 impl Tool for TopicList {
     type Args = ListArgs;
@@ -107,7 +107,7 @@ impl Tool for TopicList {
     }
 }
 
-pub struct TopicInfo(pub(super) Ros);
+pub(crate) struct TopicInfo(pub(super) Ros);
 
 impl Tool for TopicInfo {
     type Args = TopicArgs;
@@ -143,7 +143,7 @@ impl Tool for TopicInfo {
     }
 }
 
-pub struct ServiceList(pub(super) Ros);
+pub(crate) struct ServiceList(pub(super) Ros);
 
 impl Tool for ServiceList {
     type Args = ListArgs;
@@ -159,7 +159,7 @@ impl Tool for ServiceList {
     }
 }
 
-pub struct ServiceInfo(pub(super) Ros);
+pub(crate) struct ServiceInfo(pub(super) Ros);
 
 impl Tool for ServiceInfo {
     type Args = ServiceArgs;

@@ -11,13 +11,13 @@ use crate::ros::cdr;
 use crate::tool::{Effect, Tool, ToolContext, ToolError};
 
 #[derive(Deserialize, JsonSchema)]
-pub struct InterfaceArgs {
+pub(crate) struct InterfaceArgs {
     /// Type name, e.g. "geometry_msgs/msg/Twist" or "turtlesim/srv/Spawn".
     #[serde(rename = "type")]
     pub type_name: String,
 }
 
-pub struct InterfaceShow(pub(super) Ros);
+pub(crate) struct InterfaceShow(pub(super) Ros);
 
 impl Tool for InterfaceShow {
     type Args = InterfaceArgs;
@@ -106,7 +106,7 @@ pub enum Level {
 }
 
 #[derive(Deserialize, JsonSchema)]
-pub struct LogArgs {
+pub(crate) struct LogArgs {
     /// Lowest level to show (default info).
     #[serde(default)]
     pub level: Option<Level>,
@@ -119,7 +119,7 @@ pub struct LogArgs {
     pub count: Option<u32>,
 }
 
-pub struct LogRead(pub(super) Ros);
+pub(crate) struct LogRead(pub(super) Ros);
 
 impl Tool for LogRead {
     type Args = LogArgs;

@@ -34,7 +34,7 @@ async fn param_call(
         })
 }
 
-pub struct ParamList(pub(super) Ros);
+pub(crate) struct ParamList(pub(super) Ros);
 
 impl Tool for ParamList {
     type Args = NodeArgs;
@@ -155,7 +155,7 @@ pub struct ParamSetArgs {
 
 #[derive(Deserialize, JsonSchema, Clone)]
 #[serde(untagged)]
-pub enum ParamInput {
+pub(crate) enum ParamInput {
     Bool(bool),
     Number(f64),
     Text(String),

@@ -32,7 +32,7 @@ const RETRY: Duration = Duration::from_secs(30);
 const PREFETCH_WINDOW: Duration = Duration::from_secs(10);
 
 #[derive(Default)]
-pub struct ParamNames {
+pub(crate) struct ParamNames {
     shared: Arc<Shared>,
 }
 
@@ -103,7 +103,7 @@ impl ParamNames {
     /// List the parameters of the nodes `graph` shows once it shows any that serve
     /// them (within `PREFETCH_WINDOW`), on a thread of its own, so the first turn does
     /// not wait for them.
-    pub fn prefetch(self: &Arc<Self>, graph: Arc<dyn RosGraph>) {
+    pub(crate) fn prefetch(self: &Arc<Self>, graph: Arc<dyn RosGraph>) {
         let me = self.clone();
         let _ = std::thread::Builder::new()
             .name("param-prefetch".into())

@@ -8,7 +8,7 @@ use super::base::{absolute, failed, service_type, typed_by_name, with_note, Ros}
 use crate::tool::{Effect, Tool, ToolContext, ToolError};
 
 #[derive(Deserialize, JsonSchema)]
-pub struct CallArgs {
+pub(crate) struct CallArgs {
     /// Service name, e.g. "/turtle1/teleport_absolute".
     pub service: String,
     /// Request fields, e.g. {"x": 2.0, "y": 3.0}; absent fields are zero.
@@ -16,7 +16,7 @@ pub struct CallArgs {
     pub request: Option<Map<String, Value>>,
 }
 
-pub struct ServiceCall(pub(super) Ros);
+pub(crate) struct ServiceCall(pub(super) Ros);
 
 impl Tool for ServiceCall {
     type Args = CallArgs;

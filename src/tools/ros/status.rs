@@ -19,14 +19,14 @@ const BATTERY: &str = "sensor_msgs/msg/BatteryState";
 const DIAGNOSTICS: &str = "diagnostic_msgs/msg/DiagnosticArray";
 
 #[derive(Deserialize, JsonSchema)]
-pub struct StatusArgs {
+pub(crate) struct StatusArgs {
     /// Seconds to wait for each status message, 0.5 to 5 (default 2.5).
     #[serde(default)]
     #[schemars(range(min = 0.5, max = 5.0))]
     pub timeout_s: Option<f64>,
 }
 
-pub struct RobotStatus(pub(super) Ros);
+pub(crate) struct RobotStatus(pub(super) Ros);
 
 impl Tool for RobotStatus {
     type Args = StatusArgs;

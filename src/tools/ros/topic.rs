@@ -47,7 +47,7 @@ fn reading<A: JsonSchema>(ros: &Ros) -> Option<Value> {
 }
 
 #[derive(Deserialize, JsonSchema)]
-pub struct EchoArgs {
+pub(crate) struct EchoArgs {
     /// Topic name, e.g. "/turtle1/pose".
     pub topic: String,
     /// Messages to collect, 1 to 20 (default 1).
@@ -76,7 +76,7 @@ fn shorten(v: &mut Value) {
     }
 }
 
-pub struct TopicEcho(pub(super) Ros);
+pub(crate) struct TopicEcho(pub(super) Ros);
 
 impl Tool for TopicEcho {
     type Args = EchoArgs;
@@ -124,7 +124,7 @@ impl Tool for TopicEcho {
 }
 
 #[derive(Deserialize, JsonSchema)]
-pub struct HzArgs {
+pub(crate) struct HzArgs {
     /// Topic name.
     pub topic: String,
     /// Seconds to measure, 0.5 to 10 (default 2).
@@ -133,7 +133,7 @@ pub struct HzArgs {
     pub window_s: Option<f64>,
 }
 
-pub struct TopicHz(pub(super) Ros);
+pub(crate) struct TopicHz(pub(super) Ros);
 
 impl Tool for TopicHz {
     type Args = HzArgs;
@@ -173,7 +173,7 @@ impl Tool for TopicHz {
 }
 
 #[derive(Deserialize, JsonSchema)]
-pub struct PublishArgs {
+pub(crate) struct PublishArgs {
     /// Topic name, e.g. "/turtle1/cmd_vel".
     pub topic: String,
     /// The message fields, e.g. {"linear": {"x": 1.0}}; absent fields are zero.
@@ -183,7 +183,7 @@ pub struct PublishArgs {
     pub message_type: Option<String>,
 }
 
-pub struct TopicPublish(pub(super) Ros);
+pub(crate) struct TopicPublish(pub(super) Ros);
 
 impl Tool for TopicPublish {
     type Args = PublishArgs;

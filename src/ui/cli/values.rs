@@ -11,7 +11,7 @@ use crate::decode::{Decoding, Envelope, ToolChoice};
 
 /// With or without the grammar.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
-pub enum DecodingArg {
+pub(crate) enum DecodingArg {
     /// Every token is checked against the turn's grammar.
     Constrained,
     /// The model writes freely; calls are parsed afterwards and may be invalid.
@@ -20,7 +20,7 @@ pub enum DecodingArg {
 
 /// A tool-call format.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
-pub enum EnvelopeArg {
+pub(crate) enum EnvelopeArg {
     /// `<tool_call>[{...}, ...]</tool_call>` in plain text (SmolLM2-Instruct family).
     Smollm2,
     /// `<tool_call>\n{...}\n</tool_call>` per call, markers are special tokens (Qwen).
@@ -31,7 +31,7 @@ pub enum EnvelopeArg {
 
 /// Whether a turn may, must or must not call a tool.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
-pub enum ToolChoiceArg {
+pub(crate) enum ToolChoiceArg {
     /// Prose, or a call once the envelope's opening marker appears.
     Auto,
     /// One or more calls, nothing else.
@@ -44,7 +44,7 @@ pub enum ToolChoiceArg {
 
 /// How the model ends a turn without acting.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
-pub enum AnswerModeArg {
+pub(crate) enum AnswerModeArg {
     /// By calling the `reply` tool.
     Tool,
     /// In prose.
@@ -55,7 +55,7 @@ pub enum AnswerModeArg {
 
 /// The model runtime.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
-pub enum BackendArg {
+pub(crate) enum BackendArg {
     /// llama.cpp (llama-cpp-2)
     Llama,
     /// candle, pure Rust
@@ -83,7 +83,7 @@ impl From<EnvelopeArg> for Envelope {
 
 /// How an agent step picks its tool.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
-pub enum PickArg {
+pub(crate) enum PickArg {
     /// The model's likeliest name weighed with the tool retrieval's score.
     Weighed,
     /// The tool the request raised most over a content-free request.

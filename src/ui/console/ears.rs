@@ -12,14 +12,14 @@ use serde_json::Value;
 use crate::speech::{voice, wav};
 
 /// Why speech failed, and whose fault it was.
-pub enum SpeechFailure {
+pub(crate) enum SpeechFailure {
     /// The request's audio or text.
     Input(String),
     /// What the machine lacks (the model, espeak-ng, the feature).
     Unavailable(String),
 }
 
-pub struct Ears {
+pub(crate) struct Ears {
     #[cfg(feature = "candle")]
     recogniser: crate::speech::recogniser::Recogniser,
 }

@@ -62,7 +62,7 @@ const SIGN_IN: &str = include_str!("../../../web/sign-in.html");
 
 /// What the handlers share.
 #[derive(Clone)]
-pub struct App {
+pub(crate) struct App {
     hub: Arc<Hub>,
     jobs: Sender<Job>,
     info: Arc<Value>,
@@ -82,7 +82,7 @@ pub struct App {
 
 /// How a client signs in: the console's secret, and the login code of the printed
 /// address (spent by its first use).
-pub struct SignIn {
+pub(crate) struct SignIn {
     pub secret: Arc<Secret>,
     pub login: String,
 }
@@ -120,7 +120,7 @@ impl App {
     }
 
     /// The robot's memory, for the memory panel (none until given).
-    pub fn with_memory(mut self, memory: Memory) -> App {
+    pub(crate) fn with_memory(mut self, memory: Memory) -> App {
         self.memory = Arc::new(memory);
         self
     }
@@ -241,7 +241,7 @@ impl App {
         )
     }
 
-    pub fn router(self) -> Router {
+    pub(crate) fn router(self) -> Router {
         Router::new()
             .route(
                 "/",

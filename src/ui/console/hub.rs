@@ -22,7 +22,7 @@ use crate::fence::Fence;
 use crate::tool::{Confirm, ToolCall};
 
 /// How long an approval waits for an operator.
-pub const APPROVAL_WAIT: Duration = Duration::from_secs(120);
+pub(crate) const APPROVAL_WAIT: Duration = Duration::from_secs(120);
 /// Events kept for clients that join later (streamed text is never kept), at most
 /// this many and this many bytes.
 const KEPT: usize = 5000;
@@ -151,7 +151,7 @@ impl Hub {
         self.busy.store(false, Ordering::SeqCst);
     }
 
-    pub fn is_busy(&self) -> bool {
+    pub(crate) fn is_busy(&self) -> bool {
         self.busy.load(Ordering::SeqCst)
     }
 
@@ -279,7 +279,7 @@ impl Confirm for Hub {
 }
 
 /// The e-stop's state as clients read it.
-pub fn estop_json(state: Option<&crate::estop::Engaged>) -> Value {
+pub(crate) fn estop_json(state: Option<&crate::estop::Engaged>) -> Value {
     json!({"engaged": state.is_some(), "source": state.map(|e| e.source.clone())})
 }
 

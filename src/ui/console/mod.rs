@@ -48,7 +48,7 @@ use hub::Hub;
 use pose::View;
 
 /// The environment variable that sets the console's secret (else one is drawn at start).
-pub const TOKEN_ENV: &str = "FERROSA_CONSOLE_TOKEN";
+pub(crate) const TOKEN_ENV: &str = "FERROSA_CONSOLE_TOKEN";
 
 #[derive(Debug, Clone)]
 pub struct ServeArgs {

@@ -10,7 +10,7 @@ use crate::agent::Agent;
 use crate::reading::language::Language;
 
 /// What the agent's thread is asked to do.
-pub enum Job {
+pub(crate) enum Job {
     Ask {
         run: u64,
         text: String,
