@@ -9,7 +9,10 @@
 //! per call; time to first token of an agent-sized prompt, cold and on a second turn with
 //! the first one cached; peak RSS (VmHWM) against file + KV cache + 64 MiB.
 //! min / median / max over N runs. With `LLAMA_BENCH=/path/to/llama-bench`, upstream's
-//! pp512 / tg128 on the same files and threads are printed beside ours, with the ratio.
+//! pp512 / tg128 on the same files and threads are measured in rounds interleaved with
+//! ours (upstream, then ferrosa, N times, each a process of its own), and the ratio is
+//! taken within each round, so drift of a noisy machine between rounds does not enter
+//! it: its median and spread are printed per configuration.
 //!
 //! Settings (environment): FERROSA_BENCH_RUNS (5), FERROSA_BENCH_THREADS (physical
 //! cores), FERROSA_BENCH_CONTEXT (4096), FERROSA_BENCH_MODELS (the catalog's default model; a comma list, or `all` for
@@ -70,6 +73,9 @@ struct Config {
     decoding: String,
     threads: usize,
     runs: usize,
+    /// Prompt and generation throughput only (an interleaved round).
+    #[serde(default)]
+    throughput_only: bool,
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -103,6 +109,17 @@ impl Measured {
     fn budget_mib(&self) -> f64 {
         self.file_mib + self.kv_mib + OVERHEAD_MIB
     }
+}
+
+/// Interleaved rounds against llama-bench: ferrosa / upstream within each round.
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
+struct Interleaved {
+    rounds: usize,
+    prompt: Spread,
+    gen_d0: Spread,
+    gen_d512: Spread,
+    /// Upstream's own figures over the rounds.
+    upstream: [Spread; 3],
 }
 
 #[derive(Debug, Clone, Default, Serialize, Deserialize)]
@@ -150,9 +167,7 @@ fn main() {
             .ok()
             .and_then(|g| g.architecture().map(str::to_string))
             .unwrap_or_default();
-        let upstream = std::env::var_os("LLAMA_BENCH")
-            .map(|b| llama_bench(Path::new(&b), &path, threads, runs))
-            .unwrap_or_default();
+        let upstream_bin = std::env::var_os("LLAMA_BENCH").map(PathBuf::from);
         for kind in [BackendKind::Llama, BackendKind::Candle] {
             let compiled = match kind {
                 BackendKind::Llama => cfg!(feature = "llama"),
@@ -175,10 +190,15 @@ fn main() {
                     decoding: decoding.to_string(),
                     threads,
                     runs,
+                    throughput_only: false,
                 };
                 eprintln!("measuring {} / {} / {decoding} …", e.name, kind.name());
+                let paired = upstream_bin
+                    .as_deref()
+                    .map(|bin| interleave(bin, &cfg))
+                    .unwrap_or_default();
                 match run_child(&cfg) {
-                    Ok(m) => rows.push((m, upstream.clone())),
+                    Ok(m) => rows.push((m, paired)),
                     Err(err) => eprintln!("{} / {} / {decoding}: {err}", e.name, kind.name()),
                 }
             }
@@ -197,6 +217,51 @@ fn main() {
     match draw(&rows, &svg) {
         Ok(()) => eprintln!("wrote {} and {}", file.display(), svg.display()),
         Err(e) => eprintln!("wrote {}; chart failed: {e}", file.display()),
+    }
+}
+
+/// `cfg.runs` rounds of upstream llama-bench then a ferrosa child, each measuring pp512
+/// and tg128 at depth 0 and 512 once: the ratio of each round's pair.
+fn interleave(bin: &Path, cfg: &Config) -> Interleaved {
+    let one = Config {
+        runs: 1,
+        throughput_only: true,
+        ..cfg.clone()
+    };
+    let (mut ratios, mut upstream) = ([vec![], vec![], vec![]], [vec![], vec![], vec![]]);
+    for round in 0..cfg.runs {
+        eprintln!(
+            "  round {} of {}: llama-bench, then ferrosa",
+            round + 1,
+            cfg.runs
+        );
+        let up = llama_bench(bin, &cfg.path, cfg.threads, 1);
+        let ours = match run_child(&one) {
+            Ok(m) => m,
+            Err(e) => {
+                eprintln!("  round {}: {e}", round + 1);
+                continue;
+            }
+        };
+        let pairs = [
+            (ours.prompt_tps.median, up.prompt_tps),
+            (ours.gen_tps_d0.median, up.gen_tps_d0),
+            (ours.gen_tps_d512.median, up.gen_tps_d512),
+        ];
+        for (i, (o, u)) in pairs.into_iter().enumerate() {
+            if let Some(u) = u.filter(|u| *u > 0.0) {
+                ratios[i].push(o / u);
+                upstream[i].push(u);
+            }
+        }
+    }
+    let [p, g0, g512] = ratios;
+    Interleaved {
+        rounds: p.len(),
+        prompt: Spread::of(p),
+        gen_d0: Spread::of(g0),
+        gen_d512: Spread::of(g512),
+        upstream: upstream.map(Spread::of),
     }
 }
 
@@ -358,6 +423,9 @@ fn measure(cfg: &Config) -> Measured {
                 .0
                 .gen_tok_per_s(),
         );
+        if cfg.throughput_only {
+            continue;
+        }
 
         // A tool-call turn with the agent's handful of tools.
         let q = TOOL_QUERIES[run % TOOL_QUERIES.len()];
@@ -488,19 +556,24 @@ fn llama_bench(bin: &Path, model: &Path, threads: usize, runs: usize) -> Upstrea
     }
 }
 
-fn print_table(rows: &[(Measured, Upstream)]) {
+fn print_table(rows: &[(Measured, Interleaved)]) {
     let fmt = |s: &Spread| format!("{:.0} / **{:.0}** / {:.0}", s.min, s.median, s.max);
-    let opt = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.0}"));
-    let ratio =
-        |ours: f64, up: Option<f64>| up.map_or("-".to_string(), |u| format!("{:.2}", ours / u));
+    let up = |u: &Interleaved, s: &Spread| match u.rounds {
+        0 => "-".to_string(),
+        _ => format!("{:.0}", s.median),
+    };
+    let ratio = |u: &Interleaved, r: &Spread| match u.rounds {
+        0 => "-".to_string(),
+        _ => format!("**{:.2}** ({:.2}–{:.2})", r.median, r.min, r.max),
+    };
 
     println!("## Throughput (tok/s)");
     println!();
-    println!("| model | backend | decoding | load ms | pp{PROMPT} | tg{GEN} @0 | tg{GEN} @{PROMPT} | llama-bench pp / tg@0 / tg@{PROMPT} | ratio pp / tg@0 / tg@{PROMPT} |");
-    println!("|---|---|---|---|---|---|---|---|---|");
+    println!("| model | backend | decoding | load ms | pp{PROMPT} | tg{GEN} @0 | tg{GEN} @{PROMPT} | llama-bench pp / tg@0 / tg@{PROMPT} (interleaved, median) | ratio pp | ratio tg@0 | ratio tg@{PROMPT} | rounds |");
+    println!("|---|---|---|---|---|---|---|---|---|---|---|---|");
     for (m, u) in rows {
         println!(
-            "| {} | {} | {} | {:.0} | {} | {} | {} | {} / {} / {} | {} / {} / {} |",
+            "| {} | {} | {} | {:.0} | {} | {} | {} | {} / {} / {} | {} | {} | {} | {} |",
             m.config.model,
             m.config.backend,
             m.config.decoding,
@@ -508,12 +581,20 @@ fn print_table(rows: &[(Measured, Upstream)]) {
             fmt(&m.prompt_tps),
             fmt(&m.gen_tps_d0),
             fmt(&m.gen_tps_d512),
-            opt(u.prompt_tps),
-            opt(u.gen_tps_d0),
-            opt(u.gen_tps_d512),
-            ratio(m.prompt_tps.median, u.prompt_tps),
-            ratio(m.gen_tps_d0.median, u.gen_tps_d0),
-            ratio(m.gen_tps_d512.median, u.gen_tps_d512),
+            up(u, &u.upstream[0]),
+            up(u, &u.upstream[1]),
+            up(u, &u.upstream[2]),
+            ratio(u, &u.prompt),
+            ratio(u, &u.gen_d0),
+            ratio(u, &u.gen_d512),
+            u.rounds,
+        );
+    }
+    if rows.iter().any(|(_, u)| u.rounds > 0) {
+        println!();
+        println!(
+            "Ratios: ferrosa / llama-bench within each round (upstream, then ferrosa, each in a process of its own, one repetition each), **median** (min–max) over the rounds; ferrosa's own columns are from its separate run of {} repetitions.",
+            rows[0].0.config.runs
         );
     }
     println!();
@@ -566,7 +647,7 @@ fn print_table(rows: &[(Measured, Upstream)]) {
     println!();
 }
 
-fn draw(rows: &[(Measured, Upstream)], path: &Path) -> Result<(), String> {
+fn draw(rows: &[(Measured, Interleaved)], path: &Path) -> Result<(), String> {
     let label = |m: &Measured| {
         format!(
             "{} {} {}",
@@ -582,10 +663,12 @@ fn draw(rows: &[(Measured, Upstream)], path: &Path) -> Result<(), String> {
             .map_or(m.tool_turn_tps.median, |s| s.median);
         speed.group(&label(m), &[m.prompt_tps.median, m.gen_tps_d0.median, out]);
         memory.group(&label(m), &[m.peak_rss_mib, m.budget_mib()]);
-        if m.config.decoding == "plain" && m.config.backend == "llama.cpp" {
-            if let (Some(p), Some(g)) = (u.prompt_tps, u.gen_tps_d0) {
-                speed.group(&format!("{} llama-bench", m.config.model), &[p, g, 0.0]);
-            }
+        if m.config.decoding == "plain" && m.config.backend == "llama.cpp" && u.rounds > 0 {
+            let [p, g, _] = &u.upstream;
+            speed.group(
+                &format!("{} llama-bench", m.config.model),
+                &[p.median, g.median, 0.0],
+            );
         }
     }
     chart::draw(path, "ferrosa runtime, 2 CPU threads", &[speed, memory])

@@ -67,7 +67,7 @@ pub(super) struct Run<'a> {
     pub records: Vec<StepRecord>,
     pub timings: Timings,
     pub answer: String,
-    /// What the last tool returned, as shown.
+    /// What the last tool returned, in one line: its summary, or a failure's error.
     pub last_observation: String,
     /// The summaries of the calls of the part being worked that succeeded, each with its
     /// tool, in the order they ran: what an answer is held to (`ground`).
@@ -609,7 +609,13 @@ impl Run<'_> {
         let done = came.done();
         self.guards.observe(&call, came, &shown);
         self.copy_from.push(shown.clone());
-        self.last_observation = shown.clone();
+        // A run that ends without an answer says this one in a line: its summary, or a
+        // failure's error, not the JSON the model reads.
+        self.last_observation = output
+            .get("summary")
+            .or_else(|| output.get("error"))
+            .and_then(Value::as_str)
+            .map_or_else(|| shown.clone(), str::to_string);
         self.scratch.push(ChatMessage::tool(&call.name, shown));
         let mut arguments = call.arguments;
         self.agent.exec.policy().redact(&mut arguments);
