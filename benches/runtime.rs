@@ -103,6 +103,41 @@ struct Measured {
     file_mib: f64,
     kv_mib: f64,
     context: usize,
+    /// Resident at the end of the run, by what backs it: the weights' file, the
+    /// executable and its libraries, anonymous memory (KV cache, compute buffers, heap).
+    #[serde(default)]
+    resident: Resident,
+}
+
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
+struct Resident {
+    model_mib: f64,
+    code_mib: f64,
+    anonymous_mib: f64,
+    other_mib: f64,
+}
+
+impl Resident {
+    fn now(model: &Path) -> Resident {
+        let model = std::fs::canonicalize(model).unwrap_or_else(|_| model.to_path_buf());
+        let mut r = Resident::default();
+        for (path, bytes) in ferrosa::metrics::resident_parts().unwrap_or_default() {
+            let mib = ferrosa::metrics::mib(bytes);
+            let slot = if Path::new(&path) == model {
+                &mut r.model_mib
+            } else if path == "anonymous" {
+                &mut r.anonymous_mib
+            } else if path.contains(".so")
+                || std::env::current_exe().is_ok_and(|e| e == Path::new(&path))
+            {
+                &mut r.code_mib
+            } else {
+                &mut r.other_mib
+            };
+            *slot += mib;
+        }
+        r
+    }
 }
 
 impl Measured {
@@ -506,6 +541,7 @@ fn measure(cfg: &Config) -> Measured {
         file_mib: ferrosa::metrics::mib(file),
         kv_mib: ferrosa::metrics::mib(kv),
         context: c.model.context_len(),
+        resident: Resident::now(&cfg.path),
     }
 }
 
@@ -642,6 +678,26 @@ fn print_table(rows: &[(Measured, Interleaved)]) {
         println!(
             "Time to first token: a {}-token prompt (the sim's robot prompt file and the offered tools), nothing cached; then a second turn adding {} tokens to it. Context {} tokens; KV cache f16.",
             m.agent_prompt_tokens, m.second_turn_new_tokens, m.context
+        );
+    }
+    println!();
+    println!("## Where resident memory goes (MiB, at the end of each configuration's run)");
+    println!();
+    println!("| model | backend | decoding | weights file | code (executable, libraries) | anonymous (KV cache, compute buffers, heap) | other files | KV cache (computed) | peak RSS |");
+    println!("|---|---|---|---|---|---|---|---|---|");
+    for (m, _) in rows {
+        let r = &m.resident;
+        println!(
+            "| {} | {} | {} | {:.0} | {:.0} | {:.0} | {:.0} | {:.0} | {:.0} |",
+            m.config.model,
+            m.config.backend,
+            m.config.decoding,
+            r.model_mib,
+            r.code_mib,
+            r.anonymous_mib,
+            r.other_mib,
+            m.kv_mib,
+            m.peak_rss_mib,
         );
     }
     println!();
