@@ -47,7 +47,7 @@ fn parse_smaps(smaps: &str) -> Option<Vec<(String, u64)>> {
         }
     }
     let mut out: Vec<(String, u64)> = parts.into_iter().filter(|(_, b)| *b > 0).collect();
-    out.sort_by(|a, b| b.1.cmp(&a.1));
+    out.sort_by_key(|b| std::cmp::Reverse(b.1));
     Some(out)
 }
 

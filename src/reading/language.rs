@@ -304,6 +304,15 @@ impl Language {
                 Portuguese => "Cancelado.",
             }
             .to_string(),
+            Phrase::StoppedAfter(1) => match self {
+                English => "I stopped after one step without a final answer.",
+                Spanish => "Me detuve tras un paso sin una respuesta final.",
+                French => "Je me suis arrêté après une étape sans réponse finale.",
+                German => "Ich habe nach einem Schritt ohne endgültige Antwort aufgehört.",
+                Italian => "Mi sono fermato dopo un passo senza una risposta finale.",
+                Portuguese => "Parei após um passo sem uma resposta final.",
+            }
+            .to_string(),
             Phrase::StoppedAfter(n) => match self {
                 English => format!("I stopped after {n} steps without a final answer."),
                 Spanish => format!("Me detuve tras {n} pasos sin una respuesta final."),
