@@ -120,6 +120,7 @@ struct Resident {
 impl Resident {
     fn now(model: &Path) -> Resident {
         let model = std::fs::canonicalize(model).unwrap_or_else(|_| model.to_path_buf());
+        let exe = std::env::current_exe().unwrap_or_default();
         let mut r = Resident::default();
         for (path, bytes) in ferrosa::metrics::resident_parts().unwrap_or_default() {
             let mib = ferrosa::metrics::mib(bytes);
@@ -127,9 +128,7 @@ impl Resident {
                 &mut r.model_mib
             } else if path == "anonymous" {
                 &mut r.anonymous_mib
-            } else if path.contains(".so")
-                || std::env::current_exe().is_ok_and(|e| e == Path::new(&path))
-            {
+            } else if path.contains(".so") || exe == Path::new(&path) {
                 &mut r.code_mib
             } else {
                 &mut r.other_mib

@@ -201,10 +201,8 @@ impl Model {
         for i in 0..n_layer {
             let global = !gemma || i % GEMMA3_GLOBAL_EVERY == GEMMA3_GLOBAL_EVERY - 1;
             let mut t = |s: &str| get(&format!("blk.{i}.{s}.weight"));
-            let mut layer = Layer::load(&mut t, gemma, &device)?;
-            layer.window = if global { None } else { window };
-            layer.rope = usize::from(!global);
-            layers.push(layer);
+            let local = (!global).then_some(window);
+            layers.push(Layer::load(&mut t, gemma, local, &device)?);
         }
         let mut ropes = vec![rope_tables(head_dim, base, scale, n_ctx, &device).map_err(e)?];
         if gemma {
@@ -281,11 +279,13 @@ impl Model {
 }
 
 impl Layer {
-    /// A layer's weights, `t` giving each by its name within the layer ("attn_q"); a
-    /// global layer with the first RoPE table (the caller sets a local one's).
+    /// A layer's weights, `t` giving each by its name within the layer ("attn_q").
+    /// `local`: a sliding-window layer (Gemma 3's local ones) with its window, which
+    /// uses the second RoPE table; otherwise a global layer with the first.
     fn load(
         t: &mut dyn FnMut(&str) -> Result<QTensor, String>,
         gemma: bool,
+        local: Option<Option<usize>>,
         device: &Device,
     ) -> Result<Layer, String> {
         let e = |e: candle_core::Error| e.to_string();
@@ -323,8 +323,8 @@ impl Layer {
             k_norm,
             post_attn_norm,
             post_ffn_norm,
-            window: None,
-            rope: 0,
+            window: local.flatten(),
+            rope: usize::from(local.is_some()),
             k_cache: None,
             v_cache: None,
         })
