@@ -32,6 +32,10 @@
 //!    The baseline binary comes
 //!    from `scripts/build-baseline.sh`; without it the part says so and is skipped.
 //!
+//! 6. Prompt-lookup drafting off and on (`decode::draft`): `VERSUS` in this process,
+//!    request by request with the setting alternating, time to the first call and to
+//!    the answer, p50 / p95 of each, and how many requests made the same calls.
+//!
 //! The sim speaks DDS, so the bench re-runs itself in a network namespace with only
 //! loopback (`unshare -n`, as root), under a time limit. Settings: FERROSA_BENCH_RUNS (3),
 //! FERROSA_BENCH_TURNS (40), FERROSA_BENCH_THREADS (physical cores), FERROSA_BENCH_PARTS
@@ -204,7 +208,7 @@ fn main() {
     let runs = header::env_usize("FERROSA_BENCH_RUNS", 3).max(1);
     let turns = header::env_usize("FERROSA_BENCH_TURNS", 40).max(2);
     let threads = header::env_usize("FERROSA_BENCH_THREADS", ferrosa::backend::physical_cores());
-    let parts = std::env::var("FERROSA_BENCH_PARTS").unwrap_or_else(|_| "1,2,3,4,5".into());
+    let parts = std::env::var("FERROSA_BENCH_PARTS").unwrap_or_else(|_| "1,2,3,4,5,6".into());
     let part = |n: &str| parts.split(',').any(|p| p.trim() == n);
     let args = AgentArgs {
         model: ModelArgs {
@@ -214,6 +218,7 @@ fn main() {
             threads: Some(threads),
             max_context: 8192,
             prompt_cache: false,
+            draft: ferrosa::decode::Draft::default(),
             remote: None,
         },
         yes: true,
@@ -388,6 +393,10 @@ fn main() {
     memory
     });
 
+    // 6. Drafting off and on, request by request, in this process (before the model
+    // is dropped for part 4's server).
+    let drafting = part("6").then(|| drafting_off_on(&mut agent));
+
     // 4. The remote engine, on a llama-server with the same model.
     drop(agent);
     let wanted = part("4") && !rows.is_empty();
@@ -415,7 +424,7 @@ fn main() {
     let out = root.join("target").join("bench");
     let _ = std::fs::create_dir_all(&out);
     let file = out.join("agent.json");
-    let json = serde_json::json!({"requests": rows, "memory": memory, "first": first.map(|f| f.timings), "cold_start": cold, "remote": remote, "versus": versus});
+    let json = serde_json::json!({"requests": rows, "memory": memory, "first": first.map(|f| f.timings), "cold_start": cold, "remote": remote, "versus": versus, "drafting": drafting});
     std::fs::write(&file, serde_json::to_string_pretty(&json).expect("json")).expect("write json");
     let mut latency = chart::Bars::new("ms (median)", &["total", "first token", "tools"]);
     for r in &rows {
@@ -451,6 +460,71 @@ fn main() {
         Ok(()) => eprintln!("wrote {} and {}", file.display(), svg.display()),
         Err(e) => eprintln!("wrote {}; chart failed: {e}", file.display()),
     }
+}
+
+/// Part 6: `VERSUS` asked in whole passes with prompt-lookup drafting off and on, A B B
+/// A (after `/clear`, the system prompt cached): the time to the first call written
+/// whole and to the answer, p50 / p95 by setting, and how many requests made the same
+/// calls both ways.
+fn drafting_off_on(agent: &mut ferrosa::agent::Agent) -> serde_json::Value {
+    use ferrosa::decode::Draft;
+    let was = agent.config.draft;
+    let on = Draft::up_to(Draft::SUGGESTED_TOKENS);
+    let (mut calls, mut answers) = ([Vec::new(), Vec::new()], [Vec::new(), Vec::new()]);
+    // Whole passes, off and on in the order A B B A: consecutive asks are different
+    // requests (no ask finds its own prompt cached), and drift of the machine falls on
+    // both settings alike.
+    let mut made: [Vec<String>; 2] = [Vec::new(), Vec::new()];
+    for i in [0, 1, 1, 0] {
+        agent.config.draft = if i == 0 { Draft::OFF } else { on };
+        for (_, q) in VERSUS {
+            agent.clear();
+            let r = agent.ask(q, &mut |_| {}).expect("the agent runs");
+            if let Some(ms) = r.timings.first_call_ms {
+                calls[i].push(ms);
+            }
+            answers[i].push(r.timings.total_ms);
+            let steps: Vec<_> = r.steps.iter().map(|s| (&s.name, &s.arguments)).collect();
+            made[i].push(serde_json::to_string(&steps).unwrap_or_default());
+        }
+    }
+    // Each request's calls in its first pass with each setting.
+    let n = VERSUS.len();
+    let same = (0..n).filter(|&k| made[0][k] == made[1][k]).count();
+    let asked = n;
+    agent.config.draft = was;
+    println!(
+        "## Prompt-lookup drafting off and on ({asked} requests, two passes each, A B B A; ms)",
+    );
+    println!();
+    println!(
+        "| drafting | first call p50 | first call p95 | answer p50 | answer p95 | answer mean |"
+    );
+    println!("|---|---|---|---|---|---|");
+    let mut rows = Vec::new();
+    for (i, name) in ["off", "on"].into_iter().enumerate() {
+        let mean = answers[i].iter().sum::<f64>() / answers[i].len().max(1) as f64;
+        let row = serde_json::json!({
+            "drafting": name,
+            "first_call_p50": versus::quantile(&calls[i], 0.5),
+            "first_call_p95": versus::quantile(&calls[i], 0.95),
+            "answer_p50": versus::quantile(&answers[i], 0.5),
+            "answer_p95": versus::quantile(&answers[i], 0.95),
+            "answer_mean": mean,
+        });
+        println!(
+            "| {name} | {:.0} | {:.0} | {:.0} | {:.0} | {mean:.0} |",
+            row["first_call_p50"].as_f64().unwrap_or(0.0),
+            row["first_call_p95"].as_f64().unwrap_or(0.0),
+            row["answer_p50"].as_f64().unwrap_or(0.0),
+            row["answer_p95"].as_f64().unwrap_or(0.0),
+        );
+        rows.push(row);
+    }
+    println!();
+    println!("Same calls (names and arguments) with drafting off and on, first pass of each: {same} of {asked}.");
+    println!();
+    serde_json::json!({"rows": rows, "same_calls": same, "asked": asked})
 }
 
 /// Part 5: `VERSUS` through the baseline's chat and this build's, one after the other

@@ -230,6 +230,7 @@ fn generation(mut model: Box<dyn Backend>, grammars: &Grammars) {
                         constraint: c.as_mut(),
                         hook: &mut NoHook,
                         scan: &mut JsonScan::new(),
+                        draft: ferrosa::decode::Draft::OFF,
                     },
                     |t, _| {
                         text.push(t);

@@ -34,10 +34,10 @@ use ferrosa::agent::prompt::RobotPrompt;
 use ferrosa::backend::{self, Backend, BackendKind, LoadOptions, TokenId};
 use ferrosa::chat::{ChatMessage, Role};
 use ferrosa::decode::envelope::{Envelope, ToolChoice};
-use ferrosa::decode::request::{with_tools, TurnRequest};
+use ferrosa::decode::request::{render_prompt_split, with_tools, TurnRequest};
 use ferrosa::decode::{
-    generate, prompt_tokens, Constraint, Decoding, GenerationStats, Grammars, JsonScan, NoHook,
-    Sampler, SamplerConfig, Session, Steering,
+    generate, prompt_tokens, Constraint, Decoding, Draft, GenerationStats, Grammars, JsonScan,
+    NoHook, Sampler, SamplerConfig, Session, Steering,
 };
 use ferrosa::models::Catalog;
 use ferrosa::tool::{specs_from_json, ToolSpec};
@@ -90,6 +90,9 @@ struct Measured {
     /// Constrained with fast-forward: call tokens emitted per second, forced included.
     call_output_tps: Option<Spread>,
     forwards_per_call: Option<f64>,
+    /// Constrained: the same call turns with prompt-lookup drafting off and on.
+    #[serde(default)]
+    drafting: Option<Drafting>,
     valid_calls: usize,
     tool_turns: usize,
     ttft_cold_ms: Spread,
@@ -107,6 +110,23 @@ struct Measured {
     /// executable and its libraries, anonymous memory (KV cache, compute buffers, heap).
     #[serde(default)]
     resident: Resident,
+}
+
+/// Tool-call turns written with drafting off and on, alternating turn by turn.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+struct Drafting {
+    /// Call tokens emitted per second (forced included), off / on.
+    output_tps: (Spread, Spread),
+    /// Forward passes per call (the prompt's included), off / on.
+    forwards: (f64, f64),
+    /// From the turn's start to the call written whole (prompt and generation), off / on.
+    call_ms: (Spread, Spread),
+    /// Guessed tokens the turns kept, of those guessed.
+    accepted: usize,
+    drafted: usize,
+    /// Turns whose tokens were the same off and on, of all.
+    same: usize,
+    turns: usize,
 }
 
 #[derive(Debug, Clone, Default, Serialize, Deserialize)]
@@ -299,6 +319,34 @@ fn interleave(bin: &Path, cfg: &Config) -> Interleaved {
     }
 }
 
+/// Tool-call turns with prompt-lookup drafting off and on, per constrained configuration.
+fn drafting_table(rows: &[(Measured, Interleaved)]) {
+    let fmt = |s: &Spread| format!("{:.0} / **{:.0}** / {:.0}", s.min, s.median, s.max);
+    println!();
+    println!("## Tool calls with prompt-lookup drafting (off → on, each query's turn alternating)");
+    println!();
+    println!("| model | backend | call output tok/s | forwards / call | turn to whole call ms | guesses kept | same tokens |");
+    println!("|---|---|---|---|---|---|---|");
+    for (m, _) in rows {
+        let Some(d) = &m.drafting else { continue };
+        println!(
+            "| {} | {} | {} → {} | {:.1} → {:.1} | {} → {} | {} / {} | {} / {} |",
+            m.config.model,
+            m.config.backend,
+            fmt(&d.output_tps.0),
+            fmt(&d.output_tps.1),
+            d.forwards.0,
+            d.forwards.1,
+            fmt(&d.call_ms.0),
+            fmt(&d.call_ms.1),
+            d.accepted,
+            d.drafted,
+            d.same,
+            d.turns,
+        );
+    }
+}
+
 fn run_child(cfg: &Config) -> Result<Measured, String> {
     let exe = std::env::current_exe().map_err(|e| e.to_string())?;
     let out = Command::new(exe)
@@ -348,6 +396,7 @@ impl Child {
         max: usize,
         lark: &str,
         fast_forward: bool,
+        draft: Draft,
     ) -> (GenerationStats, Vec<TokenId>) {
         let mut c: Option<Constraint> = self.grammars.as_ref().map(|g| {
             let mut c = g.compile(lark).expect("grammar");
@@ -366,6 +415,7 @@ impl Child {
                 constraint: c.as_mut(),
                 hook: &mut NoHook,
                 scan: &mut JsonScan::new(),
+                draft,
             },
             |t, _| {
                 out.push(t);
@@ -393,6 +443,82 @@ impl Child {
             .render(&with_tools(&req), None, true)
             .expect("template");
         prompt_tokens(self.model.as_ref(), &text, true).expect("tokenize")
+    }
+}
+
+/// The drafting measured: `Draft::up_to(SUGGESTED_TOKENS)`, or FERROSA_BENCH_DRAFT as
+/// `max_tokens,longest_match,shortest_match`.
+fn bench_draft() -> Draft {
+    let Ok(v) = std::env::var("FERROSA_BENCH_DRAFT") else {
+        return Draft::up_to(Draft::SUGGESTED_TOKENS);
+    };
+    let n: Vec<usize> = v.split(',').filter_map(|x| x.trim().parse().ok()).collect();
+    match n[..] {
+        [max_tokens, longest_match, shortest_match] => Draft {
+            max_tokens,
+            longest_match,
+            shortest_match,
+        },
+        _ => panic!("FERROSA_BENCH_DRAFT is max_tokens,longest_match,shortest_match"),
+    }
+}
+
+/// Every tool query's call turn with drafting off, then on, `runs` times.
+fn drafting(c: &mut Child, specs: &[ToolSpec], lark: &str, runs: usize) -> Drafting {
+    let (mut tps, mut ms) = ((Vec::new(), Vec::new()), (Vec::new(), Vec::new()));
+    let (mut forwards, mut accepted, mut drafted, mut same, mut turns) = ((0, 0), 0, 0, 0, 0);
+    for _ in 0..runs {
+        for q in TOOL_QUERIES {
+            let messages = [
+                ChatMessage::new(Role::System, "You control a turtle robot."),
+                ChatMessage::new(Role::User, q),
+            ];
+            // As the agent renders a turn: the system part is the stable prefix, which
+            // drafting does not copy from.
+            let req = TurnRequest {
+                messages: &messages,
+                specs,
+                allowed: None,
+                envelope: c.envelope,
+                choice: ToolChoice::Required,
+                parallel: false,
+                decoding: Decoding::Constrained,
+                max_tokens: 128,
+            };
+            let (prompt, stable) =
+                render_prompt_split(c.model.as_ref(), &with_tools(&req), c.envelope)
+                    .expect("render");
+            let mut outs = Vec::new();
+            for (on, draft) in [(false, Draft::OFF), (true, bench_draft())] {
+                c.session.clear();
+                c.session.set_stable(&prompt[..stable]);
+                let (s, out) = c.run(&prompt, 128, lark, true, draft);
+                let whole = (s.prompt_time + s.gen_time).as_secs_f64() * 1e3;
+                let (t, m, f) = if on {
+                    (&mut tps.1, &mut ms.1, &mut forwards.1)
+                } else {
+                    (&mut tps.0, &mut ms.0, &mut forwards.0)
+                };
+                t.push(s.output_tok_per_s());
+                m.push(whole);
+                *f += s.gen_forwards + 1;
+                accepted += s.draft_accepted;
+                drafted += s.drafted_tokens;
+                outs.push(out);
+            }
+            same += usize::from(outs[0] == outs[1]);
+            turns += 1;
+        }
+    }
+    let per = |n: usize| n as f64 / turns.max(1) as f64;
+    Drafting {
+        output_tps: (Spread::of(tps.0), Spread::of(tps.1)),
+        forwards: (per(forwards.0), per(forwards.1)),
+        call_ms: (Spread::of(ms.0), Spread::of(ms.1)),
+        accepted,
+        drafted,
+        same,
+        turns,
     }
 }
 
@@ -438,7 +564,7 @@ fn measure(cfg: &Config) -> Measured {
     rover.truncate(PROMPT);
     assert_eq!(rover.len(), PROMPT, "benchmark text too short");
     // Warm-up: page in the weights and let the thread pool spin up.
-    c.run(&rover[..16], 4, &prose_lark, false);
+    c.run(&rover[..16], 4, &prose_lark, false, Draft::OFF);
 
     let (mut pp, mut tg0, mut tg512) = (Vec::new(), Vec::new(), Vec::new());
     let (mut tool_tps, mut call_tps) = (Vec::new(), Vec::new());
@@ -448,12 +574,16 @@ fn measure(cfg: &Config) -> Measured {
     for run in 0..cfg.runs {
         // Prompt: 512 tokens in one batch, nothing cached.
         c.session.clear();
-        let (s, _) = c.run(&rover, 1, &prose_lark, true);
+        let (s, _) = c.run(&rover, 1, &prose_lark, true, Draft::OFF);
         pp.push(s.prompt_tok_per_s());
         // Depth 512: that prompt stays cached; depth 0: one token from the start.
-        tg512.push(c.run(&rover, GEN, &prose_lark, false).0.gen_tok_per_s());
+        tg512.push(
+            c.run(&rover, GEN, &prose_lark, false, Draft::OFF)
+                .0
+                .gen_tok_per_s(),
+        );
         tg0.push(
-            c.run(&rover[..1], GEN, &prose_lark, false)
+            c.run(&rover[..1], GEN, &prose_lark, false, Draft::OFF)
                 .0
                 .gen_tok_per_s(),
         );
@@ -469,7 +599,7 @@ fn measure(cfg: &Config) -> Measured {
         ];
         let prompt = c.render(&messages, &specs);
         if constrained {
-            let (s, out) = c.run(&prompt, 128, &call_lark, true);
+            let (s, out) = c.run(&prompt, 128, &call_lark, true, Draft::OFF);
             call_tps.push(s.output_tok_per_s());
             forwards += s.gen_forwards + 1;
             let text = c.model.vocab().decode_lossy(&out);
@@ -478,7 +608,7 @@ fn measure(cfg: &Config) -> Measured {
                 .map_or(0, |t| usize::from(!t.calls.is_empty()));
         }
         // One sampled token per forward: the grammar's cost alone when constrained.
-        let (s, out) = c.run(&prompt, 64, &call_lark, false);
+        let (s, out) = c.run(&prompt, 64, &call_lark, false, Draft::OFF);
         tool_tps.push(s.gen_tok_per_s());
         if !constrained {
             let text = c.model.vocab().decode_lossy(&out);
@@ -496,7 +626,7 @@ fn measure(cfg: &Config) -> Measured {
             messages[1].clone(),
         ];
         let first = c.render(&agent, &specs);
-        let (s, out) = c.run(&first, 48, &call_lark, true);
+        let (s, out) = c.run(&first, 48, &call_lark, true, Draft::OFF);
         cold.push(s.time_to_first_token.as_secs_f64() * 1e3);
         let reply = c.model.vocab().decode_lossy(&out);
         let reply = reply
@@ -509,7 +639,7 @@ fn measure(cfg: &Config) -> Measured {
             ChatMessage::new(Role::User, "and then list the ROS nodes"),
         ];
         let second = c.render(&messages2, &specs);
-        let (s, _) = c.run(&second, 48, &call_lark, true);
+        let (s, _) = c.run(&second, 48, &call_lark, true, Draft::OFF);
         cached.push(s.time_to_first_token.as_secs_f64() * 1e3);
         agent_tokens = first.len();
         second_new = s.prompt_tokens - s.reused_tokens;
@@ -527,6 +657,7 @@ fn measure(cfg: &Config) -> Measured {
         gen_tps_d512: Spread::of(tg512),
         tool_turn_tps: Spread::of(tool_tps),
         call_output_tps: constrained.then(|| Spread::of(call_tps)),
+        drafting: constrained.then(|| drafting(&mut c, &specs, &call_lark, cfg.runs)),
         forwards_per_call: constrained.then(|| forwards as f64 / cfg.runs as f64),
         valid_calls: valid,
         tool_turns: cfg.runs,
@@ -672,6 +803,7 @@ fn print_table(rows: &[(Measured, Interleaved)]) {
             if m.peak_rss_mib <= m.budget_mib() { "within" } else { "**over**" },
         );
     }
+    drafting_table(rows);
     if let Some((m, _)) = rows.first() {
         println!();
         println!(

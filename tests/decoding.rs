@@ -134,6 +134,7 @@ fn uniform_turn(
             constraint: Some(&mut c),
             hook: &mut NoHook,
             scan: &mut JsonScan::new(),
+            draft: ferrosa::decode::Draft::OFF,
         },
         |t, _| {
             detok.push(&vocab, t, &mut text);
@@ -642,6 +643,7 @@ fn driven(
         grammars: &grammars,
         sampler: &mut sampler,
         remote: None,
+        draft: ferrosa::decode::Draft::up_to(ferrosa::decode::Draft::SUGGESTED_TOKENS),
     };
     let r = run(&mut engine, &req, &mut pipeline, Some("reply"), &mut |_| {
         ControlFlow::Continue(())
@@ -754,6 +756,7 @@ fn forced_text_is_shown_once_the_model_has_read_it() {
         grammars: &grammars,
         sampler: &mut sampler,
         remote: None,
+        draft: ferrosa::decode::Draft::up_to(ferrosa::decode::Draft::SUGGESTED_TOKENS),
     };
     let r = run(
         &mut engine,

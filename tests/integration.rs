@@ -24,6 +24,7 @@ mod cli;
 mod console;
 mod declared;
 mod decoding;
+mod draft;
 mod embed;
 mod estop;
 mod eval;

@@ -92,6 +92,7 @@ fn a_second_turn_evaluates_only_its_new_tokens() {
             constraint: None,
             hook: &mut NoHook,
             scan: &mut JsonScan::new(),
+            draft: ferrosa::decode::Draft::OFF,
         },
         |tok, _| {
             answer.push(tok);
@@ -119,6 +120,7 @@ fn a_second_turn_evaluates_only_its_new_tokens() {
             constraint: None,
             hook: &mut NoHook,
             scan: &mut JsonScan::new(),
+            draft: ferrosa::decode::Draft::OFF,
         },
         |_, _| std::ops::ControlFlow::Continue(()),
     )
@@ -307,6 +309,7 @@ fn short_answers_stop_at_end_of_turn() {
             constraint: None,
             hook: &mut NoHook,
             scan: &mut JsonScan::new(),
+            draft: ferrosa::decode::Draft::OFF,
         },
         |_, _| std::ops::ControlFlow::Continue(()),
     )

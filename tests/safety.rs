@@ -290,6 +290,7 @@ fn stack(setup: &Setup, script: &[String]) -> Stack {
             threads: None,
             max_context: 0,
             prompt_cache: false,
+            draft: ferrosa::decode::Draft::default(),
             remote: None,
         },
         yes: setup.yes,

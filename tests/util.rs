@@ -54,6 +54,7 @@ pub fn greedy_after(
             constraint: None,
             hook: &mut NoHook,
             scan: &mut JsonScan::new(),
+            draft: ferrosa::decode::Draft::OFF,
         },
         |t, _| {
             out.push(t);
@@ -116,6 +117,7 @@ pub fn agent_args(robot: ferrosa::ui::agent::Robot, yes: bool) -> ferrosa::ui::a
             threads: Some(2),
             max_context: 8192,
             prompt_cache: true,
+            draft: ferrosa::decode::Draft::default(),
             remote: None,
         },
         yes,

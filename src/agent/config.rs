@@ -5,7 +5,7 @@ use super::answer::ANSWER_TOOL;
 use crate::reading::language::Language;
 
 use crate::decode::envelope::Envelope;
-use crate::decode::{Decoding, SamplerConfig};
+use crate::decode::{Decoding, Draft, SamplerConfig};
 pub use crate::tool::STOP_TOOL;
 
 /// How the model ends a run.
@@ -81,6 +81,8 @@ pub struct AgentConfig {
     /// (`language::Language::of`).
     pub language: Option<Language>,
     pub sampler: SamplerConfig,
+    /// How far local decoding guesses ahead (`decode::draft`; the text is the same).
+    pub draft: Draft,
 }
 
 impl AgentConfig {
@@ -103,6 +105,7 @@ impl AgentConfig {
             composed_answers: true,
             language: None,
             sampler: SamplerConfig::default(),
+            draft: Draft::default(),
         }
     }
 }

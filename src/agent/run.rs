@@ -849,6 +849,7 @@ impl Run<'_> {
             grammars: &agent.grammars,
             sampler: &mut sampler,
             remote: agent.remote.as_mut(),
+            draft: agent.config.draft,
         };
         let result = crate::turn::run(
             &mut engine,

@@ -362,6 +362,41 @@ impl Backend for LlamaCpp {
         Ok(&mut self.logits)
     }
 
+    fn forward_each(
+        &mut self,
+        keep: usize,
+        tokens: &[TokenId],
+        from: usize,
+        each: &mut dyn FnMut(usize, &[f32]),
+    ) -> Result<(), BackendError> {
+        let _span = tracing::trace_span!("forward_each", n = tokens.len()).entered();
+        if tokens.is_empty() {
+            return Err(eval("forward_each called with no tokens"));
+        }
+        self.make_room(keep, tokens.len(), tokens.iter())?;
+        let n_vocab = self.vocab.len();
+        for (c, chunk) in tokens.chunks(self.n_batch).enumerate() {
+            let offset = c * self.n_batch;
+            self.batch.clear();
+            let last = chunk.len() - 1;
+            for (i, &t) in chunk.iter().enumerate() {
+                let wanted = offset + i >= from || i == last;
+                self.batch
+                    .add(LlamaToken(t as i32), (self.n_past + i) as i32, &[0], wanted)
+                    .map_err(eval)?;
+            }
+            if let Err(e) = self.ctx.decode(&mut self.batch) {
+                let _ = self.ctx.kv_cache_seq_rm(0, Some(self.n_past as u32), None);
+                return Err(eval(e));
+            }
+            self.n_past += chunk.len();
+            for i in (0..chunk.len()).filter(|i| offset + i >= from) {
+                each(offset + i, &self.ctx.get_logits_ith(i as i32)[..n_vocab]);
+            }
+        }
+        Ok(())
+    }
+
     fn batch_len(&self) -> usize {
         self.n_batch
     }

@@ -148,6 +148,33 @@ pub trait Backend: Send {
     /// Keep the first `keep` cached tokens, evaluate `tokens` after them in batches, and
     /// return the logits of the last one. `tokens` must not be empty.
     fn forward(&mut self, keep: usize, tokens: &[TokenId]) -> Result<&mut [f32], BackendError>;
+    /// Keep the first `keep` cached tokens and evaluate `tokens` after them, as `forward`
+    /// does, handing `each(i, logits)` the logits after token `i` for every `i` from
+    /// `from` on, in order: to check a guess of several tokens in one pass. The default
+    /// evaluates one token per pass; a runtime that batches gives every row at once.
+    fn forward_each(
+        &mut self,
+        keep: usize,
+        tokens: &[TokenId],
+        from: usize,
+        each: &mut dyn FnMut(usize, &[f32]),
+    ) -> Result<(), BackendError> {
+        if tokens.is_empty() {
+            return Err(BackendError::Eval {
+                backend: self.name(),
+                reason: "forward_each called with no tokens".into(),
+            });
+        }
+        let first = from.min(tokens.len() - 1);
+        let logits = self.forward(keep, &tokens[..=first])?;
+        if from <= first {
+            each(first, logits);
+        }
+        for (i, &t) in tokens.iter().enumerate().skip(first + 1) {
+            each(i, self.forward(keep + i, &[t])?);
+        }
+        Ok(())
+    }
     /// Keep the first `keep` cached tokens and evaluate `shared` after them, as `forward`
     /// would (the cache holds them after), then each of `branches` after those as if it
     /// alone followed, handing `each(branch, j, logits)` the logits after its token `j`.

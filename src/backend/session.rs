@@ -35,6 +35,11 @@ impl Session {
         self.cache.as_ref()
     }
 
+    /// How many leading tokens of the prompts are the stable prefix (0 when none is set).
+    pub fn stable_len(&self) -> usize {
+        self.stable.len()
+    }
+
     /// Prompts starting with `prefix` start with what does not depend on the
     /// conversation: the prompt cache may keep it, and serve it to a later process.
     pub fn set_stable(&mut self, prefix: &[TokenId]) {

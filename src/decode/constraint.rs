@@ -150,6 +150,12 @@ impl Constraint {
             .is_ok_and(|n| n == tokens.len())
     }
 
+    /// How many leading tokens of `tokens` the grammar allows from here, without
+    /// committing any (a refused or failed check allows none past it).
+    pub(crate) fn allowed_prefix(&mut self, tokens: &[TokenId]) -> usize {
+        self.matcher.validate_tokens(tokens).unwrap_or(0)
+    }
+
     /// The full allowed-token mask, as llguidance computes it on a refused token.
     pub fn compute_mask(&mut self) -> Result<SimpleVob, ConstraintError> {
         let _span = tracing::trace_span!("mask").entered();

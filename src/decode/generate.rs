@@ -6,13 +6,16 @@
 //! Per token: the hook adjusts the logits, the grammar checks the sampled token (the full
 //! mask only when it is refused), and the tokens the grammar then forces are evaluated
 //! in one batch with the next forward pass. Near the budget a constrained turn steers to
-//! a close (`close`), so a started call always ends complete. The loop allocates nothing
-//! per token.
+//! a close (`close`), so a started call always ends complete. With drafting on, a guess
+//! at the next tokens (`draft`), cut to what the grammar allows, rides in that batch too,
+//! and each step chooses from the batch's logits as long as the turn keeps to the guess:
+//! the same tokens, fewer forward passes. The loop allocates nothing per token.
 
 use std::ops::ControlFlow;
 use std::time::{Duration, Instant};
 
 use super::close;
+use super::draft::Draft;
 use super::hook::{LogitsHook, TokenContext};
 use super::{Constraint, DecodeError, Finish, Sampler};
 use crate::backend::{Backend, BackendError, Session, TokenId, Vocab};
@@ -36,6 +39,10 @@ pub struct GenerationStats {
     pub forced_at_start: usize,
     /// Steps where the sampled token was refused and the full mask was computed.
     pub masks_computed: usize,
+    /// Tokens guessed by drafting and evaluated ahead of being chosen.
+    pub drafted_tokens: usize,
+    /// Of those, the ones the turn then chose (each saved a forward pass).
+    pub draft_accepted: usize,
     /// Time spent in the grammar (checking, masking, committing, forcing).
     pub constraint_time: Duration,
     pub time_to_first_token: Duration,
@@ -86,6 +93,8 @@ pub struct Steering<'a> {
     pub constraint: Option<&'a mut Constraint>,
     pub hook: &'a mut dyn LogitsHook,
     pub scan: &'a mut JsonScan,
+    /// How far to guess ahead (`Draft::OFF`: one forward pass per step).
+    pub draft: Draft,
 }
 
 /// Generate after `prompt`, calling `on_token` with each emitted token, sampled or
@@ -106,6 +115,7 @@ pub fn generate(
         mut constraint,
         hook,
         scan,
+        draft,
     } = steer;
     let start = Instant::now();
     let hard_limit = max_tokens + constraint.as_ref().map_or(0, |_| close::OVERRUN);
@@ -132,18 +142,20 @@ pub fn generate(
     }
     let gen_start = Instant::now();
     let mut pending: Vec<TokenId> = Vec::with_capacity(64);
+    let mut rows = Rows::new(draft, vocab.len());
     let finish = 'gen: loop {
         // A grammar finished by forced tokens alone allows only end-of-generation.
         if constraint.as_deref().is_some_and(Constraint::is_stopped) {
             break Finish::EndOfGeneration;
         }
         let remaining = max_tokens.saturating_sub(stats.generated_tokens);
-        let step = Step {
-            vocab: &vocab,
-            scan,
-            remaining,
-        };
-        let chosen = step.choose(hook, constraint.as_deref_mut(), sampler, logits, &mut stats)?;
+        let chosen = Step::new(&vocab, scan, remaining).choose(
+            hook,
+            constraint.as_deref_mut(),
+            sampler,
+            logits,
+            &mut stats,
+        )?;
         let Some(tok) = chosen else {
             break Finish::NoCandidate;
         };
@@ -158,34 +170,46 @@ pub fn generate(
         }
         pending.clear();
         pending.push(tok);
-        if let Some(c) = constraint.as_deref_mut() {
-            let step = ForcedStep {
-                hard_limit,
-                vocab: &vocab,
-            };
-            if let Some(finish) =
-                step.commit(c, tok, &mut stats, &mut pending, scan, &mut on_token)?
-            {
-                break 'gen finish;
-            }
+        let forcing = ForcedStep {
+            hard_limit,
+            vocab: &vocab,
+        };
+        let c = constraint.as_deref_mut();
+        if let Some(finish) =
+            forcing.commit(c, tok, &mut stats, &mut pending, scan, &mut on_token)?
+        {
+            break 'gen finish;
         }
-        // Past the budget only to close a call that is open.
         let open = constraint.is_some() && scan.open_count() > 0;
         let n = stats.generated_tokens;
-        if n >= hard_limit || (n >= max_tokens && !open) {
-            break Finish::Length;
+        let held = session.tokens().len() + pending.len();
+        if let Some(finish) = out_of_room(n, (max_tokens, hard_limit), open, held, backend) {
+            break finish;
         }
-        if session.tokens().len() + pending.len() > backend.context_len() {
-            break Finish::ContextFull;
-        }
-        logits = forward(backend, session, &pending)?;
-        stats.gen_forwards += 1;
+        let c = constraint.as_deref_mut();
+        logits = rows.evaluate(backend, session, &pending, hard_limit - n, c, &mut stats)?;
     };
     if let Some(c) = constraint {
         stats.masks_computed = c.masks_computed;
     }
     stats.gen_time = gen_start.elapsed();
     Ok((finish, stats))
+}
+
+/// Why the turn ends before evaluating what it wrote, if it does: `n` tokens written
+/// against its `(budget, hard limit)` (past the budget only to close a call that is
+/// `open`), or `held` tokens not fitting the context.
+fn out_of_room(
+    n: usize,
+    (budget, hard_limit): (usize, usize),
+    open: bool,
+    held: usize,
+    backend: &dyn Backend,
+) -> Option<Finish> {
+    if n >= hard_limit || (n >= budget && !open) {
+        return Some(Finish::Length);
+    }
+    (held > backend.context_len()).then_some(Finish::ContextFull)
 }
 
 /// Whether the turn ends at the emitted `tok`: at end-of-generation, or when the caller
@@ -219,7 +243,15 @@ struct Step<'a> {
     remaining: usize,
 }
 
-impl Step<'_> {
+impl<'a> Step<'a> {
+    fn new(vocab: &'a Vocab, scan: &'a JsonScan, remaining: usize) -> Step<'a> {
+        Step {
+            vocab,
+            scan,
+            remaining,
+        }
+    }
+
     /// The step's token: the hook adjusts the logits, then the sampler chooses, or with a
     /// grammar, the grammar checks the sampled token (or near the budget steers to a
     /// close), its time counted as the grammar's.
@@ -285,17 +317,18 @@ struct ForcedStep<'v> {
 }
 
 impl ForcedStep<'_> {
-    /// Commit `tok` to the grammar and pass on the tokens it then forces: the turn's end
-    /// when the caller stopped or the grammar finished, else `None`.
+    /// Commit `tok` to the grammar (if any) and pass on the tokens it then forces: the
+    /// turn's end when the caller stopped or the grammar finished, else `None`.
     fn commit(
         &self,
-        c: &mut Constraint,
+        c: Option<&mut Constraint>,
         tok: TokenId,
         stats: &mut GenerationStats,
         pending: &mut Vec<TokenId>,
         scan: &mut JsonScan,
         on_token: &mut impl FnMut(TokenId, &JsonScan) -> ControlFlow<()>,
     ) -> Result<Option<Finish>, DecodeError> {
+        let Some(c) = c else { return Ok(None) };
         let t = Instant::now();
         let forced = c.commit(tok)?.to_vec();
         stats.constraint_time += t.elapsed();
@@ -400,6 +433,124 @@ fn prefill<'b>(
     let logits = forward(backend, session, &batch)?;
     stats.prompt_time = start.elapsed();
     Ok((logits, forced, stats))
+}
+
+/// A drafted guess evaluated in one batch: the guessed tokens, the logits after the token
+/// before them and after each of them (one row per token), and how many of them the turn
+/// has chosen so far. Buffers sized once per generation, at its first guess.
+struct Rows {
+    draft: Draft,
+    guess: Vec<TokenId>,
+    /// Whether `guess` was evaluated and the turn has kept to it so far.
+    live: bool,
+    chosen: usize,
+    logits: Vec<f32>,
+    n_vocab: usize,
+    batch: Vec<TokenId>,
+}
+
+impl Rows {
+    fn new(draft: Draft, n_vocab: usize) -> Rows {
+        Rows {
+            draft,
+            guess: Vec::with_capacity(draft.max_tokens),
+            live: false,
+            chosen: 0,
+            // Sized at the first guess: a turn that never guesses costs nothing.
+            logits: Vec::new(),
+            n_vocab,
+            batch: Vec::with_capacity(64 + draft.max_tokens),
+        }
+    }
+
+    /// Room for the rows of a guess of `max_tokens` (once per generation).
+    fn make_room(&mut self) {
+        let len = (self.draft.max_tokens + 1) * self.n_vocab;
+        if self.logits.len() < len {
+            self.logits.resize(len, 0.0);
+        }
+    }
+
+    /// How many leading tokens of `pending` the evaluated guess holds next; the guess
+    /// stays live only if it holds them all.
+    fn keep_to(&mut self, pending: &[TokenId]) -> usize {
+        if !self.live {
+            return 0;
+        }
+        let next = &self.guess[self.chosen..];
+        let same = pending.iter().zip(next).take_while(|(a, b)| a == b).count();
+        self.chosen += same;
+        self.live = same == pending.len();
+        same
+    }
+
+    /// The logits after the guess's first `k` tokens (row 0: before the guess).
+    fn row(&mut self, k: usize) -> &mut [f32] {
+        &mut self.logits[k * self.n_vocab..(k + 1) * self.n_vocab]
+    }
+
+    /// Bring the model past `pending`, the tokens the turn added since the model last
+    /// read it (at most `limit` more may follow), and return the logits after them.
+    /// Tokens an earlier batch evaluated as a guess are taken as they are; the rest are
+    /// evaluated, with a new guess (cut to what the grammar allows from here) in the same
+    /// batch when drafting finds one.
+    fn evaluate<'b>(
+        &'b mut self,
+        backend: &'b mut dyn Backend,
+        session: &mut Session,
+        pending: &[TokenId],
+        limit: usize,
+        constraint: Option<&mut Constraint>,
+        stats: &mut GenerationStats,
+    ) -> Result<&'b mut [f32], DecodeError> {
+        let held = self.keep_to(pending);
+        session.extend(&pending[..held]);
+        stats.draft_accepted += held;
+        if held == pending.len() {
+            let k = self.chosen;
+            return Ok(self.row(k));
+        }
+        let rest = &pending[held..];
+        let room = backend
+            .context_len()
+            .saturating_sub(session.tokens().len() + rest.len());
+        // What the turn copies is the conversation's (a request's words, a result's
+        // values); the stable prefix (instructions, tool specs) is mostly what the
+        // grammar forces anyway, and guesses from it are rarely kept.
+        let held_tokens = session.tokens();
+        let head = &held_tokens[session.stable_len().min(held_tokens.len())..];
+        let mut guess = std::mem::take(&mut self.guess);
+        self.draft.guess(head, rest, limit.min(room), &mut guess);
+        if let (Some(c), false) = (constraint, guess.is_empty()) {
+            let t = Instant::now();
+            guess.truncate(c.allowed_prefix(&guess));
+            stats.constraint_time += t.elapsed();
+        }
+        self.guess = guess;
+        stats.gen_forwards += 1;
+        if self.guess.is_empty() {
+            return forward(backend, session, rest);
+        }
+        self.make_room();
+        self.batch.clear();
+        self.batch.extend_from_slice(rest);
+        self.batch.extend_from_slice(&self.guess);
+        let from = rest.len() - 1;
+        let (n_vocab, logits) = (self.n_vocab, &mut self.logits);
+        let done =
+            backend.forward_each(session.tokens().len(), &self.batch, from, &mut |i, row| {
+                let k = i - from;
+                logits[k * n_vocab..(k + 1) * n_vocab].copy_from_slice(row);
+            });
+        if let Err(e) = done {
+            session.clear();
+            return Err(e.into());
+        }
+        session.extend(rest);
+        stats.drafted_tokens += self.guess.len();
+        (self.live, self.chosen) = (true, 0);
+        Ok(self.row(0))
+    }
 }
 
 /// Evaluate `tokens` after what the session holds, and record them; on failure the

@@ -5,7 +5,8 @@
 //! tool specs (to build grammars) but nothing of tool execution, strategies or ROS.
 //!
 //! Layout:
-//! - `generate`: the loop (prefill, hook, grammar, sample, forced tokens)
+//! - `generate`: the loop (prefill, hook, grammar, sample, forced tokens, drafts)
+//! - `draft`: prompt-lookup drafting, a guess at the next tokens copied from the context
 //! - `hook`: the logits-hook seam
 //! - `close`: the steer to a complete call at the token limit
 //! - `sample`: greedy / temperature, top-k, top-p sampling with a seeded generator
@@ -17,6 +18,7 @@
 
 mod close;
 pub mod constraint;
+pub mod draft;
 pub mod envelope;
 pub mod generate;
 pub mod hook;
@@ -27,6 +29,7 @@ mod trie;
 pub use crate::backend::{PromptCache, Session};
 pub use crate::json::JsonScan;
 pub use constraint::{Constraint, ConstraintError, Grammars};
+pub use draft::Draft;
 pub use envelope::{Envelope, ToolChoice, Turn};
 pub use generate::{generate, prompt_tokens, GenerationStats, Steering};
 pub use hook::{LogitsHook, NoHook, TokenContext};

@@ -24,7 +24,7 @@ use crate::backend::{Backend, Vocab};
 use crate::chat::{ChatMessage, Role};
 use crate::decode::envelope::{Envelope, ToolChoice};
 use crate::decode::request::TurnRequest;
-use crate::decode::{DecodeError, Decoding, Grammars, Sampler, SamplerConfig, Session};
+use crate::decode::{DecodeError, Decoding, Draft, Grammars, Sampler, SamplerConfig, Session};
 use crate::strategy::choice::Calibrated;
 use crate::strategy::copy::{defaults, CopyBias, CopyIndex};
 use crate::strategy::ground::Grounding;
@@ -74,6 +74,8 @@ pub struct TurnRules {
     /// their schema declares as the default, as the agent does before a call runs
     /// (`strategy::ground`; the agent holds strings only to it).
     pub ground: bool,
+    /// How far decoding guesses ahead (`decode::draft`; the text is the same).
+    pub draft: Draft,
 }
 
 impl TurnRules {
@@ -161,6 +163,7 @@ pub(crate) fn run_case(
         grammars,
         sampler: &mut sampler,
         remote,
+        draft: rules.draft,
     };
     let r = match run(&mut engine, &req, &mut pipeline, fallback, &mut |_| {
         ControlFlow::Continue(())

@@ -8,8 +8,8 @@ use std::ops::ControlFlow;
 use crate::backend::{Backend, TokenId};
 use crate::decode::request::{render_prompt_split, with_tools, TurnRequest, TurnResult};
 use crate::decode::{
-    generate, Constraint, DecodeError, Finish, GenerationStats, Grammars, JsonScan, LogitsHook,
-    Sampler, Session, Steering,
+    generate, Constraint, DecodeError, Draft, Finish, GenerationStats, Grammars, JsonScan,
+    LogitsHook, Sampler, Session, Steering,
 };
 
 /// Where to stop decoding.
@@ -48,6 +48,8 @@ pub struct TurnDecoder {
     /// Bytes of the text already handed to the caller.
     shown: usize,
     finish: Finish,
+    /// How far generation guesses ahead (`Draft::OFF` unless `set_draft`).
+    draft: Draft,
 }
 
 impl TurnDecoder {
@@ -76,6 +78,7 @@ impl TurnDecoder {
             max_tokens: req.max_tokens,
             shown: 0,
             finish: Finish::Length,
+            draft: Draft::OFF,
         };
         if let Some(c) = constraint.as_mut() {
             let forced = c.forced_at_start()?.to_vec();
@@ -84,6 +87,11 @@ impl TurnDecoder {
         }
         d.constraint = constraint;
         Ok(d)
+    }
+
+    /// Guess ahead as `draft` says from now on (the text written is the same).
+    pub fn set_draft(&mut self, draft: Draft) {
+        self.draft = draft;
     }
 
     pub fn prompt(&self) -> &[TokenId] {
@@ -235,6 +243,7 @@ impl TurnDecoder {
             constraint: self.constraint.as_mut(),
             hook,
             scan: &mut self.scan,
+            draft: self.draft,
         };
         let (finish, stats) = generate(
             backend,
@@ -295,6 +304,8 @@ fn add_stats(total: &mut GenerationStats, s: &GenerationStats) {
         total.gen_time += s.prompt_time;
     }
     total.gen_forwards += s.gen_forwards;
+    total.drafted_tokens += s.drafted_tokens;
+    total.draft_accepted += s.draft_accepted;
     total.forced_tokens += s.forced_tokens;
     total.masks_computed += s.masks_computed;
     total.constraint_time += s.constraint_time;

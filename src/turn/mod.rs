@@ -18,7 +18,7 @@ use std::ops::ControlFlow;
 use crate::backend::{Backend, TokenId};
 use crate::chat::Role;
 use crate::decode::request::{render_prompt, with_tools, TurnRequest, TurnResult};
-use crate::decode::{DecodeError, Envelope, Finish, Grammars, Sampler, Session, ToolChoice};
+use crate::decode::{DecodeError, Draft, Envelope, Finish, Grammars, Sampler, Session, ToolChoice};
 use crate::remote::Remote;
 use crate::strategy::choice::CONTENT_FREE;
 use crate::strategy::{Pipeline, Review, Scorer};
@@ -38,6 +38,8 @@ pub struct Engine<'a> {
     /// A server that writes the turns instead (`remote`): the pipeline, which reads the
     /// model's log-probabilities, is not applied.
     pub remote: Option<&'a mut Remote>,
+    /// How far local decoding guesses ahead (the text is the same either way).
+    pub draft: Draft,
 }
 
 /// Run `req` through `pipeline`; `fallback` names the tool that answers in words (if it
@@ -53,6 +55,7 @@ pub fn run(
         return remote.turn(engine.backend, req, on_text);
     }
     let mut turn = TurnDecoder::new(engine.backend, engine.grammars, req)?;
+    turn.set_draft(engine.draft);
     engine.session.set_stable(turn.stable_prefix());
     let gate = if pipeline.decides() {
         Gate::prepare(engine.backend, &mut turn, req, fallback)?

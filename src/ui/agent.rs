@@ -396,6 +396,7 @@ pub fn build_with(
     config.copy_bias = args.copy_bias;
     config.pick = args.pick;
     config.language = args.language;
+    config.draft = args.model.draft;
     if args.listing == Listing::All {
         config.listing_budget_tokens = LISTING_BUDGET_TOKENS;
     }

@@ -19,8 +19,9 @@ use crate::decode::{
     Session, Steering,
 };
 use crate::metrics;
+use crate::strategy::Pipeline;
 use crate::tool::specs_from_json;
-use crate::turn::assistant_turn;
+use crate::turn::Engine;
 
 #[derive(Debug, Clone)]
 pub struct GenerateArgs {
@@ -79,14 +80,21 @@ pub fn run(args: &GenerateArgs) -> anyhow::Result<()> {
                 max_tokens: args.max_tokens,
             };
             let mut sampler = Sampler::new(args.sampler, model.vocab().len());
-            let r = assistant_turn(
-                model.as_mut(),
-                &mut Session::new(),
-                &grammars,
-                &mut sampler,
+            let mut engine = Engine {
+                backend: model.as_mut(),
+                session: &mut Session::new(),
+                grammars: &grammars,
+                sampler: &mut sampler,
+                remote: None,
+                draft: args.model.draft,
+            };
+            // No strategy: the model alone writes the turn.
+            let r = crate::turn::run(
+                &mut engine,
                 &req,
-                &mut NoHook,
-                |piece| {
+                &mut Pipeline::new(),
+                None,
+                &mut |piece| {
                     let _ = lock.write_all(piece.as_bytes()).and_then(|_| lock.flush());
                     ControlFlow::Continue(())
                 },
@@ -152,6 +160,7 @@ fn plain(
             constraint: None,
             hook: &mut NoHook,
             scan: &mut JsonScan::new(),
+            draft: args.model.draft,
         },
         |tok, _| {
             piece.clear();

@@ -49,6 +49,8 @@ pub struct ModelArgs {
     pub max_context: usize,
     /// Keep and reuse stable prompt prefixes on disk (`backend::prompt_cache`).
     pub prompt_cache: bool,
+    /// How far local decoding guesses ahead (`decode::draft`).
+    pub draft: crate::decode::Draft,
     /// Run the model on a server (`--engine openai`): only its vocabulary is loaded here.
     pub remote: Option<crate::remote::RemoteOptions>,
 }

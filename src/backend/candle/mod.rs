@@ -117,7 +117,8 @@ impl Backend for Candle {
         self.n_past = keep;
         let mut last = None;
         for chunk in tokens.chunks(512) {
-            last = Some(self.model.forward(chunk, self.n_past).map_err(err)?);
+            let from = chunk.len() - 1;
+            last = Some(self.model.forward(chunk, self.n_past, from).map_err(err)?);
             self.n_past += chunk.len();
         }
         let logits = last
@@ -126,5 +127,38 @@ impl Backend for Candle {
             .map_err(err)?;
         self.logits.copy_from_slice(&logits[..self.vocab.len()]);
         Ok(&mut self.logits)
+    }
+
+    fn forward_each(
+        &mut self,
+        keep: usize,
+        tokens: &[TokenId],
+        from: usize,
+        each: &mut dyn FnMut(usize, &[f32]),
+    ) -> Result<(), BackendError> {
+        let _span = tracing::trace_span!("forward_each", n = tokens.len()).entered();
+        if tokens.is_empty() {
+            return Err(err("forward_each called with no tokens"));
+        }
+        let (held, limit, n_vocab) = (self.n_past, self.n_ctx, self.vocab.len());
+        let keep = super::admit(keep, held, tokens.len(), tokens.iter(), limit, n_vocab)?;
+        self.n_past = keep;
+        for (c, chunk) in tokens.chunks(512).enumerate() {
+            let offset = c * 512;
+            // Rows from `from` on, or the last one only (no row wanted in this chunk).
+            let first = from.saturating_sub(offset).min(chunk.len() - 1);
+            let rows = self.model.forward(chunk, self.n_past, first).map_err(err)?;
+            self.n_past += chunk.len();
+            if offset + chunk.len() <= from {
+                continue;
+            }
+            let rows = rows.to_vec1::<f32>().map_err(err)?;
+            // The output's rows may be padded past the vocabulary.
+            let width = rows.len() / (chunk.len() - first);
+            for (r, row) in rows.chunks(width).enumerate() {
+                each(offset + first + r, &row[..n_vocab]);
+            }
+        }
+        Ok(())
     }
 }

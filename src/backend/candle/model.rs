@@ -223,8 +223,14 @@ impl Model {
     }
 
     /// Evaluate `tokens` at positions `pos..`, attending to the first `pos` cached ones;
-    /// returns the logits of the last token.
-    pub fn forward(&mut self, tokens: &[TokenId], pos: usize) -> candle_core::Result<Tensor> {
+    /// returns the logits after each token from index `from` on (`from` below the
+    /// length), one row per token, flattened.
+    pub fn forward(
+        &mut self,
+        tokens: &[TokenId],
+        pos: usize,
+        from: usize,
+    ) -> candle_core::Result<Tensor> {
         let device = self.embed.device();
         let seq = tokens.len();
         let gemma = self.family == Family::Gemma3;
@@ -272,9 +278,9 @@ impl Model {
             let f = layer.feed_forward(&x, &pass)?;
             x = (x + f)?;
         }
-        let last = x.narrow(1, seq - 1, 1)?;
-        let last = candle_nn::ops::rms_norm(&last, &self.norm, pass.eps)?;
-        self.output.forward(&last)?.flatten_all()
+        let rows = x.narrow(1, from, seq - from)?;
+        let rows = candle_nn::ops::rms_norm(&rows, &self.norm, pass.eps)?;
+        self.output.forward(&rows)?.flatten_all()
     }
 }
 

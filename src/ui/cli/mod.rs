@@ -35,6 +35,12 @@ pub struct Cli {
         default_value_t = Switch::On
     )]
     prompt_cache: Switch,
+    /// Most tokens guessed ahead per forward pass by prompt-lookup drafting (copied from
+    /// the conversation, kept only as far as the model chooses them); 0, the default,
+    /// turns it off (on the agent's tool calls it measured no faster; 8 suits long
+    /// copies).
+    #[arg(long, global = true, env = "FERROSA_DRAFT", default_value_t = 0)]
+    draft: usize,
     /// Where the model runs: local (in this process) or openai (a server with OpenAI's
     /// completions API, e.g. llama-server or vLLM, at --url; the model file given with
     /// --model is read here for its vocabulary and chat template only).
@@ -227,6 +233,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
             .clone()
             .unwrap_or_else(crate::models::models_dir),
         prompt_cache: cli.prompt_cache == Switch::On,
+        draft: crate::decode::Draft::up_to(cli.draft),
         remote: cli.remote()?,
     };
     match cli.command {

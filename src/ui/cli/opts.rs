@@ -16,6 +16,7 @@ use crate::ui;
 pub(super) struct Common {
     pub(super) dir: PathBuf,
     pub(super) prompt_cache: bool,
+    pub(super) draft: crate::decode::Draft,
     pub(super) remote: Option<crate::remote::RemoteOptions>,
 }
 
@@ -35,12 +36,13 @@ impl Common {
             threads,
             max_context,
             prompt_cache: self.prompt_cache,
+            draft: self.draft,
             remote: self.remote.clone(),
         }
     }
 
     pub(super) fn agent(&self, opts: AgentOpts) -> ui::agent::AgentArgs {
-        opts.into_args(self.dir.clone(), self.prompt_cache, self.remote.clone())
+        opts.into_args(self)
     }
 }
 
@@ -127,22 +129,9 @@ fn parse_language(text: &str) -> Result<LanguageArg, String> {
 }
 
 impl AgentOpts {
-    pub(super) fn into_args(
-        self,
-        models_dir: PathBuf,
-        cli_prompt_cache: bool,
-        remote: Option<crate::remote::RemoteOptions>,
-    ) -> ui::agent::AgentArgs {
+    pub(super) fn into_args(self, common: &Common) -> ui::agent::AgentArgs {
         ui::agent::AgentArgs {
-            model: ui::ModelArgs {
-                models_dir,
-                model: self.model,
-                backend: self.backend.into(),
-                threads: self.threads,
-                max_context: self.max_context,
-                prompt_cache: cli_prompt_cache,
-                remote,
-            },
+            model: common.model(self.model, self.backend, self.threads, self.max_context),
             yes: self.yes,
             read_only: self.read_only,
             policy: self.policy,
@@ -507,6 +496,7 @@ impl BfclOpts {
                 relevance_gate: self.relevance_gate,
                 copy_bias: self.copy_bias,
                 ground: self.ground,
+                draft: common.draft,
             },
         }
     }
