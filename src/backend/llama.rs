@@ -333,32 +333,14 @@ impl Backend for LlamaCpp {
 
     fn forward(&mut self, keep: usize, tokens: &[TokenId]) -> Result<&mut [f32], BackendError> {
         let _span = tracing::trace_span!("forward", n = tokens.len()).entered();
-        if tokens.is_empty() {
-            return Err(eval("forward called with no tokens"));
-        }
-        self.make_room(keep, tokens.len(), tokens.iter())?;
-        for chunk in tokens.chunks(self.n_batch) {
-            self.batch.clear();
-            let last = chunk.len() - 1;
-            for (i, &t) in chunk.iter().enumerate() {
-                self.batch
-                    .add(
-                        LlamaToken(t as i32),
-                        (self.n_past + i) as i32,
-                        &[0],
-                        i == last,
-                    )
-                    .map_err(eval)?;
-            }
-            if let Err(e) = self.ctx.decode(&mut self.batch) {
-                // The cache may hold part of this chunk; drop it so `n_past` stays true.
-                let _ = self.ctx.kv_cache_seq_rm(0, Some(self.n_past as u32), None);
-                return Err(eval(e));
-            }
-            self.n_past += chunk.len();
-        }
-        let out = self.ctx.get_logits_ith(self.batch.n_tokens() - 1);
-        self.logits.copy_from_slice(&out[..self.vocab.len()]);
+        // The last row only: `forward_each` asks llama.cpp for no other output.
+        let mut logits = std::mem::take(&mut self.logits);
+        let last = tokens.len().saturating_sub(1);
+        let done = self.forward_each(keep, tokens, last, &mut |_, row| {
+            logits.copy_from_slice(row)
+        });
+        self.logits = logits;
+        done?;
         Ok(&mut self.logits)
     }
 
@@ -371,7 +353,7 @@ impl Backend for LlamaCpp {
     ) -> Result<(), BackendError> {
         let _span = tracing::trace_span!("forward_each", n = tokens.len()).entered();
         if tokens.is_empty() {
-            return Err(eval("forward_each called with no tokens"));
+            return Err(eval("nothing to evaluate: no tokens given"));
         }
         self.make_room(keep, tokens.len(), tokens.iter())?;
         let n_vocab = self.vocab.len();
@@ -386,6 +368,7 @@ impl Backend for LlamaCpp {
                     .map_err(eval)?;
             }
             if let Err(e) = self.ctx.decode(&mut self.batch) {
+                // The cache may hold part of this chunk; drop it so `n_past` stays true.
                 let _ = self.ctx.kv_cache_seq_rm(0, Some(self.n_past as u32), None);
                 return Err(eval(e));
             }

@@ -162,7 +162,7 @@ pub trait Backend: Send {
         if tokens.is_empty() {
             return Err(BackendError::Eval {
                 backend: self.name(),
-                reason: "forward_each called with no tokens".into(),
+                reason: "nothing to evaluate: no tokens given".into(),
             });
         }
         let first = from.min(tokens.len() - 1);

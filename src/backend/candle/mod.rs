@@ -107,25 +107,14 @@ impl Backend for Candle {
 
     fn forward(&mut self, keep: usize, tokens: &[TokenId]) -> Result<&mut [f32], BackendError> {
         let _span = tracing::trace_span!("forward", n = tokens.len()).entered();
-        if tokens.is_empty() {
-            return Err(err("forward called with no tokens"));
-        }
-        let (held, limit, n_vocab) = (self.n_past, self.n_ctx, self.vocab.len());
-        let keep = super::admit(keep, held, tokens.len(), tokens.iter(), limit, n_vocab)?;
-        // Dropping the tail of the cache is just forgetting it: positions past `keep`
-        // are overwritten by the next append.
-        self.n_past = keep;
-        let mut last = None;
-        for chunk in tokens.chunks(512) {
-            let from = chunk.len() - 1;
-            last = Some(self.model.forward(chunk, self.n_past, from).map_err(err)?);
-            self.n_past += chunk.len();
-        }
-        let logits = last
-            .expect("tokens is not empty")
-            .to_vec1::<f32>()
-            .map_err(err)?;
-        self.logits.copy_from_slice(&logits[..self.vocab.len()]);
+        // The last row only: `forward_each` asks the model for no other.
+        let mut logits = std::mem::take(&mut self.logits);
+        let last = tokens.len().saturating_sub(1);
+        let done = self.forward_each(keep, tokens, last, &mut |_, row| {
+            logits.copy_from_slice(row)
+        });
+        self.logits = logits;
+        done?;
         Ok(&mut self.logits)
     }
 
@@ -138,10 +127,12 @@ impl Backend for Candle {
     ) -> Result<(), BackendError> {
         let _span = tracing::trace_span!("forward_each", n = tokens.len()).entered();
         if tokens.is_empty() {
-            return Err(err("forward_each called with no tokens"));
+            return Err(err("nothing to evaluate: no tokens given"));
         }
         let (held, limit, n_vocab) = (self.n_past, self.n_ctx, self.vocab.len());
         let keep = super::admit(keep, held, tokens.len(), tokens.iter(), limit, n_vocab)?;
+        // Dropping the tail of the cache is just forgetting it: positions past `keep`
+        // are overwritten by the next append.
         self.n_past = keep;
         for (c, chunk) in tokens.chunks(512).enumerate() {
             let offset = c * 512;
