@@ -30,6 +30,7 @@ mod estop;
 mod eval;
 mod fence_params;
 mod mcp;
+mod nav2;
 mod parsers;
 mod places;
 mod prompt_cache;

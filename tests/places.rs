@@ -196,7 +196,11 @@ fn call(exec: &Executor, name: &str, arguments: Value) -> Value {
 }
 
 /// `call`, with what the call reported of its progress while it ran, in order.
-fn call_reporting(exec: &Executor, name: &str, arguments: Value) -> (Value, Vec<String>) {
+pub(crate) fn call_reporting(
+    exec: &Executor,
+    name: &str,
+    arguments: Value,
+) -> (Value, Vec<String>) {
     let call = ToolCall {
         name: name.into(),
         arguments: arguments.clone(),
