@@ -475,7 +475,7 @@ fn places_are_taught_and_reached_with_the_real_model() {
     use ferrosa::ui::agent::{build_with, connect};
     if rerun_in_loopback_netns(
         "places::places_are_taught_and_reached_with_the_real_model",
-        400,
+        500,
     ) {
         return;
     }
@@ -539,12 +539,64 @@ fn places_are_taught_and_reached_with_the_real_model() {
         "{why}"
     );
 
-    // A route of two places in one request, driven in order.
-    let (r, why) = crate::util::ask_shown(&mut agent, "drive to the pond and then to the dock");
+    // A mission of three places in one request, driven in the order said.
+    let (r, why) = crate::util::ask_shown(
+        &mut agent,
+        "drive to home, then to the pond, then to the dock",
+    );
     let route = ok(&r, "place_go").unwrap_or_else(|| panic!("{why}"));
-    assert_eq!(route.output["reached"], json!(2), "{why}");
+    assert_eq!(
+        (route.output["reached"].clone(), route.output["of"].clone()),
+        (json!(3), json!(3)),
+        "{why}"
+    );
+    let legs: Vec<&str> = route.output["legs"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter_map(|l| l["place"].as_str())
+        .collect();
+    assert_eq!(legs, ["home", "pond", "dock"], "{why}");
     let (x, y, _) = xy(sim);
     assert!((x - 1.0).hypot(y - 1.0) < 0.1, "at ({x}, {y}): {why}");
+
+    // Another, stopped by the e-stop on its first leg: the run says where it stopped
+    // and that the rest was not driven, and the turtle stays there.
+    let estop = agent.estop();
+    let mission = std::thread::spawn(move || {
+        let (r, why) =
+            crate::util::ask_shown(&mut agent, "go to the pond, then home, then the dock");
+        (r, why, agent)
+    });
+    let start = Instant::now();
+    while (xy(sim).0 - 1.0).hypot(xy(sim).1 - 1.0) < 2.0 {
+        assert!(
+            start.elapsed() < Duration::from_secs(120),
+            "the mission never set off"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    estop.trigger("test");
+    let (r, why, mut agent) = mission.join().unwrap();
+    let stopped = r
+        .steps
+        .iter()
+        .find(|s| s.name == "place_go")
+        .unwrap_or_else(|| panic!("{why}"));
+    let summary = stopped.output["summary"].as_str().unwrap_or_default();
+    assert!(
+        summary.starts_with("route stopped on leg 1 of 3") && summary.contains("not driven"),
+        "{why}"
+    );
+    assert!(r.answer.contains("stopped"), "{why}");
+    let still = xy(sim);
+    std::thread::sleep(Duration::from_millis(500));
+    let later = xy(sim);
+    assert!(
+        (still.0 - later.0).hypot(still.1 - later.1) < 1e-3,
+        "{still:?} then {later:?}"
+    );
+    assert!(estop.reset());
 
     let (r, why) = crate::util::ask_shown(&mut agent, "drive over to the greenhouse");
     // The place is reported missing, with the known ones; no drive goes there. (What

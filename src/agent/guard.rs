@@ -5,6 +5,8 @@
 //! - `Grounded`: optional arguments nobody asked for (a filter, a number neither said,
 //!   returned nor the default) are dropped (`strategy::ground`); a tool that computes
 //!   from numbers the operator gives is not offered before one is said or returned.
+//! - `SaidOrder` (`said_order`): a route (a tool's `sequence`) is put in the order the
+//!   request names its places.
 //! - `Signed`: a motion's amount takes the sign the request's direction words name
 //!   (REP 103: backward and clockwise are negative).
 //! - `NoRepeat`: a call already made this run (whether it succeeded, was refused or
@@ -104,6 +106,7 @@ impl Guards {
                 grounding: Grounding::new(said.iter().copied()).with_numbers(),
                 numbers: !crate::lexicon::numbers(query).is_empty(),
             }),
+            Box::new(super::said_order::SaidOrder::new(query)),
             Box::new(NoRepeat::default()),
             Box::new(FollowError::default()),
         ];

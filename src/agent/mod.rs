@@ -18,6 +18,7 @@
 //!   what a run asks of it
 //! - `run`: one request as a state machine (think → guards → policy → act → observe)
 //! - `guard`: the guards between the model's turn and the policy, in order
+//! - `said_order`: the guard that holds a route to the order the request names it in
 //! - `config`: limits, budgets and modes
 //! - `outcome`: what a run returns (answer, finish, calls, timings)
 //! - `answer`: the `reply` pseudo-tool and the answer as the operator reads it
@@ -34,6 +35,7 @@ pub mod history;
 pub mod outcome;
 pub mod prompt;
 mod run;
+mod said_order;
 mod state;
 pub mod trace;
 

@@ -570,6 +570,7 @@ mod tests {
             parameters,
             alone: false,
             examples: Vec::new(),
+            sequence: Vec::new(),
         }
     }
 

@@ -124,6 +124,8 @@ pub trait Tool: Send + Sync + 'static {
     type Args: serde::de::DeserializeOwned + schemars::JsonSchema + Send;
     const NAME: &'static str;
     const EFFECT: Effect;
+    /// Arguments that list things in the order they are done (`ToolSpec::sequence`).
+    const SEQUENCE: &'static [&'static str] = &[];
     /// The contract the model reads: one or two sentences with ranges, side effects and
     /// time bounds.
     fn description(&self) -> String;

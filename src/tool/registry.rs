@@ -73,8 +73,9 @@ impl<T: Tool> DynTool for Typed<T> {
 
 /// Erase a typed tool; its schema comes from `T::Args`.
 pub(crate) fn erase<T: Tool>(tool: T) -> Arc<dyn DynTool> {
-    let spec = ToolSpec::new(T::NAME, tool.description(), schema::schema_for::<T::Args>())
+    let mut spec = ToolSpec::new(T::NAME, tool.description(), schema::schema_for::<T::Args>())
         .unwrap_or_else(|e| panic!("tool {} has an invalid schema: {e}", T::NAME));
+    spec.sequence = T::SEQUENCE.iter().map(|s| s.to_string()).collect();
     Arc::new(Typed { tool, spec })
 }
 

@@ -33,6 +33,12 @@ pub struct ToolSpec {
     /// theirs). Tool choice reads them; the prompt does not show them.
     #[serde(skip)]
     pub examples: Vec<String>,
+    /// Arguments that together name things in the order they are to be done, as the
+    /// operator says them (`place_go`'s `place`, then its `then` list): one string
+    /// argument after another, the last may be a list of strings. A call's order is
+    /// held to the request's (`agent::said_order`).
+    #[serde(skip)]
+    pub sequence: Vec<String>,
 }
 
 impl ToolSpec {
@@ -69,6 +75,7 @@ impl ToolSpec {
             description: description.into(),
             parameters,
             alone: false,
+            sequence: Vec::new(),
         })
     }
 

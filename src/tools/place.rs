@@ -341,6 +341,7 @@ impl Tool for PlaceGo {
     type Args = GoArgs;
     const NAME: &'static str = "place_go";
     const EFFECT: Effect = Effect::Actuates;
+    const SEQUENCE: &'static [&'static str] = &["place", "then"];
     fn description(&self) -> String {
         "Drive the robot to a named place, or through several in order, with its navigation (Nav2's navigate_to_pose); returns where it arrived or stopped. Moves the robot.".into()
     }
@@ -587,9 +588,11 @@ fn leg_summary(
                 .unwrap_or_default()
         ),
         GoalStatus::Canceled => format!(
-            "the drive to {name} was canceled{}",
+            "the drive to {name} was canceled{}{}",
+            at.map(|&(_, x, y, _)| format!(" at ({}, {})", round2(x), round2(y)))
+                .unwrap_or_default(),
             remaining
-                .map(|r| format!(" {r} m short of it"))
+                .map(|r| format!(", {r} m short of it"))
                 .unwrap_or_default()
         ),
         GoalStatus::Rejected => format!("the navigation refused to drive to {name}"),

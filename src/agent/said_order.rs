@@ -1,0 +1,201 @@
+//! Things done in the order the operator says them: a call that lists places (or any
+//! tool's `ToolSpec::sequence`) is put in the order its items come in the request, and
+//! an item the call repeats more often than the request names it is dropped.
+//!
+//! A small model copies the right names into a route but not always in the right order
+//! ("A, then B" written as B, A), and fills a list with a name it already wrote. The
+//! names are the operator's own words (the copy bias leans values towards spans of the
+//! request), so where each one stands in the request says where it goes, in any
+//! language. The rule holds only when every item is found in the request (as words,
+//! without case or accents): a call naming something the request does not (an alias
+//! the model chose, a translation) is left as it is. An order said with words against
+//! the order of the names ("the pond, but the dock first") is not read.
+//!
+//! Cost: per call of a tool with a sequence, its items looked up in the request's
+//! words; nothing for other tools.
+
+use serde_json::Value;
+
+use super::guard::{Guard, Verdict};
+use crate::lexicon::folded_words;
+use crate::tool::{ToolCall, ToolSpec};
+
+pub(crate) struct SaidOrder {
+    /// The request's words, folded.
+    said: Vec<String>,
+}
+
+impl SaidOrder {
+    pub fn new(query: &str) -> SaidOrder {
+        SaidOrder {
+            said: folded_words(query),
+        }
+    }
+
+    /// `items` in the request's order, with repeats it does not make dropped; `None`
+    /// when an item is not in the request.
+    fn ordered(&self, items: &[String]) -> Option<Vec<String>> {
+        let mut used = vec![false; self.said.len()];
+        let mut placed: Vec<(usize, &String)> = Vec::new();
+        for item in items {
+            let words = folded_words(item);
+            if words.is_empty() {
+                return None;
+            }
+            let starts: Vec<usize> = self
+                .said
+                .windows(words.len())
+                .enumerate()
+                .filter(|(_, w)| *w == words.as_slice())
+                .map(|(i, _)| i)
+                .collect();
+            if starts.is_empty() {
+                return None;
+            }
+            // The first mention not taken yet; none left: a repeat nobody said.
+            if let Some(&at) = starts.iter().find(|&&i| !used[i]) {
+                used[at] = true;
+                placed.push((at, item));
+            }
+        }
+        placed.sort_by_key(|(at, _)| *at);
+        Some(placed.into_iter().map(|(_, item)| item.clone()).collect())
+    }
+
+    /// Put `call`'s sequence in the request's order; whether it changed.
+    fn reorder(&self, call: &mut ToolCall, sequence: &[String]) -> bool {
+        let Some(args) = call.arguments.as_object_mut() else {
+            return false;
+        };
+        let mut items = Vec::new();
+        for (i, name) in sequence.iter().enumerate() {
+            match args.get(name) {
+                Some(Value::String(s)) => items.push(s.clone()),
+                Some(Value::Array(list)) if i + 1 == sequence.len() => {
+                    for v in list {
+                        let Value::String(s) = v else { return false };
+                        items.push(s.clone());
+                    }
+                }
+                None => {}
+                Some(_) => return false,
+            }
+        }
+        let Some(ordered) = self.ordered(&items) else {
+            return false;
+        };
+        if ordered == items {
+            return false;
+        }
+        let mut next = ordered.into_iter();
+        for (i, name) in sequence.iter().enumerate() {
+            match args.get(name) {
+                Some(Value::String(_)) => {
+                    // Every string argument had an item, and fewer items come back only
+                    // by dropping repeats: the first ones still have theirs.
+                    let Some(item) = next.next() else {
+                        return false;
+                    };
+                    args.insert(name.clone(), Value::String(item));
+                }
+                Some(Value::Array(_)) if i + 1 == sequence.len() => {
+                    let rest: Vec<Value> = next.by_ref().map(Value::String).collect();
+                    args.insert(name.clone(), Value::Array(rest));
+                }
+                _ => {}
+            }
+        }
+        true
+    }
+}
+
+impl Guard for SaidOrder {
+    fn name(&self) -> &'static str {
+        "said-order"
+    }
+
+    fn check(&mut self, calls: &mut [ToolCall], offered: &[ToolSpec]) -> Vec<Verdict> {
+        for c in calls.iter_mut() {
+            let Some(spec) = offered.iter().find(|s| s.name == c.name) else {
+                continue;
+            };
+            if spec.sequence.is_empty() {
+                continue;
+            }
+            let before = c.arguments.clone();
+            if self.reorder(c, &spec.sequence) {
+                tracing::debug!(tool = %c.name, %before, after = %c.arguments, "put in the order said");
+            }
+        }
+        vec![Verdict::Pass; calls.len()]
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use serde_json::json;
+
+    fn settled(query: &str, args: Value) -> Value {
+        let mut spec = ToolSpec::new(
+            "visit",
+            "Visit rooms in order.",
+            json!({"type": "object", "properties": {
+                "room": {"type": "string"},
+                "then": {"type": "array", "items": {"type": "string"}},
+                "slowly": {"type": "boolean"}}}),
+        )
+        .unwrap();
+        spec.sequence = vec!["room".into(), "then".into()];
+        let mut calls = [ToolCall {
+            name: "visit".into(),
+            arguments: args,
+        }];
+        SaidOrder::new(query).check(&mut calls, &[spec]);
+        calls[0].arguments.clone()
+    }
+
+    #[test]
+    fn a_sequence_follows_the_order_the_request_names_it_in() {
+        assert_eq!(
+            settled(
+                "check the boiler room, after that the Küche",
+                json!({"room": "kuche", "then": ["boiler room"], "slowly": true})
+            ),
+            json!({"room": "boiler room", "then": ["kuche"], "slowly": true})
+        );
+        // Already in order: untouched.
+        let kept = json!({"room": "attic", "then": ["cellar", "garage"]});
+        assert_eq!(
+            settled("attic first, cellar next, garage last", kept.clone()),
+            kept
+        );
+    }
+
+    #[test]
+    fn repeats_the_request_does_not_make_are_dropped_and_those_it_makes_kept() {
+        assert_eq!(
+            settled(
+                "stop by the lab and the garage",
+                json!({"room": "garage", "then": ["lab", "garage"]})
+            ),
+            json!({"room": "lab", "then": ["garage"]})
+        );
+        let twice = json!({"room": "lab", "then": ["garage", "lab"]});
+        assert_eq!(
+            settled("lab, garage, then the lab again", twice.clone()),
+            twice
+        );
+    }
+
+    #[test]
+    fn a_call_naming_what_the_request_does_not_is_left_alone() {
+        let other = json!({"room": "garage", "then": ["workshop"]});
+        assert_eq!(
+            settled("the shop and then the garage", other.clone()),
+            other
+        );
+        let lone = json!({"room": "garage"});
+        assert_eq!(settled("the garage please", lone.clone()), lone);
+    }
+}
