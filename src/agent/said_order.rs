@@ -34,32 +34,38 @@ impl SaidOrder {
 
     /// `items` in the request's order, with repeats it does not make dropped; `None`
     /// when an item is not in the request.
+    ///
+    /// Each item takes a mention of its own, whole: longer names first, so "dock" is not
+    /// read inside "north dock" when both are named.
     fn ordered(&self, items: &[String]) -> Option<Vec<String>> {
+        let words: Vec<Vec<String>> = items.iter().map(|i| folded_words(i)).collect();
+        if words.iter().any(|w| w.is_empty()) {
+            return None;
+        }
+        let mut by_length: Vec<usize> = (0..items.len()).collect();
+        by_length.sort_by_key(|&i| std::cmp::Reverse(words[i].len()));
         let mut used = vec![false; self.said.len()];
-        let mut placed: Vec<(usize, &String)> = Vec::new();
-        for item in items {
-            let words = folded_words(item);
-            if words.is_empty() {
-                return None;
-            }
+        let mut placed: Vec<(usize, usize)> = Vec::new();
+        for i in by_length {
+            let n = words[i].len();
             let starts: Vec<usize> = self
                 .said
-                .windows(words.len())
+                .windows(n)
                 .enumerate()
-                .filter(|(_, w)| *w == words.as_slice())
-                .map(|(i, _)| i)
+                .filter(|(_, w)| *w == words[i].as_slice())
+                .map(|(at, _)| at)
                 .collect();
             if starts.is_empty() {
                 return None;
             }
             // The first mention not taken yet; none left: a repeat nobody said.
-            if let Some(&at) = starts.iter().find(|&&i| !used[i]) {
-                used[at] = true;
-                placed.push((at, item));
+            if let Some(&at) = starts.iter().find(|&&at| !used[at..at + n].contains(&true)) {
+                used[at..at + n].iter_mut().for_each(|u| *u = true);
+                placed.push((at, i));
             }
         }
-        placed.sort_by_key(|(at, _)| *at);
-        Some(placed.into_iter().map(|(_, item)| item.clone()).collect())
+        placed.sort_by_key(|&(at, i)| (at, i));
+        Some(placed.into_iter().map(|(_, i)| items[i].clone()).collect())
     }
 
     /// Put `call`'s sequence in the request's order; whether it changed.
@@ -87,23 +93,28 @@ impl SaidOrder {
         if ordered == items {
             return false;
         }
+        // The new values first, written only when every argument has one.
         let mut next = ordered.into_iter();
+        let mut new = Vec::new();
         for (i, name) in sequence.iter().enumerate() {
             match args.get(name) {
                 Some(Value::String(_)) => {
-                    // Every string argument had an item, and fewer items come back only
-                    // by dropping repeats: the first ones still have theirs.
+                    // Fewer items come back only by dropping repeats; a string argument
+                    // left without one leaves the call as it was.
                     let Some(item) = next.next() else {
                         return false;
                     };
-                    args.insert(name.clone(), Value::String(item));
+                    new.push((name.clone(), Value::String(item)));
                 }
                 Some(Value::Array(_)) if i + 1 == sequence.len() => {
                     let rest: Vec<Value> = next.by_ref().map(Value::String).collect();
-                    args.insert(name.clone(), Value::Array(rest));
+                    new.push((name.clone(), Value::Array(rest)));
                 }
                 _ => {}
             }
+        }
+        for (name, value) in new {
+            args.insert(name, value);
         }
         true
     }
@@ -112,6 +123,11 @@ impl SaidOrder {
 impl Guard for SaidOrder {
     fn name(&self) -> &'static str {
         "said-order"
+    }
+
+    /// A request of several parts (`plan`): each part's route is held to its own words.
+    fn next_part(&mut self, part: &str) {
+        self.said = folded_words(part);
     }
 
     fn check(&mut self, calls: &mut [ToolCall], offered: &[ToolSpec]) -> Vec<Verdict> {
@@ -185,6 +201,46 @@ mod tests {
         assert_eq!(
             settled("lab, garage, then the lab again", twice.clone()),
             twice
+        );
+    }
+
+    #[test]
+    fn a_name_inside_a_longer_one_takes_a_mention_of_its_own() {
+        let right = json!({"room": "north hall", "then": ["lab", "hall"]});
+        assert_eq!(
+            settled("the north hall, then the lab, then the hall", right.clone()),
+            right
+        );
+        assert_eq!(
+            settled(
+                "the boiler room first, then the boiler",
+                json!({"room": "boiler", "then": ["boiler room"]})
+            ),
+            json!({"room": "boiler room", "then": ["boiler"]})
+        );
+    }
+
+    #[test]
+    fn each_part_of_a_request_is_held_to_its_own_words() {
+        let mut spec = ToolSpec::new(
+            "visit",
+            "Visit rooms in order.",
+            json!({"type": "object", "properties": {
+                "room": {"type": "string"},
+                "then": {"type": "array", "items": {"type": "string"}}}}),
+        )
+        .unwrap();
+        spec.sequence = vec!["room".into(), "then".into()];
+        let mut guard = SaidOrder::new("Go to the lab. Then the garage and back to the lab.");
+        guard.next_part("Then the garage and back to the lab.");
+        let mut calls = [ToolCall {
+            name: "visit".into(),
+            arguments: json!({"room": "garage", "then": ["lab"]}),
+        }];
+        guard.check(&mut calls, &[spec]);
+        assert_eq!(
+            calls[0].arguments,
+            json!({"room": "garage", "then": ["lab"]})
         );
     }
 

@@ -1,11 +1,9 @@
 //! Running calls: the one path every call takes after the policy, whoever asked for it
 //! (the agent's model, `ferrosa call`, a front end). Allowed calls run concurrently,
-//! each under the policy's time limit. When the e-stop is engaged or the run is
-//! cancelled, the robot is held at once by the ROS boundary (`ros::boundary`: its goals
-//! cancelled, its motion zeroed, every publish, goal and state-changing call refused),
-//! and the calls still running get `STOP_GRACE` to end by themselves (a drive says where
-//! it stopped) before they are aborted (a call's future is dropped where it stands).
-//! Every output, result or error, is redacted by the fence
+//! each under the policy's time limit; all of them are aborted the moment the e-stop is
+//! engaged or the run is cancelled (a call's future is dropped where it stands, so a
+//! motion loop stops sending); an aborted call's error says what it last reported (a
+//! drive: the leg, where it was and how far it had to go). Every output, result or error, is redacted by the fence
 //! before anyone sees it, and a result the ROS boundary clamped is marked as such.
 
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -15,11 +13,6 @@ use std::time::{Duration, Instant};
 use serde_json::{json, Value};
 
 use super::{Decision, Effect, Policy, Progress, Registry, ToolCall, ToolContext, ToolError};
-
-/// How long running calls have to end by themselves after the e-stop or a cancel, before
-/// they are aborted: long enough for a navigation goal's cancel to come back as its
-/// result (a few hundred milliseconds on the sim), short enough not to hold the answer.
-const STOP_GRACE: Duration = Duration::from_secs(1);
 
 /// What came of one call.
 #[derive(Debug, Clone)]
@@ -112,6 +105,8 @@ impl Executor {
             .map(|(h, _)| h.abort_handle())
             .collect();
         let estop = self.policy.estop().clone();
+        // Each call's latest report in words, for the error of a call aborted mid-way.
+        let mut last: Vec<Option<String>> = vec![None; calls.len()];
         let results = self.runtime.block_on(async {
             let mut all = std::pin::pin!(futures::future::join_all(handles));
             let mut stop = std::pin::pin!(async {
@@ -124,25 +119,18 @@ impl Executor {
                 tokio::select! {
                     r = &mut all => break (r, None),
                     why = &mut stop => {
+                        aborts.iter().for_each(|a| a.abort());
                         // A cancel without the e-stop still leaves the robot stopped.
                         if !estop.is_engaged() {
                             estop.halt("the operator cancelled the run");
                         }
-                        // The robot is already held (the guarded graph cancels its goals
-                        // and refuses motion while the e-stop is engaged). A call that
-                        // ends by itself within the grace says how far it got (a route:
-                        // where it stopped); the rest are aborted.
-                        let grace = tokio::time::sleep(STOP_GRACE);
-                        tokio::select! {
-                            r = &mut all => break (r, Some(why)),
-                            _ = grace => {
-                                aborts.iter().for_each(|a| a.abort());
-                                break ((&mut all).await, Some(why));
-                            }
-                        }
+                        break ((&mut all).await, Some(why));
                     }
                     Some((index, mut report)) = reports.recv() => {
                         self.policy.redact(&mut report);
+                        if let (Some(said), Some(l)) = (report.as_str(), last.get_mut(index)) {
+                            *l = Some(said.to_string());
+                        }
                         on_progress(index, report);
                     }
                 }
@@ -150,13 +138,20 @@ impl Executor {
             // What was said just before the calls ended still comes before their results.
             while let Ok((index, mut report)) = reports.try_recv() {
                 self.policy.redact(&mut report);
+                if let (Some(said), Some(l)) = (report.as_str(), last.get_mut(index)) {
+                    *l = Some(said.to_string());
+                }
                 on_progress(index, report);
             }
             joined
                 .into_iter()
-                .map(|j| {
-                    j.map_err(|e| match why {
-                        Some(why) if e.is_cancelled() => why.to_string(),
+                .zip(&last)
+                .map(|(j, said)| {
+                    j.map_err(|e| match (why, said) {
+                        (Some(why), Some(said)) if e.is_cancelled() => {
+                            format!("{why}; it had last reported: {said}")
+                        }
+                        (Some(why), None) if e.is_cancelled() => why.to_string(),
                         _ => e.to_string(),
                     })
                 })

@@ -516,8 +516,15 @@ impl Places {
         progress.report(format!("{lead}to {name}"));
         let say = |f: &Value| {
             let left = f["distance_remaining"].as_f64()?;
+            let at = pose_of(
+                &json!({"header": f["current_pose"]["header"], "pose": f["current_pose"]["pose"]}),
+                "geometry_msgs/msg/PoseStamped",
+                &place.frame,
+            )
+            .map(|(_, x, y, _)| format!(" (at {}, {})", round2(x), round2(y)))
+            .unwrap_or_default();
             Some(json!(format!(
-                "{lead}to {name}: {:.1} m to go",
+                "{lead}to {name}{at}: {:.1} m to go",
                 left.max(0.0)
             )))
         };
