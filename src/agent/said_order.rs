@@ -152,7 +152,8 @@ mod tests {
     use super::*;
     use serde_json::json;
 
-    fn settled(query: &str, args: Value) -> Value {
+    /// A tool that visits rooms in order: `room`, then `then`.
+    fn spec() -> ToolSpec {
         let mut spec = ToolSpec::new(
             "visit",
             "Visit rooms in order.",
@@ -163,12 +164,21 @@ mod tests {
         )
         .unwrap();
         spec.sequence = vec!["room".into(), "then".into()];
+        spec
+    }
+
+    /// `args` for the visit tool as `guard` settles them.
+    fn settled_by(guard: &mut SaidOrder, args: Value) -> Value {
         let mut calls = [ToolCall {
             name: "visit".into(),
             arguments: args,
         }];
-        SaidOrder::new(query).check(&mut calls, &[spec]);
+        guard.check(&mut calls, &[spec()]);
         calls[0].arguments.clone()
+    }
+
+    fn settled(query: &str, args: Value) -> Value {
+        settled_by(&mut SaidOrder::new(query), args)
     }
 
     #[test]
@@ -222,26 +232,10 @@ mod tests {
 
     #[test]
     fn each_part_of_a_request_is_held_to_its_own_words() {
-        let mut spec = ToolSpec::new(
-            "visit",
-            "Visit rooms in order.",
-            json!({"type": "object", "properties": {
-                "room": {"type": "string"},
-                "then": {"type": "array", "items": {"type": "string"}}}}),
-        )
-        .unwrap();
-        spec.sequence = vec!["room".into(), "then".into()];
         let mut guard = SaidOrder::new("Go to the lab. Then the garage and back to the lab.");
         guard.next_part("Then the garage and back to the lab.");
-        let mut calls = [ToolCall {
-            name: "visit".into(),
-            arguments: json!({"room": "garage", "then": ["lab"]}),
-        }];
-        guard.check(&mut calls, &[spec]);
-        assert_eq!(
-            calls[0].arguments,
-            json!({"room": "garage", "then": ["lab"]})
-        );
+        let args = json!({"room": "garage", "then": ["lab"]});
+        assert_eq!(settled_by(&mut guard, args.clone()), args);
     }
 
     #[test]

@@ -74,6 +74,23 @@ pub enum BackendError {
 /// What every runtime checks before evaluating `more` new tokens (`tokens`) after the
 /// first `keep` of the `held` it caches: that they fit its `limit`-token context and its
 /// `n_vocab`-token vocabulary. Returns `keep` as the cache can hold it.
+/// `Backend::forward` through `forward_each`: only the last row's logits, copied into
+/// the backend's own buffer (`slot`, taken out while the batch runs).
+pub(crate) fn forward_last<B: Backend>(
+    backend: &mut B,
+    slot: fn(&mut B) -> &mut Vec<f32>,
+    keep: usize,
+    tokens: &[TokenId],
+) -> Result<(), BackendError> {
+    let mut logits = std::mem::take(slot(backend));
+    let last = tokens.len().saturating_sub(1);
+    let done = backend.forward_each(keep, tokens, last, &mut |_, row| {
+        logits.copy_from_slice(row)
+    });
+    *slot(backend) = logits;
+    done
+}
+
 pub(crate) fn admit<'t>(
     keep: usize,
     held: usize,

@@ -108,6 +108,14 @@ impl Executor {
         // Each call's latest report in words, for the error of a call aborted mid-way.
         let mut last: Vec<Option<String>> = vec![None; calls.len()];
         let results = self.runtime.block_on(async {
+            // A report goes out redacted, and is kept as the call's latest in words.
+            let mut pass_on = |index: usize, mut report: Value| {
+                self.policy.redact(&mut report);
+                if let (Some(said), Some(l)) = (report.as_str(), last.get_mut(index)) {
+                    *l = Some(said.to_string());
+                }
+                on_progress(index, report);
+            };
             let mut all = std::pin::pin!(futures::future::join_all(handles));
             let mut stop = std::pin::pin!(async {
                 tokio::select! {
@@ -126,22 +134,12 @@ impl Executor {
                         }
                         break ((&mut all).await, Some(why));
                     }
-                    Some((index, mut report)) = reports.recv() => {
-                        self.policy.redact(&mut report);
-                        if let (Some(said), Some(l)) = (report.as_str(), last.get_mut(index)) {
-                            *l = Some(said.to_string());
-                        }
-                        on_progress(index, report);
-                    }
+                    Some((index, report)) = reports.recv() => pass_on(index, report),
                 }
             };
             // What was said just before the calls ended still comes before their results.
-            while let Ok((index, mut report)) = reports.try_recv() {
-                self.policy.redact(&mut report);
-                if let (Some(said), Some(l)) = (report.as_str(), last.get_mut(index)) {
-                    *l = Some(said.to_string());
-                }
-                on_progress(index, report);
+            while let Ok((index, report)) = reports.try_recv() {
+                pass_on(index, report);
             }
             joined
                 .into_iter()

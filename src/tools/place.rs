@@ -271,6 +271,15 @@ impl Places {
     }
 }
 
+/// Where a NavigateToPose feedback says the robot is (its `current_pose`).
+fn feedback_pose(feedback: &Value, frame: &str) -> Option<(String, f64, f64, f64)> {
+    pose_of(
+        &feedback["current_pose"],
+        "geometry_msgs/msg/PoseStamped",
+        frame,
+    )
+}
+
 /// Frame, x, y and yaw from a message of `ty` (one of `POSE_TYPES`); `frame` when the
 /// message names none.
 fn pose_of(m: &Value, ty: &str, frame: &str) -> Option<(String, f64, f64, f64)> {
@@ -516,13 +525,9 @@ impl Places {
         progress.report(format!("{lead}to {name}"));
         let say = |f: &Value| {
             let left = f["distance_remaining"].as_f64()?;
-            let at = pose_of(
-                &json!({"header": f["current_pose"]["header"], "pose": f["current_pose"]["pose"]}),
-                "geometry_msgs/msg/PoseStamped",
-                &place.frame,
-            )
-            .map(|(_, x, y, _)| format!(" (at {}, {})", round2(x), round2(y)))
-            .unwrap_or_default();
+            let at = feedback_pose(f, &place.frame)
+                .map(|(_, x, y, _)| format!(" (at {}, {})", round2(x), round2(y)))
+                .unwrap_or_default();
             Some(json!(format!(
                 "{lead}to {name}{at}: {:.1} m to go",
                 left.max(0.0)
@@ -546,13 +551,7 @@ impl Places {
             .as_ref()
             .and_then(|f| f["distance_remaining"].as_f64())
             .map(round3);
-        let at = last.as_ref().and_then(|f| {
-            pose_of(
-                &json!({"header": f["current_pose"]["header"], "pose": f["current_pose"]["pose"]}),
-                "geometry_msgs/msg/PoseStamped",
-                &place.frame,
-            )
-        });
+        let at = last.as_ref().and_then(|f| feedback_pose(f, &place.frame));
         let summary = leg_summary(name, &outcome, at.as_ref(), remaining, wait);
         let mut out = json!({
             "summary": summary,

@@ -107,14 +107,7 @@ impl Backend for Candle {
 
     fn forward(&mut self, keep: usize, tokens: &[TokenId]) -> Result<&mut [f32], BackendError> {
         let _span = tracing::trace_span!("forward", n = tokens.len()).entered();
-        // The last row only: `forward_each` asks the model for no other.
-        let mut logits = std::mem::take(&mut self.logits);
-        let last = tokens.len().saturating_sub(1);
-        let done = self.forward_each(keep, tokens, last, &mut |_, row| {
-            logits.copy_from_slice(row)
-        });
-        self.logits = logits;
-        done?;
+        super::forward_last(self, |b| &mut b.logits, keep, tokens)?;
         Ok(&mut self.logits)
     }
 
