@@ -90,6 +90,10 @@ pub(crate) trait Guard {
     /// The run moved on to the next part of the request (`plan`): what held for the
     /// last part's steps no longer does.
     fn next_part(&mut self, _part: &str) {}
+
+    /// The robot's names the current part asks to act on by meaning
+    /// (`reading::meant`), read again for each part.
+    fn by_meaning(&mut self, _meant: &[String]) {}
 }
 
 /// The guards of a run, in order.
@@ -117,6 +121,8 @@ impl Guards {
                 intent: Intent::new(query),
                 asked,
                 called: false,
+                meant: Vec::new(),
+                part: None,
             }));
             guards.push(Box::new(ActFirst::new(query, actuators)));
         }
@@ -180,6 +186,12 @@ impl Guards {
     pub(crate) fn next_part(&mut self, part: &str) {
         for g in &mut self.guards {
             g.next_part(part);
+        }
+    }
+
+    pub(crate) fn by_meaning(&mut self, meant: &[String]) {
+        for g in &mut self.guards {
+            g.by_meaning(meant);
         }
     }
 }
@@ -524,6 +536,12 @@ struct AskedFor {
     /// asked for on the part's first step only (a request to drive two metres ahead
     /// drove, then tried a place called "ahead").
     called: bool,
+    /// The names the current part asks to act on by meaning (`reading::meant`).
+    meant: Vec<String>,
+    /// The current part, read on its own, of a request of several: a call is asked for
+    /// by its words too ("shut the gripper, then say how wide it is open" asks to
+    /// open nothing, though "gripper" and "open" are both said).
+    part: Option<Intent>,
 }
 
 impl AskedFor {
@@ -538,10 +556,105 @@ impl AskedFor {
         if (self.called || later) && !known.is_empty() && !targets_known(call, known) {
             return false;
         }
-        self.intent
-            .asks_for_known(call, spec, &self.asked.observing, known)
+        self.meant_for(call, spec) || self.by_words(call, spec)
+    }
+
+    /// Whether the request's words ask for `call` (`intent`), the current part's too.
+    fn by_words(&self, call: &ToolCall, spec: &ToolSpec) -> bool {
+        let known = self.known(&call.name);
+        let asks =
+            |intent: &Intent| intent.asks_for_known(call, spec, &self.asked.observing, known);
+        asks(&self.intent)
+            && self.part.as_ref().is_none_or(asks)
+            && !self.meant_otherwise(call, spec)
+    }
+
+    /// Whether the part, by meaning, asks to act on other names than `call`'s, and its
+    /// words do not write `call`'s target whole: "close the gripper" shares a word with
+    /// `/gripper/open`, which is no reason to open it.
+    fn meant_otherwise(&self, call: &ToolCall, spec: &ToolSpec) -> bool {
+        !self.meant.is_empty()
+            && is_generic(spec)
+            && MEANT_KEYS
+                .iter()
+                .filter_map(|k| call.arguments.get(*k).and_then(Value::as_str))
+                .any(|t| !self.meant.iter().any(|m| same_name(m, t)) && !self.intent.says_name(t))
+    }
+
+    /// Whether `call` of the generic actuator `spec` acts only on names the part asks
+    /// to act on by meaning (a setting is still changed only when asked, as `intent`
+    /// holds it).
+    fn meant_for(&self, call: &ToolCall, spec: &ToolSpec) -> bool {
+        if self.meant.is_empty()
+            || !is_generic(spec)
+            || !self.intent.may_ask_for(spec, &self.asked.observing)
+        {
+            return false;
+        }
+        let targets: Vec<&str> = MEANT_KEYS
+            .iter()
+            .filter_map(|k| call.arguments.get(*k).and_then(Value::as_str))
+            .collect();
+        !targets.is_empty()
+            && targets
+                .iter()
+                .all(|t| self.meant.iter().any(|m| same_name(m, t)))
+            && call
+                .arguments
+                .as_object()
+                .into_iter()
+                .flatten()
+                .filter(|(k, _)| !MEANT_KEYS.contains(&k.as_str()))
+                .all(|(_, v)| self.said_values(v))
+    }
+
+    /// Whether every value in `v` is one the request says, or none at all: a number it
+    /// writes (or zero), a text whose words it says side by side, a yes or no. Meaning
+    /// points at a name, not at values: "take the turtle up to the stars" is near a teleport,
+    /// and the numbers of one were the model's own.
+    fn said_values(&self, v: &Value) -> bool {
+        match v {
+            Value::Number(n) => n
+                .as_f64()
+                .is_some_and(|n| n == 0.0 || self.intent.says_number(n)),
+            Value::String(s) => s.trim().is_empty() || self.intent.says_name(s),
+            Value::Array(items) => items.iter().all(|i| self.said_values(i)),
+            Value::Object(fields) => fields.values().all(|f| self.said_values(f)),
+            Value::Bool(_) | Value::Null => true,
+        }
     }
 }
+
+/// The branch of a choice of objects (`Tool::live_parameters`) whose `key` is `target`.
+fn branch_of<'a>(schema: &'a Value, key: &str, target: &str) -> Option<&'a Value> {
+    schema
+        .get("anyOf")?
+        .as_array()?
+        .iter()
+        .find(|b| b["properties"][key]["const"].as_str() == Some(target))
+}
+
+/// Whether a schema takes a number anywhere within it.
+fn takes_number(schema: &Value) -> bool {
+    match schema {
+        Value::Object(o) => {
+            matches!(
+                o.get("type").and_then(Value::as_str),
+                Some("number" | "integer")
+            ) || o.values().any(takes_number)
+        }
+        Value::Array(items) => items.iter().any(takes_number),
+        _ => false,
+    }
+}
+
+/// Whether two ROS names are one, written with or without the leading slash.
+fn same_name(a: &str, b: &str) -> bool {
+    a.trim_start_matches('/') == b.trim_start_matches('/')
+}
+
+/// The arguments that name what a generic actuator acts on, as `reading::meant` reads it.
+const MEANT_KEYS: &[&str] = &["service", "topic", "action"];
 
 impl Guard for AskedFor {
     fn name(&self) -> &'static str {
@@ -582,14 +695,26 @@ impl Guard for AskedFor {
         targets.into_iter().any(|(key, target)| {
             let call = ToolCall {
                 name: bound.name.clone(),
-                arguments: serde_json::json!({ key: target }),
+                arguments: serde_json::json!({ key.clone(): target.clone() }),
             };
-            self.asks(&call, declared, false)
+            // Asked for by meaning alone, a target whose payload takes numbers is
+            // written only when the request gives some: else each would be the model's.
+            let invents = || {
+                !self.intent.says_numbers()
+                    && branch_of(&bound.parameters, &key, &target).is_some_and(takes_number)
+                    && !self.by_words(&call, declared)
+            };
+            self.asks(&call, declared, false) && !invents()
         })
     }
 
-    fn next_part(&mut self, _: &str) {
+    fn next_part(&mut self, part: &str) {
         self.called = false;
+        self.part = Some(Intent::new(part));
+    }
+
+    fn by_meaning(&mut self, meant: &[String]) {
+        self.meant = meant.to_vec();
     }
 
     fn check(&mut self, calls: &mut [ToolCall], offered: &[ToolSpec]) -> Vec<Verdict> {
@@ -625,7 +750,7 @@ impl AskedFor {
 /// The names the target arguments (`intent::TARGET_KEYS`) of `schema` (an object, or a
 /// choice of objects) may take, each with its key; `None` when one of them may be any
 /// string, or when there is none.
-fn bound_targets(schema: &Value) -> Option<Vec<(String, String)>> {
+pub(super) fn bound_targets(schema: &Value) -> Option<Vec<(String, String)>> {
     let objects: Vec<&Value> = match schema.get("anyOf").and_then(Value::as_array) {
         Some(branches) => branches.iter().collect(),
         None => vec![schema],
@@ -1010,5 +1135,84 @@ mod tests {
             ..declared.clone()
         };
         assert!(keeps("upload the map to a server", &open));
+        // By meaning alone, a target whose request takes numbers needs numbers said.
+        let typed = ToolSpec {
+            parameters: json!({"anyOf": [
+                {"type": "object", "properties": {"service": {"const": "/hatch/tilt"},
+                 "request": {"type": "object", "properties": {"angle": {"type": "number"}}}}},
+                {"type": "object", "properties": {"service": {"const": "/hatch/shut"},
+                 "request": {"type": "object", "properties": {}}}}]}),
+            ..declared.clone()
+        };
+        let keeps_meant = |q: &str, meant: &str| {
+            let mut g = Guards::standard(q, &[q], Some(asked(&["ros_service_call"])));
+            g.by_meaning(&[meant.to_string()]);
+            g.keeps(&declared, &typed)
+        };
+        assert!(keeps_meant("ferme la trappe", "/hatch/shut"));
+        assert!(!keeps_meant("penche la trappe", "/hatch/tilt"));
+        assert!(keeps_meant("penche la trappe de 20", "/hatch/tilt"));
+    }
+
+    #[test]
+    fn a_target_meant_by_meaning_is_asked_for_and_its_neighbours_are_not() {
+        let declared = ToolSpec::new(
+            "ros_service_call",
+            "",
+            json!({"type": "object", "properties": {"service": {"type": "string"}}, "required": ["service"]}),
+        )
+        .unwrap();
+        let call = |service: &str| ToolCall {
+            name: "ros_service_call".into(),
+            arguments: json!({ "service": service }),
+        };
+        let judged = |q: &str, meant: &[&str], service: &str| {
+            let mut g = Guards::standard(q, &[q], Some(asked(&["ros_service_call"])));
+            let meant: Vec<String> = meant.iter().map(|m| m.to_string()).collect();
+            g.by_meaning(&meant);
+            let mut calls = [call(service)];
+            g.check(&mut calls, std::slice::from_ref(&declared))
+                .into_iter()
+                .all(|v| v == Verdict::Pass)
+        };
+        // Words the lexicon does not read: asked for only when meaning points there.
+        assert!(!judged("ferme la trappe", &[], "/hatch/shut"));
+        assert!(judged("ferme la trappe", &["/hatch/shut"], "hatch/shut"));
+        assert!(!judged("ferme la trappe", &["/hatch/shut"], "/hatch/open"));
+        // Meaning points at a name, not at values: those the request does not say are
+        // the model's own.
+        let with = |q: &str, request: Value| {
+            let mut g = Guards::standard(q, &[q], Some(asked(&["ros_service_call"])));
+            g.by_meaning(&["/hatch/shut".to_string()]);
+            let mut calls = [ToolCall {
+                name: "ros_service_call".into(),
+                arguments: json!({"service": "/hatch/shut", "request": request}),
+            }];
+            g.check(&mut calls, std::slice::from_ref(&declared))
+                .into_iter()
+                .all(|v| v == Verdict::Pass)
+        };
+        assert!(with(
+            "ferme la trappe à 40",
+            json!({"angle": 40, "slow": true, "z": 0})
+        ));
+        assert!(with("ferme la trappe, mode doux", json!({"mode": "doux"})));
+        assert!(!with("ferme la trappe", json!({"angle": 1.0})));
+        assert!(!with("ferme la trappe", json!({"mode": "fast"})));
+        // A word shared with the meant one's neighbour is no reason to call it; its name
+        // written whole still is.
+        assert!(judged("shut the hatch", &[], "/hatch/open"));
+        assert!(!judged("shut the hatch", &["/hatch/shut"], "/hatch/open"));
+        assert!(judged(
+            "shut the hatch and hatch open",
+            &["/hatch/shut"],
+            "/hatch/open"
+        ));
+        // In a request of several parts, the part asks too.
+        let q = "shut the hatch, then say how wide it stands open";
+        let mut g = Guards::standard(q, &[q], Some(asked(&["ros_service_call"])));
+        g.next_part("say how wide it stands open");
+        let verdicts = g.check(&mut [call("/hatch/open")], std::slice::from_ref(&declared));
+        assert!(matches!(verdicts[..], [Verdict::Refuse(_)]), "{verdicts:?}");
     }
 }

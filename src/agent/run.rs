@@ -154,6 +154,7 @@ impl Run<'_> {
                 "Stopped. Motion stays refused until the operator resets the e-stop.".into();
             return Ok(self.end(Finish::Answer));
         }
+        self.read_meant();
         if self.parts.len() > 1 {
             self.guards.next_part(&self.parts[0]);
             if let Some(t) = &mut self.agent.trace {
@@ -199,11 +200,53 @@ impl Run<'_> {
         Ok(self.end(finish))
     }
 
+    /// The robot's names the current part asks to act on by meaning, told to the guards
+    /// (`reading::meant`; none without the sentence encoder).
+    fn read_meant(&mut self) {
+        let Some(meaning) = self.agent.meaning.clone() else {
+            return;
+        };
+        let part = &self.parts[self.part];
+        let names = self.agent.robot_names();
+        // The tool the part is nearest by meaning, when it is a generic actuator.
+        let sims = meaning.similarities(part, &self.offered, &names);
+        let nearest = self
+            .offered
+            .iter()
+            .zip(sims)
+            .max_by(|a, b| a.1.total_cmp(&b.1))
+            .filter(|(s, _)| {
+                self.agent.asked.actuators.contains(&s.name)
+                    && crate::reading::intent::is_generic(s)
+            });
+        let nearest_tool = nearest.map(|(s, _)| s.name.as_str());
+        let nearest = nearest.map(|(s, similarity)| crate::reading::meant::Nearest {
+            similarity,
+            kinds: crate::reading::select::name_kinds(s).collect(),
+        });
+        // Only the names that tool can take now (a publish: the topics some node
+        // subscribes to), where its live schema lists them.
+        let takes = nearest_tool
+            .and_then(|t| self.agent.exec.registry().get(t)?.live_spec())
+            .and_then(|s| super::guard::bound_targets(&s.parameters));
+        let names: Vec<(String, String)> = match takes {
+            Some(takes) => names
+                .into_iter()
+                .filter(|(_, n)| takes.iter().any(|(_, t)| t == n))
+                .collect(),
+            None => names,
+        };
+        let near = |n: &str| meaning.name_similarity(part, n);
+        let meant = crate::reading::meant::meant(part, &names, &near, nearest);
+        self.guards.by_meaning(&meant);
+    }
+
     /// On to the next part of the request: the operator's next turn, as the model reads it.
     fn next_part(&mut self) {
         self.part += 1;
         let part = self.parts[self.part].clone();
         self.guards.next_part(&part);
+        self.read_meant();
         self.answer_only = false;
         let done = std::mem::take(&mut self.grounds);
         self.earlier_grounds.extend(done);
@@ -812,10 +855,20 @@ impl Run<'_> {
         // (`Tool::live_parameters`), name arguments held to the names that exist
         // (`bound`).
         let part = self.parts[self.part].clone();
+        // A later part is read with the one before it too, for what it refers back to
+        // ("tare the wrist sensor and show it once more": "it" is the sensor's topic); the
+        // nearer of the two readings counts.
+        let with_before =
+            (self.part > 0).then(|| format!("{} {}", self.parts[self.part - 1], part));
         let meaning = self.agent.meaning.clone();
-        let near = meaning
-            .as_ref()
-            .map(|m| move |name: &str| m.name_similarity(&part, name));
+        let near = meaning.as_ref().map(|m| {
+            move |name: &str| {
+                let own = m.name_similarity(&part, name);
+                with_before
+                    .as_deref()
+                    .map_or(own, |w| own.max(m.name_similarity(w, name)))
+            }
+        });
         let near = near.as_ref().map(|f| f as &dyn Fn(&str) -> f64);
         let fresh = self.scratch.last().is_none_or(|m| m.role == Role::User);
         let (allowed_specs, taking) = self.turn_specs(allowed, robot_names, near, fresh);

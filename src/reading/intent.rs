@@ -117,6 +117,16 @@ impl Intent {
                 .any(|c| c.words.windows(name.len()).any(|w| w == name.as_slice()))
     }
 
+    /// Whether a clause that asks for something writes a number.
+    pub(crate) fn says_numbers(&self) -> bool {
+        !self.numbers.is_empty()
+    }
+
+    /// Whether a clause that asks for something writes the number `n`.
+    pub(crate) fn says_number(&self, n: f64) -> bool {
+        self.numbers.iter().any(|m| (m - n).abs() < 1e-9)
+    }
+
     /// Whether the request uses one of `words` in a clause that asks for something.
     fn says(&self, words: &[String]) -> bool {
         let said: Vec<&String> = self.asking_words().collect();

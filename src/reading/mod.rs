@@ -13,6 +13,7 @@
 //! - `intent`: whether a request asks for an actuating call, and the names it targets
 //! - `plan`: a request of several parts, split into the steps it asks for
 //! - `meaning`: how near a request is to each tool's examples, by the sentence encoder
+//! - `meant`: the robot's names a request asks to act on, by the sentence encoder
 //! - `select`: which tools a request is offered, and the prior of its first tool choice
 //! - `bound`: name arguments held to the names the robot has and the operator wrote
 //! - `facts`: a result in one line, and whether an answer states it
@@ -24,6 +25,7 @@ pub mod facts;
 pub mod intent;
 pub mod language;
 pub mod meaning;
+pub(crate) mod meant;
 pub mod plan;
 pub mod select;
 pub mod small_talk;

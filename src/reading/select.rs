@@ -223,7 +223,7 @@ const WRITTEN_NAME: f64 = 4.0;
 const NAME_KINDS: &[&str] = &["node", "topic", "service", "action", "type"];
 
 /// The kinds of the robot's names `spec` takes (its string arguments of those names).
-pub(super) fn name_kinds(spec: &ToolSpec) -> impl Iterator<Item = &'static str> + '_ {
+pub(crate) fn name_kinds(spec: &ToolSpec) -> impl Iterator<Item = &'static str> + '_ {
     let props = spec.parameters["properties"].as_object();
     NAME_KINDS
         .iter()

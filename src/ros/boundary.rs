@@ -91,6 +91,9 @@ const PARAMETER_SERVICES: &[(&str, &str, NamedBy)] = &[
     ),
 ];
 
+/// The highest `rcl_interfaces/msg/ParameterType` constant (`PARAMETER_STRING_ARRAY`).
+const PARAMETER_TYPE_MAX: u64 = 9;
+
 /// Where a parameter service's request names parameters.
 #[derive(Debug, Clone, Copy, PartialEq)]
 enum NamedBy {
@@ -141,6 +144,29 @@ impl ParameterCall {
                 .filter_map(|p| p["name"].as_str())
                 .collect(),
         }
+    }
+
+    /// Refuse a parameter value whose `type` is not one of `rcl_interfaces`'
+    /// `ParameterType` constants (0 to 9): a node's parameter service turns it into its
+    /// own enum, and rclpy's and rclcpp's both throw on an unknown one, inside the
+    /// service's callback, which takes the node down.
+    fn check_types(&self, request: &Value) -> Result<(), RosError> {
+        if self.names != NamedBy::Parameters {
+            return Ok(());
+        }
+        let parameters = request["parameters"].as_array().into_iter().flatten();
+        for p in parameters {
+            let ty = &p["value"]["type"];
+            if ty.as_u64().is_none_or(|t| t > PARAMETER_TYPE_MAX) {
+                let name = p["name"].as_str().unwrap_or("?");
+                return Err(RosError::Other(format!(
+                    "parameter {name}: value type {ty} is not a ParameterType (0 not set, 1 bool, \
+                     2 integer, 3 double, 4 string, 5 to 9 arrays); set a parameter with \
+                     ros_param_set, which takes the value itself"
+                )));
+            }
+        }
+        Ok(())
     }
 
     /// Leave the denied parameters out of a listing's answer.
@@ -487,6 +513,7 @@ impl Guarded {
             {
                 return Err(RosError::OffLimits);
             }
+            p.check_types(&request)?;
         }
         let mut reply = self
             .inner
@@ -790,6 +817,20 @@ mod tests {
             set("background_b"),
         );
         assert!(ok.is_ok(), "{ok:?}");
+        // A value type outside ParameterType would throw inside the node's callback.
+        let sent = fake.sent().len();
+        for ty in [json!(60), json!(-1), json!("double"), Value::Null] {
+            let bad = json!({"parameters": [{"name": "background_b", "value": {"type": ty, "integer_value": 60}}]});
+            let r = call(
+                "/turtlesim/set_parameters",
+                "rcl_interfaces/srv/SetParameters",
+                bad,
+            );
+            // 60 encodes as a uint8; the others fail to encode.
+            let told = matches!(&r, Err(RosError::Other(e)) if e.contains("ros_param_set"));
+            assert!(r.is_err() && (told || ty != 60), "{ty}: {r:?}");
+        }
+        assert_eq!(fake.sent().len(), sent, "{:?}", fake.sent());
         let listed = call(
             "/turtlesim/list_parameters",
             "rcl_interfaces/srv/ListParameters",

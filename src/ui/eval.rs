@@ -242,6 +242,38 @@ fn release_case_estop(
     Ok(true)
 }
 
+/// The nodes of a shared robot, as first seen: a case after which one has left the graph
+/// (a driver the case's call crashed, say) stops the suite, for every later case would
+/// measure a robot that is no longer there.
+#[derive(Default)]
+struct Present(Option<std::collections::BTreeSet<String>>);
+
+impl Present {
+    /// After a case: the nodes the graph now shows (`None` when it cannot say at once).
+    fn check(
+        &mut self,
+        nodes: Option<Vec<String>>,
+        case: &eval::ros::RosCase,
+        skip: usize,
+    ) -> anyhow::Result<()> {
+        let Some(nodes) = nodes else { return Ok(()) };
+        let now: std::collections::BTreeSet<String> = nodes.into_iter().collect();
+        let Some(first) = &self.0 else {
+            self.0 = Some(now);
+            return Ok(());
+        };
+        let gone: Vec<&str> = first.difference(&now).map(String::as_str).collect();
+        if !gone.is_empty() {
+            anyhow::bail!(
+                "{} left the graph during or before case {}: the suite stops here, for the cases after it would measure a robot that is not there; start it again and go on with --skip {skip}",
+                gone.join(", "),
+                case.id
+            );
+        }
+        Ok(())
+    }
+}
+
 pub fn ros(args: &RosArgs) -> anyhow::Result<()> {
     use super::agent::{build_with, connect};
     let cases = eval::ros::load(&args.suite, args.skip, args.limit)?;
@@ -278,6 +310,7 @@ pub fn ros(args: &RosArgs) -> anyhow::Result<()> {
         latched: Vec::new(),
     };
     let total = cases.len() * args.decoding.modes().len();
+    let mut present = Present::default();
     for &mode in args.decoding.modes() {
         let mut agent_args = base.clone();
         agent_args.decoding = mode;
@@ -319,6 +352,10 @@ pub fn ros(args: &RosArgs) -> anyhow::Result<()> {
                     case.id
                 );
                 run.latched.push(case.id.clone());
+            }
+            if let Some(g) = link.graph.as_ref().filter(|_| fixture == Fixture::Shared) {
+                let now = crate::ros::graph_now(g.as_ref());
+                present.check(now.map(|g| g.nodes), case, args.skip + i)?;
             }
             if let Some(i) = answered_in_index(&case.query, &r.answer) {
                 run.answered_in[i] += 1;
@@ -584,6 +621,29 @@ mod tests {
 
     fn case(id: &str) -> eval::ros::RosCase {
         serde_json::from_value(serde_json::json!({"id": id, "query": "q"})).unwrap()
+    }
+
+    #[test]
+    fn a_node_that_leaves_a_shared_robot_stops_the_suite() {
+        let nodes = |n: &[&str]| Some(n.iter().map(|s| s.to_string()).collect::<Vec<_>>());
+        let mut present = Present::default();
+        present
+            .check(nodes(&["/arm", "/grip"]), &case("a-01"), 0)
+            .unwrap();
+        // Unknown for now, or a node more: the run goes on.
+        present.check(None, &case("a-02"), 1).unwrap();
+        present
+            .check(nodes(&["/grip", "/arm", "/cam"]), &case("a-03"), 2)
+            .unwrap();
+        let err = present
+            .check(nodes(&["/arm"]), &case("a-04"), 3)
+            .unwrap_err();
+        let err = err.to_string();
+        assert!(err.starts_with("/grip left the graph"), "{err}");
+        assert!(
+            err.contains("case a-04") && err.contains("--skip 3"),
+            "{err}"
+        );
     }
 
     #[test]

@@ -1,0 +1,176 @@
+//! The robot's names a request asks to act on, read by meaning. `intent` reads an act
+//! from words: a request asks for a generic actuator's target when it says the target's
+//! own words ("close the gripper" for `/gripper/close`) or an act the lexicon knows. A
+//! request in other words or another language ("ferme la pince", "bring the arm home
+//! again" for `/arm/go_home`) says neither, and the actuator was never offered.
+//!
+//! Here the sentence encoder decides, when three things agree:
+//! - the request only asks for something: no question, no negation, no request to be
+//!   told (`concepts`);
+//! - of all the tools, the one its meaning is nearest (`meaning::Meaning::similarities`,
+//!   the tools' examples and the robot file's) is a generic actuator (a service call, a
+//!   publish, a goal);
+//! - of the robot's names of a kind that tool takes, one is nearest
+//!   (`meaning::Meaning::name_similarity`: a name read as its words and as what the
+//!   robot prompt file says of it), and the tool's and the name's cosines together reach
+//!   `MEANT_MIN`.
+//!
+//! That name then counts as asked for. The other guards still hold the call: it is
+//! confirmed, limited and stopped like any other.
+
+use crate::reading::concepts::{clauses, Mood};
+
+/// Fewest sum of the tool's and the name's cosines for a name to be asked for by
+/// meaning (chosen on the tune half of the arm's suite, see `docs/agent.md`).
+pub(crate) const MEANT_MIN: f64 = 0.75;
+
+/// How much less near than the nearest name another may be and be asked for too.
+const MEANT_MARGIN: f64 = 0.03;
+
+/// The kinds of names an actuator acts on.
+const ACTED_ON: &[&str] = &["topic", "service", "action"];
+
+/// Names every node has, which no operator asks for by meaning: its parameter and type
+/// services, and the graph's own topics.
+const EVERY_NODE: &[&str] = &[
+    "list_parameters",
+    "get_parameters",
+    "set_parameters",
+    "set_parameters_atomically",
+    "describe_parameters",
+    "get_parameter_types",
+    "get_type_description",
+    "rosout",
+    "parameter_events",
+];
+
+/// The tool a request is nearest by meaning, when it is a generic actuator: its cosine
+/// with the request and the kinds of names it takes.
+pub(crate) struct Nearest<'a> {
+    pub similarity: f64,
+    pub kinds: Vec<&'a str>,
+}
+
+/// The names of `names` ((kind, name) pairs) that `part` asks to act on, by meaning
+/// (`near`: a name's cosine with the part), nearest first. None when the part asks
+/// about something, forbids something or asks to be told, or when the tool it is
+/// nearest (`tool`) is no generic actuator (`None`).
+pub(crate) fn meant(
+    part: &str,
+    names: &[(String, String)],
+    near: &dyn Fn(&str) -> f64,
+    tool: Option<Nearest>,
+) -> Vec<String> {
+    let read = clauses(part);
+    let Some(tool) = tool else {
+        return Vec::new();
+    };
+    if read.is_empty() || read.iter().any(|c| c.mood != Mood::Asked) {
+        return Vec::new();
+    }
+    let mut sims: Vec<(f64, &str)> = names
+        .iter()
+        .filter(|(kind, name)| {
+            ACTED_ON.contains(&kind.as_str())
+                && tool.kinds.contains(&kind.as_str())
+                && !every_node(name)
+        })
+        .map(|(_, name)| (near(name), name.as_str()))
+        .collect();
+    sims.sort_by(|a, b| b.0.total_cmp(&a.0));
+    sims.dedup_by(|a, b| a.1 == b.1);
+    tracing::debug!(target: "ferrosa::select", part, tool = tool.similarity, nearest = ?&sims[..sims.len().min(3)], "names by meaning");
+    let Some(&(top, _)) = sims.first() else {
+        return Vec::new();
+    };
+    if tool.similarity + top < MEANT_MIN {
+        return Vec::new();
+    }
+    sims.into_iter()
+        .take_while(|(s, _)| *s >= top - MEANT_MARGIN)
+        .map(|(_, n)| n.to_string())
+        .collect()
+}
+
+fn every_node(name: &str) -> bool {
+    let last = name.rsplit('/').next().unwrap_or(name);
+    EVERY_NODE.contains(&last)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn names() -> Vec<(String, String)> {
+        [
+            ("service", "/hatch/open"),
+            ("service", "/hatch/shut"),
+            ("service", "/probe/set_parameters"),
+            ("topic", "/hatch/state"),
+            ("node", "/hatch"),
+        ]
+        .iter()
+        .map(|(k, n)| (k.to_string(), n.to_string()))
+        .collect()
+    }
+
+    /// A stand-in for the encoder: how many of the name's words the request writes.
+    fn near(part: &'static str) -> impl Fn(&str) -> f64 {
+        move |name: &str| {
+            let said = crate::lexicon::folded_words(part);
+            let words = crate::lexicon::name_words(name);
+            let hits = words.iter().filter(|w| said.contains(w)).count();
+            hits as f64 / words.len().max(1) as f64
+        }
+    }
+
+    fn caller(similarity: f64) -> Option<Nearest<'static>> {
+        Some(Nearest {
+            similarity,
+            kinds: vec!["service"],
+        })
+    }
+
+    #[test]
+    fn the_nearest_name_an_actuator_takes_is_meant_when_the_request_only_asks() {
+        let q = "shut the hatch now";
+        assert_eq!(meant(q, &names(), &near(q), caller(0.5)), ["/hatch/shut"]);
+        // Equally near: both.
+        let q = "the hatch, open it or shut it";
+        assert_eq!(meant(q, &names(), &near(q), caller(0.5)).len(), 2);
+        // Nodes, every node's services and names too far are never meant.
+        let q = "probe set parameters";
+        assert!(meant(q, &names(), &near(q), caller(0.5)).is_empty());
+        let q = "bake a cake";
+        assert!(meant(q, &names(), &near(q), caller(0.7)).is_empty());
+        // Near a name, but nearest no actuator, or one too far: nothing.
+        let q = "shut the hatch now";
+        assert!(meant(q, &names(), &near(q), None).is_empty());
+        assert!(meant(q, &names(), &near(q), caller(-0.3)).is_empty());
+        // Only names of the kinds the tool takes.
+        let topics = Some(Nearest {
+            similarity: 0.5,
+            kinds: vec!["topic"],
+        });
+        assert_eq!(
+            meant(
+                "hatch state now",
+                &names(),
+                &near("hatch state now"),
+                topics
+            ),
+            ["/hatch/state"]
+        );
+    }
+
+    #[test]
+    fn a_question_a_negation_or_a_request_to_be_told_means_no_act() {
+        for q in [
+            "is the hatch shut?",
+            "do not shut the hatch",
+            "tell me whether the hatch is shut",
+        ] {
+            assert!(meant(q, &names(), &near(q), caller(0.9)).is_empty(), "{q}");
+        }
+    }
+}
