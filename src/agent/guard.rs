@@ -564,21 +564,32 @@ impl AskedFor {
         let known = self.known(&call.name);
         let asks =
             |intent: &Intent| intent.asks_for_known(call, spec, &self.asked.observing, known);
+        // The part's own words hold a generic actuator only: a tool that names its act
+        // ("turn left, then right 45") is read with the whole request.
         asks(&self.intent)
-            && self.part.as_ref().is_none_or(asks)
+            && (!is_generic(spec) || self.part.as_ref().is_none_or(asks))
             && !self.meant_otherwise(call, spec)
     }
 
-    /// Whether the part, by meaning, asks to act on other names than `call`'s, and its
-    /// words do not write `call`'s target whole: "close the gripper" shares a word with
-    /// `/gripper/open`, which is no reason to open it.
+    /// Whether the part, by meaning, asks to act on a name that shares words with
+    /// `call`'s target while none of the words only the target has are said: "close the
+    /// gripper" shares "gripper" with `/gripper/open`, which is no reason to open it;
+    /// "open" said would be. A target sharing no word with a meant name is not judged.
     fn meant_otherwise(&self, call: &ToolCall, spec: &ToolSpec) -> bool {
-        !self.meant.is_empty()
-            && is_generic(spec)
-            && MEANT_KEYS
-                .iter()
-                .filter_map(|k| call.arguments.get(*k).and_then(Value::as_str))
-                .any(|t| !self.meant.iter().any(|m| same_name(m, t)) && !self.intent.says_name(t))
+        if self.meant.is_empty() || !is_generic(spec) {
+            return false;
+        }
+        let words = |n: &str| crate::lexicon::folded_words(&n.replace(['_', '/'], " "));
+        let meant: BTreeSet<String> = self.meant.iter().flat_map(|m| words(m)).collect();
+        MEANT_KEYS
+            .iter()
+            .filter_map(|k| call.arguments.get(*k).and_then(Value::as_str))
+            .filter(|t| !self.meant.iter().any(|m| same_name(m, t)))
+            .any(|t| {
+                let (shared, own): (Vec<String>, Vec<String>) =
+                    words(t).into_iter().partition(|w| meant.contains(w));
+                !shared.is_empty() && !own.is_empty() && !self.intent.says(&own)
+            })
     }
 
     /// Whether `call` of the generic actuator `spec` acts only on names the part asks
@@ -609,18 +620,22 @@ impl AskedFor {
     }
 
     /// Whether every value in `v` is one the request says, or none at all: a number it
-    /// writes (or zero), a text whose words it says side by side, a yes or no. Meaning
+    /// writes (zero beside numbers it writes), a text whose words it says side by side;
+    /// never a yes or no. Meaning
     /// points at a name, not at values: "take the turtle up to the stars" is near a teleport,
     /// and the numbers of one were the model's own.
     fn said_values(&self, v: &Value) -> bool {
         match v {
-            Value::Number(n) => n
-                .as_f64()
-                .is_some_and(|n| n == 0.0 || self.intent.says_number(n)),
+            Value::Number(n) => n.as_f64().is_some_and(|n| {
+                self.intent.says_number(n) || (n == 0.0 && self.intent.says_numbers())
+            }),
             Value::String(s) => s.trim().is_empty() || self.intent.says_name(s),
             Value::Array(items) => items.iter().all(|i| self.said_values(i)),
             Value::Object(fields) => fields.values().all(|f| self.said_values(f)),
-            Value::Bool(_) | Value::Null => true,
+            // On or off is the act itself ("std_srvs/SetBool"): meaning does not say
+            // which.
+            Value::Bool(_) => false,
+            Value::Null => true,
         }
     }
 }
@@ -634,16 +649,16 @@ fn branch_of<'a>(schema: &'a Value, key: &str, target: &str) -> Option<&'a Value
         .find(|b| b["properties"][key]["const"].as_str() == Some(target))
 }
 
-/// Whether a schema takes a number anywhere within it.
-fn takes_number(schema: &Value) -> bool {
+/// Whether a schema takes a value of one of `types` anywhere within it.
+fn takes(schema: &Value, types: &[&str]) -> bool {
     match schema {
         Value::Object(o) => {
-            matches!(
-                o.get("type").and_then(Value::as_str),
-                Some("number" | "integer")
-            ) || o.values().any(takes_number)
+            o.get("type")
+                .and_then(Value::as_str)
+                .is_some_and(|t| types.contains(&t))
+                || o.values().any(|v| takes(v, types))
         }
-        Value::Array(items) => items.iter().any(takes_number),
+        Value::Array(items) => items.iter().any(|v| takes(v, types)),
         _ => false,
     }
 }
@@ -698,10 +713,13 @@ impl Guard for AskedFor {
                 arguments: serde_json::json!({ key.clone(): target.clone() }),
             };
             // Asked for by meaning alone, a target whose payload takes numbers is
-            // written only when the request gives some: else each would be the model's.
+            // written only when the request gives some, and one that takes a yes or no
+            // never: else each would be the model's.
             let invents = || {
-                !self.intent.says_numbers()
-                    && branch_of(&bound.parameters, &key, &target).is_some_and(takes_number)
+                let branch = branch_of(&bound.parameters, &key, &target);
+                let numbers = !self.intent.says_numbers()
+                    && branch.is_some_and(|b| takes(b, &["number", "integer"]));
+                (numbers || branch.is_some_and(|b| takes(b, &["boolean"])))
                     && !self.by_words(&call, declared)
             };
             self.asks(&call, declared, false) && !invents()
@@ -1141,7 +1159,9 @@ mod tests {
                 {"type": "object", "properties": {"service": {"const": "/hatch/tilt"},
                  "request": {"type": "object", "properties": {"angle": {"type": "number"}}}}},
                 {"type": "object", "properties": {"service": {"const": "/hatch/shut"},
-                 "request": {"type": "object", "properties": {}}}}]}),
+                 "request": {"type": "object", "properties": {}}}},
+                {"type": "object", "properties": {"service": {"const": "/hatch/power"},
+                 "request": {"type": "object", "properties": {"data": {"type": "boolean"}}}}}]}),
             ..declared.clone()
         };
         let keeps_meant = |q: &str, meant: &str| {
@@ -1152,6 +1172,11 @@ mod tests {
         assert!(keeps_meant("ferme la trappe", "/hatch/shut"));
         assert!(!keeps_meant("penche la trappe", "/hatch/tilt"));
         assert!(keeps_meant("penche la trappe de 20", "/hatch/tilt"));
+        // On or off is the act: meaning alone never writes it.
+        assert!(!keeps_meant(
+            "coupe le courant de la trappe",
+            "/hatch/power"
+        ));
     }
 
     #[test]
@@ -1192,21 +1217,29 @@ mod tests {
                 .into_iter()
                 .all(|v| v == Verdict::Pass)
         };
-        assert!(with(
+        assert!(with("ferme la trappe à 40", json!({"angle": 40, "z": 0})));
+        assert!(!with(
             "ferme la trappe à 40",
-            json!({"angle": 40, "slow": true, "z": 0})
+            json!({"angle": 40, "slow": true})
         ));
+        assert!(!with("ferme la trappe", json!({"angle": 0})));
         assert!(with("ferme la trappe, mode doux", json!({"mode": "doux"})));
         assert!(!with("ferme la trappe", json!({"angle": 1.0})));
         assert!(!with("ferme la trappe", json!({"mode": "fast"})));
-        // A word shared with the meant one's neighbour is no reason to call it; its name
-        // written whole still is.
+        // A word shared with the meant one's neighbour is no reason to call it; a word
+        // only the neighbour has, said, is.
         assert!(judged("shut the hatch", &[], "/hatch/open"));
         assert!(!judged("shut the hatch", &["/hatch/shut"], "/hatch/open"));
         assert!(judged(
-            "shut the hatch and hatch open",
+            "shut the hatch and open it",
             &["/hatch/shut"],
             "/hatch/open"
+        ));
+        // A target sharing no word with the meant one is not judged by it.
+        assert!(judged(
+            "shut the hatch and open the valve",
+            &["/hatch/shut"],
+            "/valve/open"
         ));
         // In a request of several parts, the part asks too.
         let q = "shut the hatch, then say how wide it stands open";

@@ -365,11 +365,6 @@ pub fn chains(word: &str) -> Option<bool> {
     })
 }
 
-/// Whether a folded word only orders what comes before and after it ("then", "poi").
-pub(crate) fn sequences(word: &str) -> bool {
-    table().sequencers.contains(word)
-}
-
 /// Whether a folded word can open a request of its own: it asks ("what", "wo"), asks to
 /// be told ("tell", "dime") or names an act ("move", "gira").
 pub(crate) fn opens_request(word: &str) -> bool {

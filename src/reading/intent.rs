@@ -128,7 +128,7 @@ impl Intent {
     }
 
     /// Whether the request uses one of `words` in a clause that asks for something.
-    fn says(&self, words: &[String]) -> bool {
+    pub(crate) fn says(&self, words: &[String]) -> bool {
         let said: Vec<&String> = self.asking_words().collect();
         words.iter().any(|w| {
             w.len() > 2

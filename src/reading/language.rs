@@ -359,13 +359,6 @@ fn chosen(scores: &[f64; 6], prose: &[&str]) -> Option<Language> {
     tied.into_iter().find(|l| NAMES[*l as usize].3 == guess)
 }
 
-/// Whether a folded word is one of the closed-class words of some language (an
-/// article, a preposition, a pronoun: "the", "al", "zum"), by which a phrase, not a
-/// request, opens.
-pub(crate) fn closed_class(word: &str) -> bool {
-    WORDS.iter().any(|w| w.contains(&word))
-}
-
 /// Each language's evidence in `prose` (the words `prose` keeps), in the order of `ALL`.
 fn evidence(prose: &[&str]) -> [f64; 6] {
     let mut scores = [0.0; 6];

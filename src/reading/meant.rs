@@ -6,7 +6,8 @@
 //!
 //! Here the sentence encoder decides, when three things agree:
 //! - the request only asks for something: no question, no negation, no request to be
-//!   told (`concepts`);
+//!   told, no stop, cancel or removal (`concepts`), in Latin letters (the languages
+//!   `concepts` reads);
 //! - of all the tools, the one its meaning is nearest (`meaning::Meaning::similarities`,
 //!   the tools' examples and the robot file's) is a generic actuator (a service call, a
 //!   publish, a goal);
@@ -18,7 +19,7 @@
 //! That name then counts as asked for. The other guards still hold the call: it is
 //! confirmed, limited and stopped like any other.
 
-use crate::reading::concepts::{clauses, Mood};
+use crate::reading::concepts::{clauses, Act, Mood};
 
 /// Fewest sum of the tool's and the name's cosines for a name to be asked for by
 /// meaning (chosen on the tune half of the arm's suite, see `docs/agent.md`).
@@ -65,7 +66,22 @@ pub(crate) fn meant(
     let Some(tool) = tool else {
         return Vec::new();
     };
-    if read.is_empty() || read.iter().any(|c| c.mood != Mood::Asked) {
+    // The mood is read in the six languages `concepts` knows, all written in Latin
+    // letters; the encoder reads more, whose negations and questions would pass unseen.
+    let latin = part
+        .chars()
+        .filter(|c| c.is_alphabetic())
+        .all(|c| c < '\u{0250}');
+    let asks_only = read.iter().all(|c| {
+        c.mood == Mood::Asked
+            && !c.acts.iter().any(|a| {
+                matches!(
+                    a,
+                    Act::Stop | Act::Cancel | Act::Forget | Act::Kill | Act::Fence
+                )
+            })
+    });
+    if !latin || read.is_empty() || !asks_only || part.contains(['\u{ff1f}', '\u{00bf}']) {
         return Vec::new();
     }
     let mut sims: Vec<(f64, &str)> = names
@@ -169,6 +185,8 @@ mod tests {
             "is the hatch shut?",
             "do not shut the hatch",
             "tell me whether the hatch is shut",
+            "stop the hatch and shut it",
+            "闸门关了吗？",
         ] {
             assert!(meant(q, &names(), &near(q), caller(0.9)).is_empty(), "{q}");
         }

@@ -9,9 +9,8 @@
 //! - at the end of a sentence (". ", "? ", "! ", "; ");
 //! - at a comma or at a chaining conjunction ("and", "then", "y luego", "puis", "und
 //!   dann"), when the words after it open a request of their own: a question word, a
-//!   "tell me", a word naming an act, or a word of a tool's name ("echo", "list"),
-//!   and after a sequencer ("then", "poi") any word that is not a closed-class one
-//!   (an article, a preposition) or a number; never at "or" nor "but".
+//!   "tell me", a word naming an act, or a word of a tool's name ("echo", "list");
+//!   never at "or" nor "but".
 //!
 //! A part of one word joins its neighbour ("hi, what can you do?" is one part), and a
 //! request with a negation anywhere is not cut ("don't move, just turn" is read whole,
@@ -20,8 +19,7 @@
 
 use std::collections::BTreeSet;
 
-use super::concepts::{chains, clauses, opens_request, sequences, Mood};
-use super::language::closed_class;
+use super::concepts::{chains, clauses, opens_request, Mood};
 use crate::lexicon::folded_words;
 
 /// At most this many parts; a longer request is worked as one.
@@ -72,26 +70,14 @@ pub fn parts(request: &str, tool_words: &BTreeSet<String>) -> Vec<String> {
     let words = words(request);
     let first_word = |w: &Word| w.folded.first().cloned().unwrap_or_default();
     let chaining = |w: &Word| w.folded.len() == 1 && chains(&w.folded[0]) == Some(true);
-    // Whether the words from `i` on open a request (past any chaining words). After a
-    // sequencer ("and then", "e poi"), any word but a closed-class one or a number
-    // does: what follows is ordered after what came before, so it is asked for on its
-    // own ("apri la pinza e poi porta il braccio ..."), while "then the dock" or "then
-    // to 2 m" go on the same request.
+    // Whether the words from `i` on open a request (past any chaining words).
     let opens = |i: usize| {
-        let mut sequenced = false;
         words[i..]
             .iter()
             .map(first_word)
-            .find(|w| {
-                sequenced |= sequences(w);
-                chains(w) != Some(true)
-            })
+            .find(|w| chains(w) != Some(true))
             .is_some_and(|w| {
-                opens_request(&w)
-                    || (w.chars().count() > 2 && tool_words.contains(&w))
-                    || (sequenced
-                        && !closed_class(&w)
-                        && w.chars().next().is_some_and(char::is_alphabetic))
+                opens_request(&w) || (w.chars().count() > 2 && tool_words.contains(&w))
             })
     };
     // Each piece as a range of words.
@@ -186,11 +172,6 @@ mod tests {
             cut("mueve la tortuga 1 metro y luego dime dónde está"),
             ["mueve la tortuga 1 metro", "dime dónde está"]
         );
-        // After a sequencer, a verb the lexicon does not know opens a request too.
-        assert_eq!(
-            cut("lift the crate and then lower it gently"),
-            ["lift the crate", "lower it gently"]
-        );
         assert_eq!(
             cut("Bewege die Schildkröte 1 Meter. Wo ist sie jetzt?"),
             ["Bewege die Schildkröte 1 Meter.", "Wo ist sie jetzt?"]
@@ -210,9 +191,6 @@ mod tests {
             "list the nodes and topics",
             "don't move, just turn 90 degrees and then tell me the heading",
             "move forward or turn left",
-            "drive to the shed, then to the gate",
-            "visit the shed and then the gate",
-            "move forward then 2 more",
         ] {
             assert_eq!(cut(q), [q], "{q}");
         }

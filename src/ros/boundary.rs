@@ -91,8 +91,19 @@ const PARAMETER_SERVICES: &[(&str, &str, NamedBy)] = &[
     ),
 ];
 
-/// The highest `rcl_interfaces/msg/ParameterType` constant (`PARAMETER_STRING_ARRAY`).
-const PARAMETER_TYPE_MAX: u64 = 9;
+/// The field of `rcl_interfaces/msg/ParameterValue` each `ParameterType` from 1
+/// (`PARAMETER_BOOL`) to 9 (`PARAMETER_STRING_ARRAY`) sets.
+const PARAMETER_FIELDS: [&str; 9] = [
+    "bool_value",
+    "integer_value",
+    "double_value",
+    "string_value",
+    "byte_array_value",
+    "bool_array_value",
+    "integer_array_value",
+    "double_array_value",
+    "string_array_value",
+];
 
 /// Where a parameter service's request names parameters.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -146,23 +157,35 @@ impl ParameterCall {
         }
     }
 
-    /// Refuse a parameter value whose `type` is not one of `rcl_interfaces`'
-    /// `ParameterType` constants (0 to 9): a node's parameter service turns it into its
-    /// own enum, and rclpy's and rclcpp's both throw on an unknown one, inside the
-    /// service's callback, which takes the node down.
+    /// Refuse a parameter value a node would take for another, or throw on: its `type`
+    /// must be one of `rcl_interfaces`' `ParameterType` constants that set a value (1 to
+    /// 9; 0, not set, would remove the parameter), and the request as written must give
+    /// the field of that type (`{type: 3, integer_value: 5}` would set 0.0). A node's
+    /// parameter service turns the type into its own enum, and rclpy's and rclcpp's both
+    /// throw on an unknown one, inside the service's callback, which takes the node
+    /// down. `request`: as the caller wrote it, before the encoder fills every field.
     fn check_types(&self, request: &Value) -> Result<(), RosError> {
         if self.names != NamedBy::Parameters {
             return Ok(());
         }
         let parameters = request["parameters"].as_array().into_iter().flatten();
         for p in parameters {
+            let name = p["name"].as_str().unwrap_or("?");
             let ty = &p["value"]["type"];
-            if ty.as_u64().is_none_or(|t| t > PARAMETER_TYPE_MAX) {
-                let name = p["name"].as_str().unwrap_or("?");
+            let field = ty
+                .as_u64()
+                .and_then(|t| PARAMETER_FIELDS.get(usize::try_from(t).ok()?.checked_sub(1)?));
+            let Some(field) = field else {
                 return Err(RosError::Other(format!(
-                    "parameter {name}: value type {ty} is not a ParameterType (0 not set, 1 bool, \
-                     2 integer, 3 double, 4 string, 5 to 9 arrays); set a parameter with \
-                     ros_param_set, which takes the value itself"
+                    "parameter {name}: value type {ty} is not a ParameterType that sets a value \
+                     (1 bool, 2 integer, 3 double, 4 string, 5 to 9 arrays); set a parameter \
+                     with ros_param_set, which takes the value itself"
+                )));
+            };
+            if p["value"].get(*field).is_none() {
+                return Err(RosError::Other(format!(
+                    "parameter {name}: value type {ty} is given no {field}; set a parameter \
+                     with ros_param_set, which takes the value itself"
                 )));
             }
         }
@@ -502,6 +525,9 @@ impl Guarded {
             self.stopped()?;
         }
         let parameters = ParameterCall::of(&service, &ty)?;
+        if let Some(p) = &parameters {
+            p.check_types(&request)?;
+        }
         self.inner.learn_type(&service, &ty).await?;
         let (request, note) = self.limited(&format!("{ty}_Request"), &request)?;
         // Parameters are judged by their full names in the request as it will be sent.
@@ -513,7 +539,6 @@ impl Guarded {
             {
                 return Err(RosError::OffLimits);
             }
-            p.check_types(&request)?;
         }
         let mut reply = self
             .inner
@@ -819,16 +844,23 @@ mod tests {
         assert!(ok.is_ok(), "{ok:?}");
         // A value type outside ParameterType would throw inside the node's callback.
         let sent = fake.sent().len();
-        for ty in [json!(60), json!(-1), json!("double"), Value::Null] {
-            let bad = json!({"parameters": [{"name": "background_b", "value": {"type": ty, "integer_value": 60}}]});
+        for (ty, field) in [
+            (json!(60), "integer_value"),
+            (json!(-1), "integer_value"),
+            (json!("double"), "double_value"),
+            (Value::Null, "integer_value"),
+            (json!(0), "integer_value"),
+            (json!(3), "integer_value"),
+        ] {
+            let bad =
+                json!({"parameters": [{"name": "background_b", "value": {"type": ty, field: 60}}]});
             let r = call(
                 "/turtlesim/set_parameters",
                 "rcl_interfaces/srv/SetParameters",
                 bad,
             );
-            // 60 encodes as a uint8; the others fail to encode.
             let told = matches!(&r, Err(RosError::Other(e)) if e.contains("ros_param_set"));
-            assert!(r.is_err() && (told || ty != 60), "{ty}: {r:?}");
+            assert!(told, "{ty}: {r:?}");
         }
         assert_eq!(fake.sent().len(), sent, "{:?}", fake.sent());
         let listed = call(

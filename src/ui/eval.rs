@@ -257,7 +257,7 @@ impl Present {
         skip: usize,
     ) -> anyhow::Result<()> {
         let Some(nodes) = nodes else { return Ok(()) };
-        let now: std::collections::BTreeSet<String> = nodes.into_iter().collect();
+        let now = visible_nodes(nodes);
         let Some(first) = &self.0 else {
             self.0 = Some(now);
             return Ok(());
@@ -265,13 +265,27 @@ impl Present {
         let gone: Vec<&str> = first.difference(&now).map(String::as_str).collect();
         if !gone.is_empty() {
             anyhow::bail!(
-                "{} left the graph during or before case {}: the suite stops here, for the cases after it would measure a robot that is not there; start it again and go on with --skip {skip}",
+                "{} left the graph during or before case {} (its result is kept): the suite stops here, for the cases after it would measure a robot that is not there; start it again and go on with --skip {skip}",
                 gone.join(", "),
                 case.id
             );
         }
         Ok(())
     }
+}
+
+/// The visible nodes the graph shows now (`None` when it cannot say at once).
+fn nodes_now(graph: &dyn RosGraph) -> Option<std::collections::BTreeSet<String>> {
+    crate::ros::graph_now(graph).map(|g| visible_nodes(g.nodes))
+}
+
+/// The nodes of `nodes` that are not hidden (a last segment that opens with `_`, as a
+/// command-line tool's passing node does).
+fn visible_nodes(nodes: Vec<String>) -> std::collections::BTreeSet<String> {
+    nodes
+        .into_iter()
+        .filter(|n| !n.rsplit('/').next().unwrap_or(n).starts_with('_'))
+        .collect()
 }
 
 pub fn ros(args: &RosArgs) -> anyhow::Result<()> {
@@ -310,7 +324,8 @@ pub fn ros(args: &RosArgs) -> anyhow::Result<()> {
         latched: Vec::new(),
     };
     let total = cases.len() * args.decoding.modes().len();
-    let mut present = Present::default();
+    let shared = link.graph.clone().filter(|_| fixture == Fixture::Shared);
+    let mut present = Present(shared.as_deref().and_then(nodes_now));
     for &mode in args.decoding.modes() {
         let mut agent_args = base.clone();
         agent_args.decoding = mode;
@@ -353,16 +368,16 @@ pub fn ros(args: &RosArgs) -> anyhow::Result<()> {
                 );
                 run.latched.push(case.id.clone());
             }
-            if let Some(g) = link.graph.as_ref().filter(|_| fixture == Fixture::Shared) {
-                let now = crate::ros::graph_now(g.as_ref());
-                present.check(now.map(|g| g.nodes), case, args.skip + i)?;
-            }
             if let Some(i) = answered_in_index(&case.query, &r.answer) {
                 run.answered_in[i] += 1;
             }
             let result = case_result(case, mode, &r, calls, invalid);
             writeln!(file, "{}", serde_json::to_string(&result)?)?;
             results.push(result);
+            // The case's result is kept; then a robot that lost a node stops the run.
+            if let Some(g) = shared.as_deref() {
+                present.check(nodes_now(g).map(Vec::from_iter), case, args.skip + i + 1)?;
+            }
             let passed = results.iter().filter(|r| r.pass).count();
             eprint!("\r{} / {total} ({passed} passed)", results.len());
         }
@@ -628,7 +643,7 @@ mod tests {
         let nodes = |n: &[&str]| Some(n.iter().map(|s| s.to_string()).collect::<Vec<_>>());
         let mut present = Present::default();
         present
-            .check(nodes(&["/arm", "/grip"]), &case("a-01"), 0)
+            .check(nodes(&["/arm", "/grip", "/_cli_1"]), &case("a-01"), 0)
             .unwrap();
         // Unknown for now, or a node more: the run goes on.
         present.check(None, &case("a-02"), 1).unwrap();
