@@ -581,9 +581,7 @@ impl AskedFor {
         }
         let words = |n: &str| crate::lexicon::folded_words(&n.replace(['_', '/'], " "));
         let meant: BTreeSet<String> = self.meant.iter().flat_map(|m| words(m)).collect();
-        MEANT_KEYS
-            .iter()
-            .filter_map(|k| call.arguments.get(*k).and_then(Value::as_str))
+        acted_on(call)
             .filter(|t| !self.meant.iter().any(|m| same_name(m, t)))
             .any(|t| {
                 let (shared, own): (Vec<String>, Vec<String>) =
@@ -602,10 +600,7 @@ impl AskedFor {
         {
             return false;
         }
-        let targets: Vec<&str> = MEANT_KEYS
-            .iter()
-            .filter_map(|k| call.arguments.get(*k).and_then(Value::as_str))
-            .collect();
+        let targets: Vec<&str> = acted_on(call).collect();
         !targets.is_empty()
             && targets
                 .iter()
@@ -670,6 +665,13 @@ fn same_name(a: &str, b: &str) -> bool {
 
 /// The arguments that name what a generic actuator acts on, as `reading::meant` reads it.
 const MEANT_KEYS: &[&str] = &["service", "topic", "action"];
+
+/// The names `call` acts on (`MEANT_KEYS`).
+fn acted_on(call: &ToolCall) -> impl Iterator<Item = &str> {
+    MEANT_KEYS
+        .iter()
+        .filter_map(|k| call.arguments.get(*k).and_then(Value::as_str))
+}
 
 impl Guard for AskedFor {
     fn name(&self) -> &'static str {
