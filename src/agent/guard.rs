@@ -32,7 +32,9 @@ use std::sync::Arc;
 use serde_json::Value;
 
 use crate::reading::concepts::{acts_of, asked_acts, clauses, signs, Act};
-use crate::reading::intent::{is_generic, name_words, targets_known, Intent, TARGET_KEYS};
+use crate::reading::intent::{
+    is_generic, name_words, names_target, targets_known, writes_name, Intent, TARGET_KEYS,
+};
 use crate::strategy::ground::Grounding;
 use crate::strategy::Strategy;
 use crate::tool::{Effect, Policy, ToolCall, ToolSpec};
@@ -123,6 +125,8 @@ impl Guards {
                 called: false,
                 meant: Vec::new(),
                 part: None,
+                before: None,
+                part_text: None,
             }));
             guards.push(Box::new(ActFirst::new(query, actuators)));
         }
@@ -542,6 +546,11 @@ struct AskedFor {
     /// by its words too ("shut the gripper, then say how wide it is open" asks to
     /// open nothing, though "gripper" and "open" are both said).
     part: Option<Intent>,
+    /// The part before the current one, for a part that asks for an act on what that
+    /// part named (`Intent::acts_on_unnamed`).
+    before: Option<String>,
+    /// The current part's text.
+    part_text: Option<String>,
 }
 
 impl AskedFor {
@@ -566,8 +575,20 @@ impl AskedFor {
             |intent: &Intent| intent.asks_for_known(call, spec, &self.asked.observing, known);
         // The part's own words hold a generic actuator only: a tool that names its act
         // ("turn left, then right 45") is read with the whole request.
+        // A part that points back and writes no name of its own acts on a target the
+        // part before wrote whole ("read lamp_level, then change it to 20"); the whole
+        // request must still ask for the call.
+        let refers_back = |part: &Intent| {
+            part.acts_on_unnamed(call, spec)
+                && self.part_text.as_deref().is_some_and(|p| !writes_name(p))
+                && self
+                    .before
+                    .as_deref()
+                    .is_some_and(|b| names_target(b, call))
+        };
+        let part_asks = |part: &Intent| asks(part) || refers_back(part);
         asks(&self.intent)
-            && (!is_generic(spec) || self.part.as_ref().is_none_or(asks))
+            && (!is_generic(spec) || self.part.as_ref().is_none_or(part_asks))
             && !self.meant_otherwise(call, spec)
     }
 
@@ -731,6 +752,7 @@ impl Guard for AskedFor {
     fn next_part(&mut self, part: &str) {
         self.called = false;
         self.part = Some(Intent::new(part));
+        self.before = self.part_text.replace(part.to_string());
     }
 
     fn by_meaning(&mut self, meant: &[String]) {
@@ -1249,5 +1271,81 @@ mod tests {
         g.next_part("say how wide it stands open");
         let verdicts = g.check(&mut [call("/hatch/open")], std::slice::from_ref(&declared));
         assert!(matches!(verdicts[..], [Verdict::Refuse(_)]), "{verdicts:?}");
+    }
+
+    #[test]
+    fn a_later_part_that_names_no_target_acts_on_what_the_part_before_named() {
+        let set = ToolSpec::new(
+            "ros_param_set",
+            "",
+            json!({"type": "object", "properties": {"node": {"type": "string"},
+                   "name": {"type": "string"}, "value": {"type": "number"}}}),
+        )
+        .unwrap();
+        let judged = |parts: &[&str], value: f64| {
+            let q = parts.join(" and then ");
+            // The setting's name was said earlier in the session: grounding keeps it.
+            let said = [q.as_str(), "lamp_level"];
+            let mut g = Guards::standard(&q, &said, Some(asked(&["ros_param_set"])));
+            for p in parts {
+                g.next_part(p);
+            }
+            let mut calls = [ToolCall {
+                name: "ros_param_set".into(),
+                arguments: json!({"node": "/lamp", "name": "lamp_level", "value": value}),
+            }];
+            g.check(&mut calls, std::slice::from_ref(&set))
+                .into_iter()
+                .all(|v| v == Verdict::Pass)
+        };
+        assert!(judged(&["read lamp_level", "change it to 20"], 20.0));
+        // The part asks for no change, or names another target of its own.
+        assert!(!judged(&["read lamp_level", "tell me the time"], 20.0));
+        assert!(!judged(
+            &["read lamp_level", "change fan_speed to 20"],
+            20.0
+        ));
+        assert!(!judged(
+            &["read lamp_level", "change fan_speed to 20 like it"],
+            20.0
+        ));
+        // Nothing before it to refer to, or the part before never wrote the target.
+        assert!(!judged(&["change it to 20"], 20.0));
+        assert!(!judged(&["read the lamp", "change it to 20"], 20.0));
+
+        // A generic act and a pointing word reach no target the part before did not
+        // write whole.
+        let service = ToolSpec::new(
+            "ros_service_call",
+            "",
+            json!({"type": "object", "properties": {"service": {"type": "string"}}}),
+        )
+        .unwrap();
+        let calls = |parts: &[&str], target: &str| {
+            let q = parts.join(", then ");
+            let mut g = Guards::standard(&q, &[&q], Some(asked(&["ros_service_call"])));
+            for p in parts {
+                g.next_part(p);
+            }
+            let mut calls = [ToolCall {
+                name: "ros_service_call".into(),
+                arguments: json!({ "service": target }),
+            }];
+            g.check(&mut calls, std::slice::from_ref(&service))
+                .into_iter()
+                .all(|v| v == Verdict::Pass)
+        };
+        assert!(!calls(
+            &["check the crane state", "run it again"],
+            "/crane/go_home"
+        ));
+        assert!(!calls(
+            &["open the hatch", "trigger it once more"],
+            "/hatch/close"
+        ));
+        assert!(calls(
+            &["look up /crane/go_home", "call it"],
+            "/crane/go_home"
+        ));
     }
 }

@@ -119,6 +119,7 @@ struct WordFile {
     contrast: Option<Section>,
     sequencer: Option<Section>,
     tell: Option<Section>,
+    reference: Option<Section>,
     #[serde(default)]
     direction: BTreeMap<Direction, Section>,
 }
@@ -148,6 +149,9 @@ struct Words {
     sequencers: BTreeSet<String>,
     /// Verbs that ask to be told, not to act ("explain how to move it").
     tell: BTreeSet<String>,
+    /// Words by which a later part points back at what an earlier one named ("change
+    /// it").
+    references: BTreeSet<String>,
     /// Whole words that name each direction of a motion (REP 103's signs).
     directions: BTreeMap<Direction, BTreeSet<String>>,
 }
@@ -166,6 +170,7 @@ impl Words {
             (&mut self.contrasts, file.contrast),
             (&mut self.sequencers, file.sequencer),
             (&mut self.tell, file.tell),
+            (&mut self.references, file.reference),
         ] {
             into.extend(section.into_iter().flat_map(|s| s.words));
         }
@@ -374,6 +379,11 @@ pub(crate) fn opens_request(word: &str) -> bool {
         || !acts_of(std::slice::from_ref(&word.to_string())).is_empty()
 }
 
+/// Whether `word` (folded) points back at what an earlier part of the request named.
+pub(crate) fn refers_back(word: &str) -> bool {
+    table().references.contains(word)
+}
+
 /// Acts the request asks for (in some clause, and forbidden in none).
 pub(crate) fn asked_acts(clauses: &[Clause]) -> Vec<Act> {
     let mut acts: Vec<Act> = clauses
@@ -431,6 +441,7 @@ mod tests {
                 ("contrast", file.contrast),
                 ("sequencer", file.sequencer),
                 ("tell", file.tell),
+                ("reference", file.reference),
             ] {
                 let section = section.unwrap_or_else(|| panic!("{lang}: no [{name}]"));
                 sections.push((name.to_string(), section.words));

@@ -74,6 +74,32 @@ fn target_words(call: &ToolCall) -> Vec<String> {
         .collect()
 }
 
+/// Whether `text` writes one of `call`'s targets whole: its words side by side, in its
+/// order (`background_b` in "read background_b", `/gripper/close` in "is the gripper
+/// close to the part"), whatever the clause's mood. A node counts only for a call on
+/// nothing else: a parameter's node is where the setting lives, not the setting.
+pub(crate) fn names_target(text: &str, call: &ToolCall) -> bool {
+    let said = folded_words(&text.replace(['_', '/'], " "));
+    let targets = |keys: &mut dyn Iterator<Item = &&str>| -> Vec<Vec<String>> {
+        keys.filter_map(|k| call.arguments.get(*k).and_then(Value::as_str))
+            .map(|t| folded_words(&t.replace(['_', '/'], " ")))
+            .filter(|t| !t.is_empty())
+            .collect()
+    };
+    let mut named = targets(&mut TARGET_KEYS.iter().filter(|k| **k != "node"));
+    if named.is_empty() {
+        named = targets(&mut TARGET_KEYS.iter());
+    }
+    named
+        .iter()
+        .any(|t| said.windows(t.len()).any(|w| w == t.as_slice()))
+}
+
+/// Whether `text` writes a name of its own (a word with `_` or `/`: `fan_speed`).
+pub(crate) fn writes_name(text: &str) -> bool {
+    text.split_whitespace().any(|w| w.contains(['_', '/']))
+}
+
 /// The operator's request, read for actuation.
 pub(crate) struct Intent {
     clauses: Vec<Clause>,
@@ -136,6 +162,49 @@ impl Intent {
                     .iter()
                     .any(|s| *s == w || (w.len() > 4 && s.starts_with(w.as_str())))
         })
+    }
+
+    /// Whether this part asks for `call`'s own act, or its target's, pointing back
+    /// (`concepts::refers_back`) without saying any word of what the call acts on: a
+    /// later part that refers back ("change it to 20" after the part that read the
+    /// setting) may take its target from the part before (`names_target`).
+    pub(crate) fn acts_on_unnamed(&self, call: &ToolCall, spec: &ToolSpec) -> bool {
+        let target = target_words(call);
+        let refers = self
+            .asking_words()
+            .any(|w| crate::reading::concepts::refers_back(w));
+        if !refers || target.is_empty() || self.says(&target) {
+            return false;
+        }
+        let mut acts = acts_of(&name_words(&spec.name));
+        acts.extend(acts_of(&target));
+        acts.iter().any(|a| self.asked.contains(a))
+    }
+
+    /// Whether the request says what `call`'s targets belong to, where a target's name
+    /// says it: the namespace before the last part (`/gripper/close`: "gripper",
+    /// `/turtle1/set_pen`: "turtle1" or "turtle"), past words of two letters. An act the
+    /// name shares is no reason alone: "close the window" asks nothing of the gripper,
+    /// "go to the pantry" nothing of `/arm/go_home`.
+    fn says_owner(&self, call: &ToolCall) -> bool {
+        TARGET_KEYS
+            .iter()
+            .filter_map(|k| call.arguments.get(*k).and_then(Value::as_str))
+            .all(|t| {
+                let t = t.trim_matches('/');
+                let Some((owner, _)) = t.rsplit_once('/') else {
+                    return true;
+                };
+                let words: Vec<String> = folded_words(&owner.replace(['_', '/'], " "))
+                    .into_iter()
+                    .flat_map(|w| {
+                        let bare = w.trim_end_matches(|c: char| c.is_ascii_digit()).to_string();
+                        [w, bare]
+                    })
+                    .filter(|w| w.len() > 2)
+                    .collect();
+                words.is_empty() || self.says(&words)
+            })
     }
 
     /// A tool that changes a setting (`ros_param_set`: its own name's act is `Set`) is
@@ -208,6 +277,9 @@ impl Intent {
             return false;
         }
         let target = target_words(call);
+        if !self.says_owner(call) {
+            return false;
+        }
         let target_acts = acts_of(&target);
         if target_acts.iter().any(|a| self.asked.contains(a)) {
             return true;
@@ -264,6 +336,24 @@ mod tests {
             name: name.into(),
             arguments: args,
         }
+    }
+
+    #[test]
+    fn a_target_is_asked_for_by_what_it_acts_on_not_by_a_shared_act() {
+        let (obs, act) = tools();
+        let asks = |q: &str, service: &str| {
+            Intent::new(q).asks_for(
+                &call(&act[2].name, json!({ "service": service })),
+                &act[2],
+                &obs,
+            )
+        };
+        assert!(asks("close the hatch", "/hatch/close"));
+        assert!(asks("crane, go home", "/crane/go_home"));
+        assert!(!asks("close the window", "/hatch/close"));
+        assert!(!asks("go to the pantry", "/crane/go_home"));
+        // A target that is only an act is asked for by it.
+        assert!(asks("clear the canvas", "/clear"));
     }
 
     #[test]

@@ -25,6 +25,10 @@ pub struct Meaning {
     encoder: Arc<Encoder>,
     /// Examples the robot prompt file adds, by tool name.
     extra: BTreeMap<String, Vec<String>>,
+    /// Examples the robot prompt file gives for one of the robot's names (a key that
+    /// starts with `/`: "/gripper/close" = ["grip the part"]), by the name without its
+    /// leading slash.
+    named: BTreeMap<String, Vec<String>>,
     /// The robot prompt file's prose, cut into clauses (`clauses`): what it says of each
     /// of the robot's names.
     about: Vec<String>,
@@ -32,32 +36,61 @@ pub struct Meaning {
 }
 
 impl Meaning {
-    /// `about`: the robot prompt file's prose (its sections joined), which describes
-    /// the robot's names ("/gripper/state gives its opening and grip force").
+    /// `extra`: the robot prompt file's examples, by tool name, or by one of the
+    /// robot's names when the key starts with `/`. `about`: the robot prompt file's
+    /// prose (its sections joined), which describes the robot's names ("/gripper/state
+    /// gives its opening and grip force").
     pub fn new(
         encoder: Arc<Encoder>,
         extra: BTreeMap<String, Vec<String>>,
         about: &str,
     ) -> Meaning {
+        let (named, extra): (BTreeMap<_, _>, BTreeMap<_, _>) =
+            extra.into_iter().partition(|(k, _)| k.starts_with('/'));
+        let named = named
+            .into_iter()
+            .map(|(k, v)| {
+                let v = v.into_iter().filter(|e| !e.trim().is_empty()).collect();
+                (k.trim_start_matches('/').to_string(), v)
+            })
+            .collect();
         Meaning {
             encoder,
             extra,
+            named,
             about: clauses(about),
             cache: Mutex::new(HashMap::new()),
         }
     }
 
+    /// The examples the robot prompt file gives for `name`.
+    fn named_examples(&self, name: &str) -> &[String] {
+        self.named
+            .get(name.trim_start_matches('/'))
+            .map_or(&[], Vec::as_slice)
+    }
+
+    /// The cosine of `q` with `name` read as its words, or with the nearest example the
+    /// robot prompt file gives for it when that is nearer.
+    fn name_cosine(&self, q: &[f32], name: &str) -> f64 {
+        std::iter::once(words_of_name(name))
+            .chain(self.named_examples(name).iter().cloned())
+            .map(|s| f64::from(cosine(q, &self.vector(&s))))
+            .fold(f64::NEG_INFINITY, f64::max)
+    }
+
     /// How near `query` is to the robot's `name`: the best cosine of the request with the
-    /// name read as its words and with each clause of the robot prompt file that writes
-    /// the name ("what the arm is doing on /arm/state"). `bound` breaks a tie of the
-    /// names a request's words point at with it, and chooses among names they point at
-    /// none of.
+    /// name read as its words, with the examples the robot prompt file gives for it,
+    /// and with each clause of the robot prompt file that writes the name ("what the
+    /// arm is doing on /arm/state"). `bound` breaks a tie of the names a request's
+    /// words point at with it, and chooses among names they point at none of.
     pub(crate) fn name_similarity(&self, query: &str, name: &str) -> f64 {
         let q = self.vector(query);
-        std::iter::once(words_of_name(name))
-            .chain(self.about.iter().filter_map(|c| said_of(c, name)))
+        self.about
+            .iter()
+            .filter_map(|c| said_of(c, name))
             .map(|s| f64::from(cosine(&q, &self.vector(&s))))
-            .fold(f64::NEG_INFINITY, f64::max)
+            .fold(self.name_cosine(&q, name), f64::max)
     }
 
     /// The cosine between `query` and the nearest of `sentences` (-inf when none).
@@ -105,6 +138,9 @@ impl Meaning {
                 self.vector(s);
             }
         }
+        for s in self.named.values().flatten() {
+            self.vector(s);
+        }
     }
 
     /// Each tool's similarity to `query`: the mean of its two best cosines with its
@@ -112,7 +148,7 @@ impl Meaning {
     /// `NAME_GAIN` times how much nearer the request is to the robot's nearest name of
     /// a kind the tool takes than to that kind's names on average (`names`: (kind,
     /// name) pairs; a name read as its words, so `/gripper/close` is "gripper close",
-    /// which "cierra la pinza" is near).
+    /// which "cierra la pinza" is near, or as the robot file's examples for it).
     pub fn similarities(
         &self,
         query: &str,
@@ -123,7 +159,7 @@ impl Meaning {
         let q = self.vector(query);
         let mut by_kind: HashMap<&str, Vec<f64>> = HashMap::new();
         for (kind, name) in names {
-            let c = f64::from(cosine(&q, &self.vector(&words_of_name(name))));
+            let c = self.name_cosine(&q, name);
             by_kind.entry(kind.as_str()).or_default().push(c);
         }
         // How far the nearest name of a kind stands out from the kind's names on
