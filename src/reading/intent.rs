@@ -181,32 +181,6 @@ impl Intent {
         acts.iter().any(|a| self.asked.contains(a))
     }
 
-    /// Whether the request says what `call`'s targets belong to, where a target's name
-    /// says it: the namespace before the last part (`/gripper/close`: "gripper",
-    /// `/turtle1/set_pen`: "turtle1" or "turtle"), past words of two letters. An act the
-    /// name shares is no reason alone: "close the window" asks nothing of the gripper,
-    /// "go to the pantry" nothing of `/arm/go_home`.
-    fn says_owner(&self, call: &ToolCall) -> bool {
-        TARGET_KEYS
-            .iter()
-            .filter_map(|k| call.arguments.get(*k).and_then(Value::as_str))
-            .all(|t| {
-                let t = t.trim_matches('/');
-                let Some((owner, _)) = t.rsplit_once('/') else {
-                    return true;
-                };
-                let words: Vec<String> = folded_words(&owner.replace(['_', '/'], " "))
-                    .into_iter()
-                    .flat_map(|w| {
-                        let bare = w.trim_end_matches(|c: char| c.is_ascii_digit()).to_string();
-                        [w, bare]
-                    })
-                    .filter(|w| w.len() > 2)
-                    .collect();
-                words.is_empty() || self.says(&words)
-            })
-    }
-
     /// A tool that changes a setting (`ros_param_set`: its own name's act is `Set`) is
     /// asked for by a request to change something, or one that writes the number the
     /// call sets ("make the gripper force 20"), not by one that names the
@@ -277,9 +251,6 @@ impl Intent {
             return false;
         }
         let target = target_words(call);
-        if !self.says_owner(call) {
-            return false;
-        }
         let target_acts = acts_of(&target);
         if target_acts.iter().any(|a| self.asked.contains(a)) {
             return true;
@@ -336,24 +307,6 @@ mod tests {
             name: name.into(),
             arguments: args,
         }
-    }
-
-    #[test]
-    fn a_target_is_asked_for_by_what_it_acts_on_not_by_a_shared_act() {
-        let (obs, act) = tools();
-        let asks = |q: &str, service: &str| {
-            Intent::new(q).asks_for(
-                &call(&act[2].name, json!({ "service": service })),
-                &act[2],
-                &obs,
-            )
-        };
-        assert!(asks("close the hatch", "/hatch/close"));
-        assert!(asks("crane, go home", "/crane/go_home"));
-        assert!(!asks("close the window", "/hatch/close"));
-        assert!(!asks("go to the pantry", "/crane/go_home"));
-        // A target that is only an act is asked for by it.
-        assert!(asks("clear the canvas", "/clear"));
     }
 
     #[test]
