@@ -573,8 +573,6 @@ impl AskedFor {
         let known = self.known(&call.name);
         let asks =
             |intent: &Intent| intent.asks_for_known(call, spec, &self.asked.observing, known);
-        // The part's own words hold a generic actuator only: a tool that names its act
-        // ("turn left, then right 45") is read with the whole request.
         // A part that points back and writes no name of its own acts on a target the
         // part before wrote whole ("read lamp_level, then change it to 20"); the whole
         // request must still ask for the call.
@@ -587,6 +585,8 @@ impl AskedFor {
                     .is_some_and(|b| names_target(b, call))
         };
         let part_asks = |part: &Intent| asks(part) || refers_back(part);
+        // The part's own words hold a generic actuator only: a tool that names its act
+        // ("turn left, then right 45") is read with the whole request.
         asks(&self.intent)
             && (!is_generic(spec) || self.part.as_ref().is_none_or(part_asks))
             && !self.meant_otherwise(call, spec)

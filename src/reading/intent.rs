@@ -80,16 +80,20 @@ fn target_words(call: &ToolCall) -> Vec<String> {
 /// nothing else: a parameter's node is where the setting lives, not the setting.
 pub(crate) fn names_target(text: &str, call: &ToolCall) -> bool {
     let said = folded_words(&text.replace(['_', '/'], " "));
-    let targets = |keys: &mut dyn Iterator<Item = &&str>| -> Vec<Vec<String>> {
-        keys.filter_map(|k| call.arguments.get(*k).and_then(Value::as_str))
-            .map(|t| folded_words(&t.replace(['_', '/'], " ")))
-            .filter(|t| !t.is_empty())
-            .collect()
+    let words_of = |k: &&str| {
+        let t = call.arguments.get(*k)?.as_str()?;
+        Some(folded_words(&t.replace(['_', '/'], " "))).filter(|w| !w.is_empty())
     };
-    let mut named = targets(&mut TARGET_KEYS.iter().filter(|k| **k != "node"));
-    if named.is_empty() {
-        named = targets(&mut TARGET_KEYS.iter());
-    }
+    let own: Vec<Vec<String>> = TARGET_KEYS
+        .iter()
+        .filter(|k| **k != "node")
+        .filter_map(words_of)
+        .collect();
+    let named = if own.is_empty() {
+        TARGET_KEYS.iter().filter_map(words_of).collect()
+    } else {
+        own
+    };
     named
         .iter()
         .any(|t| said.windows(t.len()).any(|w| w == t.as_slice()))

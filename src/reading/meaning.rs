@@ -73,10 +73,11 @@ impl Meaning {
     /// The cosine of `q` with `name` read as its words, or with the nearest example the
     /// robot prompt file gives for it when that is nearer.
     fn name_cosine(&self, q: &[f32], name: &str) -> f64 {
-        std::iter::once(words_of_name(name))
-            .chain(self.named_examples(name).iter().cloned())
-            .map(|s| f64::from(cosine(q, &self.vector(&s))))
-            .fold(f64::NEG_INFINITY, f64::max)
+        let own = f64::from(cosine(q, &self.vector(&words_of_name(name))));
+        self.named_examples(name)
+            .iter()
+            .map(|s| f64::from(cosine(q, &self.vector(s))))
+            .fold(own, f64::max)
     }
 
     /// How near `query` is to the robot's `name`: the best cosine of the request with the

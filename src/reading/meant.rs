@@ -31,7 +31,7 @@ pub(crate) const MEANT_MIN: f64 = 0.75;
 /// of it ("close the window" is 0.55 from `/gripper/close`); requests for one of the
 /// arm's names in the six languages were 0.59 to 1.0 from it, the impossible ones at
 /// most 0.55 (sentences of our own, not the suite's: `docs/agent.md`).
-pub(crate) const MEANT_NAME_MIN: f64 = 0.6;
+const MEANT_NAME_MIN: f64 = 0.6;
 
 /// How much nearer the nearest name must be than the next: the encoder reads opposites
 /// as near ("schließ den Greifer" is nearer `/gripper/open` than `/gripper/close`), and
