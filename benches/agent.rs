@@ -24,7 +24,7 @@
 //!    the server's own prompt and generation time.
 //!
 //! 5. This build against main at 2065ce7 (before the answer step), side by side in one
-//!    run: `VERSUS`, 33 requests of nine kinds (listing, state, count, field,
+//!    run: `VERSUS`, 37 requests of nine kinds (listing, state, count, field,
 //!    definition, parameter, motion, two-step, small talk), typed into each build's
 //!    `ferrosa chat` one at a time (`common/versus.rs`), each request's time to its
 //!    first call and to its answer and the p50 / p95 of each; this build a second time
@@ -80,7 +80,7 @@ const REQUESTS: [&str; 5] = [
 
 /// Part 5's requests, by kind: none of them is in a suite, and each kind has several
 /// wordings, so a build fitted to one wording gains little here.
-const VERSUS: [(&str, &str); 33] = [
+const VERSUS: [(&str, &str); 37] = [
     ("listing", "show me every node that is running"),
     ("listing", "what services are offered here?"),
     ("listing", "give me the list of topics"),
@@ -120,6 +120,16 @@ const VERSUS: [(&str, &str); 33] = [
     ("motion", "put the pen up"),
     ("two-step", "move forward 1 meter and then tell me the pose"),
     ("two-step", "list the nodes and then the topics"),
+    ("two-step", "turn left 45 degrees and then read the pose"),
+    ("two-step", "count the topics, then list the services"),
+    (
+        "two-step",
+        "put the pen down and then drive forward half a meter",
+    ),
+    (
+        "two-step",
+        "what is background_r set to, and what is background_b set to?",
+    ),
     ("small talk", "hi there!"),
     ("small talk", "thank you, that will be all"),
     ("small talk", "what are you?"),

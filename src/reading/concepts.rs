@@ -379,6 +379,22 @@ pub(crate) fn opens_request(word: &str) -> bool {
         || !acts_of(std::slice::from_ref(&word.to_string())).is_empty()
 }
 
+/// Whether a folded word only orders what is asked ("then", "luego", "dann"): said
+/// between two asks, it cuts even where the second leaves its verb unsaid.
+pub(crate) fn sequences(word: &str) -> bool {
+    table().sequencers.contains(word)
+}
+
+/// Whether a folded word names an act ("move", "gira", "set").
+pub(crate) fn asks_act(word: &str) -> bool {
+    !acts_of(std::slice::from_ref(&word.to_string())).is_empty()
+}
+
+/// Whether a folded word asks to be told ("show", "tell", "describe").
+pub(crate) fn tells(word: &str) -> bool {
+    table().tell.contains(word)
+}
+
 /// Whether `word` (folded) points back at what an earlier part of the request named.
 pub(crate) fn refers_back(word: &str) -> bool {
     table().references.contains(word)

@@ -40,6 +40,9 @@ pub struct FakeGraph {
     services: BTreeMap<String, Value>,
     actions: BTreeMap<String, GoalOutcome>,
     topics: BTreeMap<String, Vec<Value>>,
+    /// How many of a topic's first messages a new subscription receives as history
+    /// (a latched topic's), all at once.
+    history: BTreeMap<String, usize>,
     graph: Graph,
     interfaces: Interfaces,
     watchers: Mutex<Vec<(String, tokio::sync::mpsc::UnboundedSender<Value>)>>,
@@ -73,6 +76,14 @@ impl FakeGraph {
     /// Messages a subscription to `topic` receives, in order.
     pub fn with_messages(mut self, topic: &str, messages: Vec<Value>) -> FakeGraph {
         self.topics.insert(topic.to_string(), messages);
+        self
+    }
+
+    /// The first `n` of `topic`'s messages come as a latched topic's history: all at
+    /// once, on joining, before the rest.
+    #[cfg(test)]
+    pub(crate) fn with_history(mut self, topic: &str, n: usize) -> FakeGraph {
+        self.history.insert(topic.to_string(), n);
         self
     }
 
@@ -146,15 +157,17 @@ impl RosGraph for FakeGraph {
                 .topics
                 .get(topic)
                 .ok_or_else(|| RosError::NoTopic(topic.to_string()))?;
-            // Spread the messages evenly over the window, as a steady publisher would.
+            // The history at once, then the rest spread evenly over the window, as a
+            // steady publisher would.
+            let history = self.history.get(topic).copied().unwrap_or(0);
             let step = window.as_secs_f64() / messages.len().max(1) as f64;
             Ok(messages
                 .iter()
                 .take(max)
                 .enumerate()
                 .map(|(i, m)| Sample {
-                    t: step * i as f64,
-                    message: m.clone(),
+                    history: i < history,
+                    ..Sample::new(step * i.saturating_sub(history) as f64, m.clone())
                 })
                 .collect())
         })

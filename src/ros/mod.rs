@@ -76,6 +76,21 @@ pub enum RosError {
 pub struct Sample {
     pub t: f64,
     pub message: Value,
+    /// Published before the subscription started: a latched topic's history, delivered
+    /// at once on joining (a rate counts only what was published while it listened).
+    #[serde(skip)]
+    pub history: bool,
+}
+
+impl Sample {
+    /// A message published while the subscription listened.
+    pub fn new(t: f64, message: Value) -> Sample {
+        Sample {
+            t,
+            message,
+            history: false,
+        }
+    }
 }
 
 /// How a goal ended, or that it had not yet when the wait was over.

@@ -589,10 +589,9 @@ impl RosGraph for Ros1Graph {
             while out.len() < max {
                 let left = window.saturating_sub(start.elapsed());
                 match tokio::time::timeout(left, listener.rx.recv()).await {
-                    Ok(Some(v)) => out.push(Sample {
-                        t: start.elapsed().as_secs_f64(),
-                        message: reading.apply(v),
-                    }),
+                    Ok(Some(v)) => {
+                        out.push(Sample::new(start.elapsed().as_secs_f64(), reading.apply(v)))
+                    }
                     _ => break,
                 }
             }

@@ -233,7 +233,7 @@ impl Actions {
                         if outcome.feedback.len() == FEEDBACK_KEPT {
                             outcome.feedback.remove(0);
                         }
-                        outcome.feedback.push(Sample { t: start.elapsed().as_secs_f64(), message });
+                        outcome.feedback.push(Sample::new(start.elapsed().as_secs_f64(), message));
                     }
                 }
             }

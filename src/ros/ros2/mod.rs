@@ -41,6 +41,11 @@ use super::{
     typedesc, BoxFuture, CancelOutcome, GoalOutcome, Interfaces, RosError, RosGraph, Sample,
 };
 
+/// How soon after a subscription joins a latched topic its history arrives: a sample
+/// published before the join (by the publisher's clock) counts as history only then, so
+/// a publisher whose clock runs behind ours does not make every later sample history.
+const HISTORY_BURST: Duration = Duration::from_millis(500);
+
 // `ros_discovery_info`, read with our own types (rmw_dds_common, Jazzy: 16-byte GIDs).
 #[derive(Debug, Clone, Serialize, Deserialize)]
 struct DiscoveryGid {
@@ -321,6 +326,7 @@ impl Ros2Graph {
             node.create_subscription::<Raw>(&t, Some(qos))
                 .map_err(|e| RosError::Other(format!("subscribe {topic}: {e:?}")))?
         };
+        let joined = Instant::now();
         let mut out = Vec::new();
         while out.len() < max {
             let now = Instant::now();
@@ -341,6 +347,11 @@ impl Ros2Graph {
                     out.push(Sample {
                         t: start.elapsed().as_secs_f64(),
                         message,
+                        // History is delivered on joining; the source time (the
+                        // publisher's clock) only tells it apart in that first burst.
+                        history: latched
+                            && joined.elapsed() < HISTORY_BURST
+                            && info.source_timestamp().is_some_and(|t| t < since),
                     });
                 }
                 Ok(Err(e)) => tracing::debug!("{topic}: {e:?}"),

@@ -244,9 +244,11 @@ mod tests {
             status,
             result: Some(json!({"delta": -1.5})),
             feedback: (0..8)
-                .map(|i| Sample {
-                    t: 0.1 * f64::from(i),
-                    message: json!({"remaining": 1.5 - 0.2 * f64::from(i)}),
+                .map(|i| {
+                    Sample::new(
+                        0.1 * f64::from(i),
+                        json!({"remaining": 1.5 - 0.2 * f64::from(i)}),
+                    )
                 })
                 .collect(),
         }

@@ -170,6 +170,29 @@ mod tests {
     }
 
     #[test]
+    fn a_rate_leaves_out_a_latched_topics_history() {
+        let log = |i: u32| json!({"msg": format!("line {i}")});
+        let latched = |messages: u32, history: usize| {
+            let graph = turtlesim(&[ep(4, true, "rt/rosout", "rcl_interfaces::msg::dds_::Log_")]);
+            Ros::new(Arc::new(
+                FakeGraph::new()
+                    .with_graph(graph)
+                    .with_messages("/rosout", (0..messages).map(log).collect())
+                    .with_history("/rosout", history),
+            ))
+        };
+        let ros = latched(6, 4);
+        // Six messages over 3 s, four of them history: two live ones 0.5 s apart.
+        let hz = run(&TopicHz(ros), json!({"topic": "/rosout", "window_s": 3.0})).unwrap();
+        assert_eq!(hz["messages"], 2, "{hz}");
+        assert_eq!(hz["rate_hz"], 2.0, "{hz}");
+        // All history: no rate, and a note that says what to do.
+        let hz = run(&TopicHz(latched(3, 3)), json!({"topic": "/rosout"})).unwrap();
+        assert_eq!(hz["rate_hz"], 0.0, "{hz}");
+        assert!(hz["note"].as_str().unwrap().contains("window_s"), "{hz}");
+    }
+
+    #[test]
     fn echo_hz_and_unknown_topics() {
         let ros = Ros::new(fake());
         let out = run(
@@ -185,6 +208,7 @@ mod tests {
         )
         .unwrap();
         assert_eq!(hz["rate_hz"], 1.0);
+        assert!(hz.get("note").is_none(), "{hz}");
         // A loose name reads the one topic it names, and says so.
         let near = run(&TopicEcho(ros.clone()), json!({"topic": "/turtle1/pos"})).unwrap();
         assert_eq!(near["topic"], "/turtle1/pose");

@@ -156,14 +156,22 @@ impl Tool for TopicHz {
             .subscribe(&topic, Some(&ty), 100_000, window)
             .await
             .map_err(failed)?;
-        let rate = match (samples.first(), samples.last()) {
-            (Some(a), Some(b)) if samples.len() > 1 && b.t > a.t => {
-                (samples.len() - 1) as f64 / (b.t - a.t)
-            }
+        // A latched topic's history arrives at once on joining: not a rate.
+        let live: Vec<f64> = samples.iter().filter(|s| !s.history).map(|s| s.t).collect();
+        let rate = match (live.first(), live.last()) {
+            (Some(a), Some(b)) if live.len() > 1 && b > a => (live.len() - 1) as f64 / (b - a),
             _ => 0.0,
         };
-        let out = json!({"topic": topic, "messages": samples.len(), "window_s": window.as_secs_f64(),
+        let window_s = window.as_secs_f64();
+        let mut out = json!({"topic": topic, "messages": live.len(), "window_s": window_s,
                   "rate_hz": (rate * 100.0).round() / 100.0});
+        if live.len() < 2 {
+            out["note"] = json!(format!(
+                "{} message(s) in {window_s:.1} s: too few for a rate; the topic publishes \
+                 less often, or a longer window_s (up to 10) measures it",
+                live.len()
+            ));
+        }
         Ok(with_resolved(out, resolved))
     }
 
