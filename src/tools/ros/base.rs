@@ -363,11 +363,10 @@ pub(super) fn suggest<'a>(wanted: &str, names: impl Iterator<Item = &'a String>)
 pub(crate) struct ListArgs {
     /// Only names matching this regular expression; leave out to list all.
     #[serde(default)]
-    #[schemars(length(max = 64))]
     pub pattern: Option<String>,
     /// Only names under this namespace; leave out to list all.
     #[serde(default)]
-    #[schemars(regex(pattern = r"^/[A-Za-z0-9_/]*$"), length(max = 64))]
+    #[schemars(regex(pattern = r"^/[A-Za-z0-9_/]*$"))]
     pub namespace: Option<String>,
 }
 
