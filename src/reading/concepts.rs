@@ -374,9 +374,7 @@ pub fn chains(word: &str) -> Option<bool> {
 /// be told ("tell", "dime") or names an act ("move", "gira").
 pub(crate) fn opens_request(word: &str) -> bool {
     let table = table();
-    table.question_words.contains(word)
-        || table.tell.contains(word)
-        || !acts_of(std::slice::from_ref(&word.to_string())).is_empty()
+    table.question_words.contains(word) || tells(word) || asks_act(word)
 }
 
 /// Whether a folded word only orders what is asked ("then", "luego", "dann"): said

@@ -111,8 +111,8 @@ pub fn parts(request: &str, tool_words: &BTreeSet<String>) -> Vec<String> {
         let chain_next = chaining(&words[next]) && !chaining(w) && !w.folded.is_empty();
         // A sequencer ("then", "luego") orders two asks, the second without a verb of
         // its own: it takes this piece's.
-        let lends = (chain_next
-            && next > from
+        let chained = chain_next && next > from;
+        let lends = (chained
             && !opens(next)
             && words[next..]
                 .iter()
@@ -120,7 +120,7 @@ pub fn parts(request: &str, tool_words: &BTreeSet<String>) -> Vec<String> {
                 .any(|w| sequences(&w.folded[0])))
         .then(|| verb(from).or(borrowed))
         .flatten();
-        if cut_after || (chain_next && next > from && opens(next)) || lends.is_some() {
+        if cut_after || (chained && opens(next)) || lends.is_some() {
             pieces.push((from, next, borrowed.take()));
             from = next;
             borrowed = lends;
