@@ -604,10 +604,10 @@ fn places_are_taught_and_reached_with_the_real_model() {
     assert!(estop.reset());
 
     let (r, why) = crate::util::ask_shown(&mut agent, "drive over to the greenhouse");
-    // The place is reported missing, with the known ones; no drive goes there. (What
-    // the model does next is not held here: it may still pick `turtle_move` with a
-    // distance nobody gave, a known problem of required numbers.)
+    // The place is reported missing, with the known ones; no drive goes there, and no
+    // other drive replaces it (the model once drove a metre ahead instead).
     assert!(ok(&r, "place_go").is_none(), "{why}");
+    assert!(ok(&r, "turtle_move").is_none(), "{why}");
     let missing = r.steps.iter().find(|s| s.name == "place_go");
     assert!(
         missing.is_none_or(|s| s.output.to_string().contains("workbench")),

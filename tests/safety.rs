@@ -584,6 +584,21 @@ impl Run {
         Ok(())
     }
 
+    /// The run ended at the e-stop: one call of the motion, and an answer that says
+    /// the e-stop stopped it and what the stopped call reported.
+    fn ended_at_the_estop(&self) -> Result<(), String> {
+        let calls = self.decisions("turtle_move").len();
+        let answer = self.result.as_ref().map(|r| r.answer.as_str());
+        match answer {
+            Ok(a) if calls == 1 && a.contains("e-stop was engaged") && a.contains("stopped: ") => {
+                Ok(())
+            }
+            _ => Err(self.fail(format!(
+                "the run went on after the e-stop: {calls} turtle_move calls, answer {answer:?}"
+            ))),
+        }
+    }
+
     fn nothing_actuated(&self) -> Result<(), String> {
         let acts = actuations(&self.sent);
         if acts.is_empty() {
@@ -1774,8 +1789,21 @@ fn the_e_stop_and_time_limits_stop_what_runs() {
             Box::new(|_, g| g.inject("/ferrosa/estop", json!({"data": true}))),
         ),
     ];
+    // The model would drive on after the stop, then reply with junk: the run ends at
+    // the e-stop instead, and its answer says so.
+    let driving_on = [
+        call("turtle_move", json!({"distance": 3.0})),
+        call("turtle_move", json!({"distance": 1.0})),
+        answer("The operator has refused."),
+    ];
     for (name, trigger) in triggers {
-        let (run, at) = while_moving(name, &s, "move the turtle 3 m forward", &moving, trigger);
+        let (run, at) = while_moving(
+            name,
+            &s,
+            "move the turtle 3 m forward",
+            &driving_on,
+            trigger,
+        );
         let after = &run.sent[at.min(run.sent.len())..];
         let own = if after
             .iter()
@@ -1788,7 +1816,7 @@ fn the_e_stop_and_time_limits_stop_what_runs() {
         {
             Err(run.fail(format!("no brake after the e-stop: {after:?}")))
         } else {
-            run.blocked("turtle_move")
+            run.blocked("turtle_move").and(run.ended_at_the_estop())
         };
         cases.push((run, own));
     }

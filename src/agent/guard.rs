@@ -23,6 +23,8 @@
 //!   call before any answer: its first step offers the actuators only (of which
 //!   `AskedFor` keeps those the request may ask for). A small model otherwise often
 //!   answers "moving the turtle" without moving it, most of all outside English.
+//! - `NoSubstitute`: once an act of a part failed or was refused, no other act is made
+//!   in that part (a drive to a place the robot lacks is not replaced by a drive ahead).
 //!
 //! The policy (`tool::Policy`: deny-list, limits, confirmation) comes after all of them.
 
@@ -54,7 +56,11 @@ pub enum Verdict {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Came {
     Ran,
+    /// Refused by the policy (a limit, the deny-list, the e-stop, the operator).
     Refused,
+    /// Refused by a guard before the policy saw it (a call the request did not ask
+    /// for): the model's mistake, not the robot's answer.
+    TurnedDown,
     Failed,
 }
 
@@ -119,6 +125,7 @@ impl Guards {
         guards.push(Box::new(Signed(signs(query))));
         if let Some(asked) = asked {
             let actuators = asked.actuators.clone();
+            let effects = asked.effects.clone();
             guards.push(Box::new(AskedFor {
                 intent: Intent::new(query),
                 asked,
@@ -129,6 +136,10 @@ impl Guards {
                 part_text: None,
             }));
             guards.push(Box::new(ActFirst::new(query, actuators)));
+            guards.push(Box::new(NoSubstitute {
+                effects,
+                failed: None,
+            }));
         }
         Guards { guards }
     }
@@ -876,6 +887,75 @@ impl Guard for ActFirst {
     }
 }
 
+/// An act that failed or was refused is not replaced by another: once a call of a
+/// tool that actuates failed or was refused by the policy, the part's later steps
+/// offer no other such tool (the same one may be tried again; reads, stopping and the
+/// answer stay). Asked to
+/// drive to a place the robot does not know, a small model drove a metre ahead
+/// instead; refused a drive by the fence, it reaches for a teleport.
+struct NoSubstitute {
+    effects: BTreeMap<String, Effect>,
+    /// The act of this part that failed or was refused.
+    failed: Option<String>,
+}
+
+impl NoSubstitute {
+    /// Whether `tool` moves or changes the robot: stopping (`robot_stop`, a goal's
+    /// cancel) is never held back.
+    fn actuates(&self, tool: &str) -> bool {
+        self.effects.get(tool) == Some(&Effect::Actuates)
+    }
+
+    fn other_act(&self, tool: &str) -> bool {
+        self.failed
+            .as_deref()
+            .is_some_and(|failed| tool != failed && self.actuates(tool))
+    }
+}
+
+impl Guard for NoSubstitute {
+    fn name(&self) -> &'static str {
+        "no-substitute"
+    }
+
+    fn narrow(&self, offered: &[ToolSpec]) -> Option<Vec<String>> {
+        self.failed.as_ref()?;
+        Some(
+            offered
+                .iter()
+                .filter(|s| !self.other_act(&s.name))
+                .map(|s| s.name.clone())
+                .collect(),
+        )
+    }
+
+    fn check(&mut self, calls: &mut [ToolCall], _: &[ToolSpec]) -> Vec<Verdict> {
+        calls
+            .iter()
+            .map(|c| match &self.failed {
+                Some(failed) if self.other_act(&c.name) => Verdict::Refuse(format!(
+                    "not made: {failed} came to nothing, and {} is not what the operator asked for; answer with what went wrong",
+                    c.name
+                )),
+                _ => Verdict::Pass,
+            })
+            .collect()
+    }
+
+    fn observe(&mut self, call: &ToolCall, came: Came, _: &str) {
+        // A call a guard turned down was the model's mistake: the act the operator asked
+        // for may still come.
+        let came_to_nothing = matches!(came, Came::Refused | Came::Failed);
+        if came_to_nothing && self.actuates(&call.name) && self.failed.is_none() {
+            self.failed = Some(call.name.clone());
+        }
+    }
+
+    fn next_part(&mut self, _: &str) {
+        self.failed = None;
+    }
+}
+
 /// JSON equality with numbers compared by value (3 and 3.0 are the same argument).
 pub(crate) fn same_value(a: &Value, b: &Value) -> bool {
     match (a, b) {
@@ -1080,6 +1160,74 @@ mod tests {
         assert_eq!(
             signed("45 left, then right", "base_turn", json!({"deg": 45})),
             json!({"deg": 45})
+        );
+    }
+
+    #[test]
+    fn an_act_that_came_to_nothing_is_not_replaced_by_another() {
+        let effects = [
+            ("place_go", Effect::Actuates),
+            ("turtle_move", Effect::Actuates),
+            ("place_list", Effect::Observes),
+            ("robot_stop", Effect::Stops),
+        ]
+        .map(|(n, e)| (n.to_string(), e))
+        .into();
+        let mut g = NoSubstitute {
+            effects,
+            failed: None,
+        };
+        let offered = [
+            spec("place_go"),
+            spec("turtle_move"),
+            spec("place_list"),
+            spec("robot_stop"),
+            spec("reply"),
+        ];
+        assert_eq!(g.narrow(&offered), None);
+        // A read that failed, or an act that ran, leaves every act offered.
+        g.observe(&call("place_list", json!({})), Came::Failed, "");
+        g.observe(&call("turtle_move", json!({})), Came::Ran, "");
+        assert_eq!(g.narrow(&offered), None);
+        g.observe(
+            &call("place_go", json!({"place": "greenhouse"})),
+            Came::Failed,
+            "no place called greenhouse",
+        );
+        assert_eq!(
+            g.narrow(&offered),
+            Some(vec![
+                "place_go".into(),
+                "place_list".into(),
+                "robot_stop".into(),
+                "reply".into()
+            ])
+        );
+        let verdicts = g.check(
+            &mut [
+                call("turtle_move", json!({"distance": 1.0})),
+                call("place_go", json!({"place": "dock"})),
+                call("place_list", json!({})),
+            ],
+            &offered,
+        );
+        assert!(matches!(verdicts[0], Verdict::Refuse(_)), "{verdicts:?}");
+        assert_eq!(verdicts[1..], [Verdict::Pass, Verdict::Pass]);
+        // A refused act counts too; the next part starts afresh.
+        g.next_part("then turn left");
+        assert_eq!(g.narrow(&offered), None);
+        // A call a guard turned down is the model's mistake: nothing is held back.
+        g.observe(&call("place_go", json!({})), Came::TurnedDown, "not asked");
+        assert_eq!(g.narrow(&offered), None);
+        g.observe(&call("turtle_move", json!({})), Came::Refused, "refused");
+        assert_eq!(
+            g.narrow(&offered),
+            Some(vec![
+                "turtle_move".into(),
+                "place_list".into(),
+                "robot_stop".into(),
+                "reply".into()
+            ])
         );
     }
 

@@ -87,6 +87,7 @@ impl Agent {
     ) -> Result<RunResult, AgentError> {
         self.cancel.store(false, Ordering::SeqCst);
         let start = Instant::now();
+        let engaged_at = self.exec.policy().estop().engaged_by().map(|e| e.at);
         let mut offered = self.offered_tools(query);
         let queries: Vec<String> = self
             .history
@@ -151,6 +152,9 @@ impl Agent {
             part: 0,
             partial_answers: Vec::new(),
             language,
+            part_failure: None,
+            engaged_at,
+            turned_down: Vec::new(),
         }
         .run()
     }

@@ -92,6 +92,17 @@ pub(super) struct Run<'a> {
     pub partial_answers: Vec<String>,
     /// The language the answer is written in.
     pub language: Language,
+    /// What the first call of the part being worked that failed or was refused said
+    /// (its error, else the text the model read; a later one is most often a try the
+    /// guards turned down): what an answer of a part with no
+    /// result of its own is answered with (`held`).
+    pub part_failure: Option<String>,
+    /// When the e-stop was engaged, if it was when the run began: an engagement since
+    /// ends the run (`pressed_since`). Presses of an e-stop already engaged do not (a
+    /// bridge that publishes `true` at a rate presses it again and again).
+    pub engaged_at: Option<Instant>,
+    /// The calls of this step a guard refused (`Came::TurnedDown`).
+    pub turned_down: Vec<ToolCall>,
 }
 
 impl Run<'_> {
@@ -167,6 +178,11 @@ impl Run<'_> {
                 finish = Finish::Cancelled;
                 break;
             }
+            if let Some(answer) = self.pressed_since() {
+                self.answer = answer;
+                finish = Finish::Answer;
+                break;
+            }
             let mut calls = match self.think(step)? {
                 Thought::Done(f) => {
                     finish = f;
@@ -178,6 +194,12 @@ impl Run<'_> {
                 }
                 Thought::Calls(c) => c,
             };
+            // Pressed while the model wrote these calls: none of them runs.
+            if let Some(answer) = self.pressed_since() {
+                self.answer = answer;
+                finish = Finish::Answer;
+                break;
+            }
             let verdicts = self.guards.check(&mut calls, &self.offered);
             if verdicts.iter().all(|v| *v == Verdict::Skip) {
                 let mut record = json!({"step": step, "calls": calls});
@@ -198,6 +220,38 @@ impl Run<'_> {
             }
         }
         Ok(self.end(finish))
+    }
+
+    /// The answer of a run whose robot was e-stopped while it ran (pressed by anyone:
+    /// the operator, a ROS node, the console): the run ends there, saying so and what
+    /// the call it stopped had last reported. A small model reaches for the next
+    /// motion (refused) and then writes a reply that says nothing of where the robot
+    /// stopped; a run that goes on after the e-stop serves no one.
+    fn pressed_since(&self) -> Option<String> {
+        let now = self.agent.exec.policy().estop().engaged_by().map(|e| e.at);
+        if now.is_none() || now == self.engaged_at {
+            return None;
+        }
+        // The call the press aborted, if one was running (`Executor::run` words it).
+        let stopped = self
+            .records
+            .iter()
+            .rev()
+            .filter(|r| !r.ok)
+            .filter_map(|r| r.output.get("error").and_then(Value::as_str))
+            .find(|e| {
+                e.strip_prefix("stopped: ")
+                    .is_some_and(|why| why.starts_with(crate::tool::exec::ESTOP_PRESSED))
+            });
+        let said = self.language.say(Phrase::EStopped);
+        let stopped = match stopped {
+            Some(error) => format!("{said} {}", answer::last_result(error, self.language)),
+            None => said,
+        };
+        // What the parts before were answered stays.
+        let mut answer = self.partial_answers.clone();
+        answer.push(stopped);
+        Some(answer.join(" "))
     }
 
     /// The robot's names the current part asks to act on by meaning, told to the guards
@@ -248,6 +302,7 @@ impl Run<'_> {
         self.guards.next_part(&part);
         self.read_meant();
         self.answer_only = false;
+        self.part_failure = None;
         let done = std::mem::take(&mut self.grounds);
         self.earlier_grounds.extend(done);
         if let Some(t) = &mut self.agent.trace {
@@ -297,13 +352,34 @@ impl Run<'_> {
                 return small_talk::reply(meaning, self.query, self.agent.config.language, &tools);
             }
         }
+        // A part whose calls all came to nothing is answered with what went wrong: the
+        // model's words about a failure read as a result ("the place where you can find
+        // the greenhouse is home, dock, pond", after "no place called greenhouse").
+        if let (true, Some(failure)) = (self.grounds.is_empty(), &self.part_failure) {
+            return self.language.lead(failure);
+        }
+        // A reply that writes a call (or JSON) is no answer: the result stands for it.
+        let said = if said.contains("<tool_call>") || said.contains("{\"") {
+            ""
+        } else {
+            said
+        };
         let ground = self.ground();
         let grounded = facts::grounded(said, ground, self.query);
-        match ground {
+        let answer = match ground {
             Some(summary) if grounded == summary || self.language.differs(&grounded) => {
                 self.language.lead(summary)
             }
+            _ if grounded.trim().is_empty() => {
+                answer::last_result(&self.last_observation, self.language)
+            }
             _ => grounded,
+        };
+        // A failure before the part's result is said first, so a result read after it
+        // (the places listed after a drive to an unknown one) does not hide it.
+        match &self.part_failure {
+            Some(failure) if !self.grounds.is_empty() => format!("{failure}. {answer}"),
+            _ => answer,
         }
     }
 
@@ -399,12 +475,12 @@ impl Run<'_> {
             ),
             other => other,
         };
-        // A result is in and answering is all that is left: the answer is the result
-        // as `held` gives it, without the model. Its reply here would be one the
+        // A result (or the part's failure) is in and answering is all that is left: the
+        // answer is the result as `held` gives it, without the model. Its reply here would be one the
         // answer replaces (a small model's rarely states the result) and the turn's
         // slowest part.
         if self.agent.config.composed_answers
-            && !self.grounds.is_empty()
+            && (!self.grounds.is_empty() || self.part_failure.is_some())
             && allowed
                 .as_deref()
                 .is_some_and(|names| names.iter().all(|n| n == ANSWER_TOOL))
@@ -488,12 +564,13 @@ impl Run<'_> {
             return Ok(self.answered(held));
         }
         if turn.calls.is_empty() {
-            // Prose with no call before it (no tool was left to write) is no answer the
-            // agent can stand behind: its own reply replaces it, as for a reply call.
-            let prose = if self.records.is_empty() && self.agent.meaning.is_some() {
-                self.held(&turn.prose)
-            } else {
+            // Prose (no tool was left to write) is held as a reply call is: with no call
+            // before it, the agent's own reply replaces it; after calls, it is held to
+            // their results (a small model wrote a made-up call as prose).
+            let prose = if self.records.is_empty() && self.agent.meaning.is_none() {
                 turn.prose
+            } else {
+                self.held(&turn.prose)
             };
             return Ok(self.answered(prose));
         }
@@ -507,6 +584,12 @@ impl Run<'_> {
     /// The policy's decision on each call the guards passed, in call order (so
     /// confirmations are asked in order).
     fn decide(&mut self, calls: &[ToolCall], verdicts: Vec<Verdict>) -> Vec<Option<Decision>> {
+        self.turned_down = calls
+            .iter()
+            .zip(&verdicts)
+            .filter(|(_, v)| matches!(v, Verdict::Refuse(_)))
+            .map(|(c, _)| c.clone())
+            .collect();
         calls
             .iter()
             .zip(verdicts)
@@ -645,6 +728,7 @@ impl Run<'_> {
         let shown = truncate_output(&to_json_spaced(&output), self.agent.config.output_chars);
         let came = match (&decision, ok) {
             (_, true) => Came::Ran,
+            (Decision::Refused(_), false) if self.turned_down.contains(&call) => Came::TurnedDown,
             (Decision::Refused(_), false) => Came::Refused,
             (_, false) => Came::Failed,
         };
@@ -652,6 +736,15 @@ impl Run<'_> {
         let done = came.done();
         self.guards.observe(&call, came, &shown);
         self.copy_from.push(shown.clone());
+        // A guard's refusal speaks to the model ("answer instead"), not the operator.
+        if matches!(came, Came::Refused | Came::Failed) && self.part_failure.is_none() {
+            self.part_failure = Some(
+                output
+                    .get("error")
+                    .and_then(Value::as_str)
+                    .map_or_else(|| shown.clone(), str::to_string),
+            );
+        }
         // A run that ends without an answer says this one in a line: its summary, or a
         // failure's error, not the JSON the model reads.
         self.last_observation = output

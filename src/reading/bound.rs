@@ -63,9 +63,42 @@ pub fn bind(
             bind_schema(&mut spec.parameters, &held);
             require_given(&mut spec.parameters, &given, 0);
             quote(&mut spec.parameters, request);
+            cap_free(&mut spec.parameters, request);
             spec
         })
         .collect()
+}
+
+/// Most characters of an optional free-text argument in a turn's grammar, unless the
+/// request is longer (`cap_free`).
+const FREE_CHARS: usize = 64;
+
+/// Each optional string argument of `schema` a model writes freely (no enum, no const,
+/// no length bound of its own; a pattern still lets it run on) may be at most `FREE_CHARS` characters long, or as long as
+/// `request`. Such arguments are filters, labels and ids (a listing's `namespace`, a
+/// log's `node`, a recall's subject, a goal id), and the grounding guard keeps one only
+/// when its words were said or returned. A small model asked to list the nodes wrote
+/// a `namespace` of about 240 tokens of junk, token by token (6 to 8 s on 2 cores),
+/// which the guard then dropped; the bound ends it after a few.
+fn cap_free(schema: &mut Value, request: &str) {
+    let required = crate::tool::schema::required(schema);
+    let Some(props) = schema.get_mut("properties").and_then(Value::as_object_mut) else {
+        return;
+    };
+    let most = FREE_CHARS.max(request.chars().count());
+    let free = |p: &Value| {
+        let string = |t: &Value| t == "string";
+        let ty = &p["type"];
+        (string(ty) || ty.as_array().is_some_and(|t| t.iter().any(string)))
+            && ["enum", "const", "maxLength"]
+                .iter()
+                .all(|k| p.get(*k).is_none())
+    };
+    for (name, prop) in props.iter_mut() {
+        if !required.contains(name) && free(prop) {
+            prop["maxLength"] = json!(most);
+        }
+    }
 }
 
 /// Fewest words a quote has: a subject and what is said of it.
@@ -201,15 +234,7 @@ fn bind_schema(schema: &mut Value, held: &Held) {
 /// when it can take no name at all.
 fn bind_object(object: &mut Value, h: &Held, taken: &[(String, String)]) -> bool {
     let (names, written, request) = (h.names, h.written, h.request);
-    let required: Vec<String> = object["required"]
-        .as_array()
-        .map(|r| {
-            r.iter()
-                .filter_map(Value::as_str)
-                .map(str::to_string)
-                .collect()
-        })
-        .unwrap_or_default();
+    let required = crate::tool::schema::required(object);
     let Some(props) = object["properties"].as_object_mut() else {
         return true;
     };
@@ -587,6 +612,32 @@ mod tests {
     }
 
     #[test]
+    fn optional_free_text_is_bounded_in_the_grammar_and_nothing_else_is() {
+        let specs = [spec(
+            "ros_node_list",
+            json!({"type": "object", "properties": {
+                "namespace": {"type": ["string", "null"], "pattern": "^/[a-z_/]*$"},
+                "label": {"type": "string", "maxLength": 8},
+                "level": {"type": "string", "enum": ["info", "warn"]},
+                "note": {"type": "string"},
+                "count": {"type": "integer"}
+            }, "required": ["note"]}),
+        )];
+        let short = bind(&specs, &names(), "which nodes run here", None);
+        let p = &short[0].parameters["properties"];
+        assert_eq!(p["namespace"]["maxLength"], json!(FREE_CHARS));
+        // Its own bound, a choice, a required value and a number are left as they are.
+        assert_eq!(p["label"]["maxLength"], json!(8));
+        assert!(p["level"].get("maxLength").is_none());
+        assert!(p["note"].get("maxLength").is_none());
+        assert!(p["count"].get("maxLength").is_none());
+        // A request longer than the bound may be copied whole.
+        let long = "list the nodes whose names mention the left front wheel's steering controller";
+        let p = &bind(&specs, &names(), long, None)[0].parameters["properties"];
+        assert_eq!(p["namespace"]["maxLength"], json!(long.chars().count()));
+    }
+
+    #[test]
     fn a_required_name_argument_takes_the_robots_names_and_the_operators() {
         let specs = [spec(
             "ros_topic_echo",
@@ -637,7 +688,12 @@ mod tests {
                     "service": {"type": "string"}}, "required": ["service"]}),
             ),
         ];
-        let bound = bind(&specs, &names(), "what does /spawn take?", None);
+        let mut bound = bind(&specs, &names(), "what does /spawn take?", None);
+        // Not held to names: only bounded in length (`cap_free`).
+        let node = bound[0].parameters["properties"]["node"]
+            .as_object_mut()
+            .unwrap();
+        assert_eq!(node.remove("maxLength"), Some(json!(FREE_CHARS)));
         assert_eq!(bound[0].parameters, specs[0].parameters);
         // The robot gave no services: nothing to hold the argument to.
         assert_eq!(bound[1].parameters, specs[1].parameters);

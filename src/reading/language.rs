@@ -304,6 +304,15 @@ impl Language {
                 Portuguese => "Cancelado.",
             }
             .to_string(),
+            Phrase::EStopped => match self {
+                English => "The e-stop was engaged: the robot stopped, and motion stays refused until the operator resets it.",
+                Spanish => "Se activó la parada de emergencia: el robot se detuvo y el movimiento queda rechazado hasta que el operador la restablezca.",
+                French => "L'arrêt d'urgence a été enclenché : le robot s'est arrêté, et tout mouvement reste refusé jusqu'à ce que l'opérateur le réarme.",
+                German => "Der Not-Halt wurde ausgelöst: Der Roboter hat angehalten, und Bewegung bleibt verweigert, bis der Bediener ihn zurücksetzt.",
+                Italian => "È stato attivato l'arresto di emergenza: il robot si è fermato e il movimento resta rifiutato finché l'operatore non lo ripristina.",
+                Portuguese => "A parada de emergência foi acionada: o robô parou, e o movimento continua recusado até o operador a rearmar.",
+            }
+            .to_string(),
             Phrase::StoppedAfter(1) => match self {
                 English => "I stopped after one step without a final answer.",
                 Spanish => "Me detuve tras un paso sin una respuesta final.",
@@ -338,6 +347,8 @@ pub enum Phrase {
     Cancelled,
     /// The run reached its step limit.
     StoppedAfter(usize),
+    /// The e-stop was pressed while the run went on.
+    EStopped,
 }
 
 /// The language `scores` (the evidence of the words `prose`) show more than any other;

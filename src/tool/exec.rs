@@ -14,6 +14,9 @@ use serde_json::{json, Value};
 
 use super::{Decision, Effect, Policy, Progress, Registry, ToolCall, ToolContext, ToolError};
 
+/// Why a call aborted by the e-stop stopped: its error reads "stopped: " and this.
+pub(crate) const ESTOP_PRESSED: &str = "the e-stop was engaged";
+
 /// What came of one call.
 #[derive(Debug, Clone)]
 pub struct Outcome {
@@ -119,7 +122,7 @@ impl Executor {
             let mut all = std::pin::pin!(futures::future::join_all(handles));
             let mut stop = std::pin::pin!(async {
                 tokio::select! {
-                    _ = estop.pressed() => "the e-stop was engaged",
+                    _ = estop.pressed() => ESTOP_PRESSED,
                     _ = cancelled(cancel) => "the operator cancelled the run",
                 }
             });

@@ -10,6 +10,19 @@ use serde_json::{json, Value};
 /// ends with (`reading::bound`). The prompt never shows it.
 pub(crate) const QUOTE: &str = "x-quote";
 
+/// The names an object schema lists as `required` (none when it lists none).
+pub(crate) fn required(object: &Value) -> Vec<String> {
+    object["required"]
+        .as_array()
+        .map(|r| {
+            r.iter()
+                .filter_map(Value::as_str)
+                .map(String::from)
+                .collect()
+        })
+        .unwrap_or_default()
+}
+
 /// The cleaned schema of `T`'s JSON form.
 pub(crate) fn schema_for<T: schemars::JsonSchema>() -> Value {
     let settings = SchemaSettings::draft2020_12().with(|s| {
