@@ -344,8 +344,9 @@ fn script(cycle: &[Kind], turns: usize) -> Vec<String> {
                 .collect::<Vec<_>>()
         })
         .chain([
+            // The e-stop is pressed during this move: its run ends there, with no
+            // reply of the model's.
             call("turtle_move", json!({"distance": 2.0, "speed": 1.0})),
-            answer("Done: the long move."),
             call("turtle_move", json!({"distance": 0.2, "speed": 1.0})),
             answer("Done: the move after the e-stop."),
         ])
@@ -731,6 +732,11 @@ fn a_thousand_turns_with_faults_stay_flat_and_the_e_stop_still_works() {
         !step.ok && reason(step).contains("e-stop"),
         "the move was not aborted: {:?}",
         step.output
+    );
+    assert!(
+        p.moved.answer.contains("e-stop was engaged") && p.moved.steps.len() == 1,
+        "the move's run went on after the e-stop: {:?}",
+        p.moved.answer
     );
     assert_eq!(p.velocity, (0.0, 0.0), "the turtle still moves");
     assert!(
