@@ -25,6 +25,12 @@ pub fn answer_spec() -> ToolSpec {
     .called_alone()
 }
 
+/// Whether `text` writes a call (or JSON) rather than answering: prose a small model
+/// wrote in place of a call, which the `reply` tool's pattern keeps out of its text.
+pub(crate) fn writes_a_call(text: &str) -> bool {
+    text.contains("<tool_call>") || text.contains("{\"")
+}
+
 /// The answer as the operator reads it: when the model ran into the length cap, cut
 /// back to its last complete sentence.
 pub(crate) fn tidy(text: &str, cap: usize) -> String {

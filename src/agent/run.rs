@@ -239,10 +239,7 @@ impl Run<'_> {
             .rev()
             .filter(|r| !r.ok)
             .filter_map(|r| r.output.get("error").and_then(Value::as_str))
-            .find(|e| {
-                e.strip_prefix("stopped: ")
-                    .is_some_and(|why| why.starts_with(crate::tool::exec::ESTOP_PRESSED))
-            });
+            .find(|e| crate::tool::exec::stopped_by_estop(e));
         let said = self.language.say(Phrase::EStopped);
         let stopped = match stopped {
             Some(error) => format!("{said} {}", answer::last_result(error, self.language)),
@@ -359,7 +356,7 @@ impl Run<'_> {
             return self.language.lead(failure);
         }
         // A reply that writes a call (or JSON) is no answer: the result stands for it.
-        let said = if said.contains("<tool_call>") || said.contains("{\"") {
+        let said = if answer::writes_a_call(said) {
             ""
         } else {
             said
@@ -736,15 +733,6 @@ impl Run<'_> {
         let done = came.done();
         self.guards.observe(&call, came, &shown);
         self.copy_from.push(shown.clone());
-        // A guard's refusal speaks to the model ("answer instead"), not the operator.
-        if matches!(came, Came::Refused | Came::Failed) && self.part_failure.is_none() {
-            self.part_failure = Some(
-                output
-                    .get("error")
-                    .and_then(Value::as_str)
-                    .map_or_else(|| shown.clone(), str::to_string),
-            );
-        }
         // A run that ends without an answer says this one in a line: its summary, or a
         // failure's error, not the JSON the model reads.
         self.last_observation = output
@@ -752,6 +740,10 @@ impl Run<'_> {
             .or_else(|| output.get("error"))
             .and_then(Value::as_str)
             .map_or_else(|| shown.clone(), str::to_string);
+        // A guard's refusal speaks to the model ("answer instead"), not the operator.
+        if matches!(came, Came::Refused | Came::Failed) && self.part_failure.is_none() {
+            self.part_failure = Some(self.last_observation.clone());
+        }
         self.scratch.push(ChatMessage::tool(&call.name, shown));
         let mut arguments = call.arguments;
         self.agent.exec.policy().redact(&mut arguments);

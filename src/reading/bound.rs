@@ -86,14 +86,8 @@ fn cap_free(schema: &mut Value, request: &str) {
         return;
     };
     let most = FREE_CHARS.max(request.chars().count());
-    let free = |p: &Value| {
-        let string = |t: &Value| t == "string";
-        let ty = &p["type"];
-        (string(ty) || ty.as_array().is_some_and(|t| t.iter().any(string)))
-            && ["enum", "const", "maxLength"]
-                .iter()
-                .all(|k| p.get(*k).is_none())
-    };
+    let free =
+        |p: &Value| crate::tool::schema::is_open(p, &["string"]) && p.get("maxLength").is_none();
     for (name, prop) in props.iter_mut() {
         if !required.contains(name) && free(prop) {
             prop["maxLength"] = json!(most);

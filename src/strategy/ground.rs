@@ -18,6 +18,7 @@ use serde_json::Value;
 
 use super::verify::Request;
 use super::{default, Strategy};
+use crate::tool::schema::is_open;
 use crate::tool::{ToolCall, ToolSpec};
 
 /// Words of at least this many characters must be grounded; shorter ones ("/", "x") are
@@ -113,16 +114,6 @@ impl Grounding {
         }
         dropped
     }
-}
-
-/// A property of one of `types` (alone, or beside others such as null) without an enum
-/// or const of its own: a value the model writes freely.
-fn is_open(prop: &Value, types: &[&str]) -> bool {
-    let of = |t: &Value| t.as_str().is_some_and(|t| types.contains(&t));
-    let ty = &prop["type"];
-    (of(ty) || ty.as_array().is_some_and(|t| t.iter().any(of)))
-        && prop.get("enum").is_none()
-        && prop.get("const").is_none()
 }
 
 impl Strategy for Grounding {

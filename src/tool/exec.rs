@@ -14,8 +14,15 @@ use serde_json::{json, Value};
 
 use super::{Decision, Effect, Policy, Progress, Registry, ToolCall, ToolContext, ToolError};
 
-/// Why a call aborted by the e-stop stopped: its error reads "stopped: " and this.
-pub(crate) const ESTOP_PRESSED: &str = "the e-stop was engaged";
+/// Why a call aborted by the e-stop stopped (its error: "stopped: " and this).
+const ESTOP_PRESSED: &str = "the e-stop was engaged";
+
+/// Whether a call's `error` is that of a call the e-stop aborted.
+pub(crate) fn stopped_by_estop(error: &str) -> bool {
+    error
+        .strip_prefix("stopped: ")
+        .is_some_and(|why| why.starts_with(ESTOP_PRESSED))
+}
 
 /// What came of one call.
 #[derive(Debug, Clone)]

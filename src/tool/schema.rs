@@ -23,6 +23,16 @@ pub(crate) fn required(object: &Value) -> Vec<String> {
         .unwrap_or_default()
 }
 
+/// A property of one of `types` (alone, or beside others such as null) without an enum
+/// or const of its own: a value the model writes freely.
+pub(crate) fn is_open(prop: &Value, types: &[&str]) -> bool {
+    let of = |t: &Value| t.as_str().is_some_and(|t| types.contains(&t));
+    let ty = &prop["type"];
+    (of(ty) || ty.as_array().is_some_and(|t| t.iter().any(of)))
+        && prop.get("enum").is_none()
+        && prop.get("const").is_none()
+}
+
 /// The cleaned schema of `T`'s JSON form.
 pub(crate) fn schema_for<T: schemars::JsonSchema>() -> Value {
     let settings = SchemaSettings::draft2020_12().with(|s| {
