@@ -24,7 +24,8 @@
 //!   `AskedFor` keeps those the request may ask for). A small model otherwise often
 //!   answers "moving the turtle" without moving it, most of all outside English.
 //! - `NoSubstitute`: once an act of a part failed or was refused, no other act is made
-//!   in that part (a drive to a place the robot lacks is not replaced by a drive ahead).
+//!   in that part (a drive to a place the robot lacks is not replaced by a drive ahead),
+//!   nor is anything recorded (the pose the drive never left taught as the place).
 //!
 //! The policy (`tool::Policy`: deny-list, limits, confirmation) comes after all of them.
 
@@ -111,11 +112,12 @@ pub(crate) struct Guards {
 
 impl Guards {
     /// The guards every run has: grounding, no repeats, and (with `asked`) actuation only
-    /// when asked for. `said` is what the operator said this session.
+    /// when asked for. `said` is what the operator said this session (optional numbers
+    /// are held to `query`'s alone).
     pub fn standard(query: &str, said: &[&str], asked: Option<Asked>) -> Guards {
         let mut guards: Vec<Box<dyn Guard>> = vec![
             Box::new(Grounded {
-                grounding: Grounding::new(said.iter().copied()).with_numbers(),
+                grounding: Grounding::new(said.iter().copied()).with_numbers_of(query),
                 numbers: !crate::lexicon::numbers(query).is_empty(),
             }),
             Box::new(super::said_order::SaidOrder::new(query)),
@@ -126,6 +128,7 @@ impl Guards {
         if let Some(asked) = asked {
             let actuators = asked.actuators.clone();
             let effects = asked.effects.clone();
+            let records = asked.records.clone();
             guards.push(Box::new(AskedFor {
                 intent: Intent::new(query),
                 asked,
@@ -138,6 +141,7 @@ impl Guards {
             guards.push(Box::new(ActFirst::new(query, actuators)));
             guards.push(Box::new(NoSubstitute {
                 effects,
+                records,
                 failed: None,
             }));
         }
@@ -504,6 +508,8 @@ pub struct Asked {
     pub policy: Arc<Policy>,
     /// Each tool's declared effect.
     pub effects: BTreeMap<String, Effect>,
+    /// Tools whose calls record what the agent keeps (`ToolSpec::records`).
+    pub records: BTreeSet<String>,
     /// Tools whose every call actuates (no `observes` rule covers one).
     pub actuators: BTreeSet<String>,
     /// The words of all the other tools.
@@ -895,6 +901,10 @@ impl Guard for ActFirst {
 /// instead; refused a drive by the fence, it reaches for a teleport.
 struct NoSubstitute {
     effects: BTreeMap<String, Effect>,
+    /// Tools that record what the agent keeps: after a failed act, what they would
+    /// record is not so ("drive to the library" failed, then the robot's pose was taught
+    /// as the library).
+    records: BTreeSet<String>,
     /// The act of this part that failed or was refused.
     failed: Option<String>,
 }
@@ -907,9 +917,9 @@ impl NoSubstitute {
     }
 
     fn other_act(&self, tool: &str) -> bool {
-        self.failed
-            .as_deref()
-            .is_some_and(|failed| tool != failed && self.actuates(tool))
+        self.failed.as_deref().is_some_and(|failed| {
+            tool != failed && (self.actuates(tool) || self.records.contains(tool))
+        })
     }
 }
 
@@ -1169,18 +1179,21 @@ mod tests {
             ("place_go", Effect::Actuates),
             ("turtle_move", Effect::Actuates),
             ("place_list", Effect::Observes),
+            ("place_remember", Effect::Observes),
             ("robot_stop", Effect::Stops),
         ]
         .map(|(n, e)| (n.to_string(), e))
         .into();
         let mut g = NoSubstitute {
             effects,
+            records: ["place_remember".to_string()].into(),
             failed: None,
         };
         let offered = [
             spec("place_go"),
             spec("turtle_move"),
             spec("place_list"),
+            spec("place_remember"),
             spec("robot_stop"),
             spec("reply"),
         ];
@@ -1203,16 +1216,19 @@ mod tests {
                 "reply".into()
             ])
         );
+        // Nor is the pose the drive never reached recorded as the place.
         let verdicts = g.check(
             &mut [
                 call("turtle_move", json!({"distance": 1.0})),
+                call("place_remember", json!({"name": "greenhouse"})),
                 call("place_go", json!({"place": "dock"})),
                 call("place_list", json!({})),
             ],
             &offered,
         );
         assert!(matches!(verdicts[0], Verdict::Refuse(_)), "{verdicts:?}");
-        assert_eq!(verdicts[1..], [Verdict::Pass, Verdict::Pass]);
+        assert!(matches!(verdicts[1], Verdict::Refuse(_)), "{verdicts:?}");
+        assert_eq!(verdicts[2..], [Verdict::Pass, Verdict::Pass]);
         // A refused act counts too; the next part starts afresh.
         g.next_part("then turn left");
         assert_eq!(g.narrow(&offered), None);
@@ -1243,6 +1259,7 @@ mod tests {
                 .iter()
                 .map(|w| w.to_string())
                 .collect(),
+            records: BTreeSet::new(),
             known: BTreeMap::new(),
         }
     }

@@ -97,10 +97,16 @@ impl Agent {
             .tools()
             .map(|t| (t.spec().name.clone(), t.effect()))
             .collect();
+        let records: BTreeSet<String> = registry
+            .tools()
+            .filter(|t| t.spec().records)
+            .map(|t| t.spec().name.clone())
+            .collect();
         Ok(Agent {
             asked: Asked {
                 policy: policy.clone(),
                 effects,
+                records,
                 actuators,
                 observing,
                 known: BTreeMap::new(),

@@ -590,6 +590,7 @@ mod tests {
             alone: false,
             examples: Vec::new(),
             sequence: Vec::new(),
+            records: false,
         }
     }
 

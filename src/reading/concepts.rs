@@ -122,6 +122,9 @@ struct WordFile {
     reference: Option<Section>,
     #[serde(default)]
     direction: BTreeMap<Direction, Section>,
+    /// Per kind of the robot's names (`node`, `topic`, ...), its plural words.
+    #[serde(default)]
+    many: BTreeMap<String, Section>,
 }
 
 /// The words of every language together.
@@ -154,6 +157,9 @@ struct Words {
     references: BTreeSet<String>,
     /// Whole words that name each direction of a motion (REP 103's signs).
     directions: BTreeMap<Direction, BTreeSet<String>>,
+    /// Whole words that say a kind of the robot's names in the plural ("topics",
+    /// "servicios"), by kind.
+    many: BTreeMap<String, BTreeSet<String>>,
 }
 
 impl Words {
@@ -176,6 +182,9 @@ impl Words {
         }
         for (d, section) in file.direction {
             self.directions.entry(d).or_default().extend(section.words);
+        }
+        for (kind, section) in file.many {
+            self.many.entry(kind).or_default().extend(section.words);
         }
     }
 }
@@ -393,6 +402,18 @@ pub(crate) fn tells(word: &str) -> bool {
     table().tell.contains(word)
 }
 
+/// The kinds of the robot's names (`node`, `topic`, `service`, `action`, `type`) that
+/// `words` (folded) say in the plural: "which topics carry turtle data?" asks about
+/// several topics, not one.
+pub(crate) fn kinds_in_plural(words: &[String]) -> Vec<&'static str> {
+    table()
+        .many
+        .iter()
+        .filter(|(_, plural)| words.iter().any(|w| plural.contains(w.as_str())))
+        .map(|(kind, _)| kind.as_str())
+        .collect()
+}
+
 /// Whether `word` (folded) points back at what an earlier part of the request named.
 pub(crate) fn refers_back(word: &str) -> bool {
     table().references.contains(word)
@@ -459,6 +480,13 @@ mod tests {
             ] {
                 let section = section.unwrap_or_else(|| panic!("{lang}: no [{name}]"));
                 sections.push((name.to_string(), section.words));
+            }
+            for (kind, section) in file.many {
+                assert!(
+                    crate::reading::select::NAME_KINDS.contains(&kind.as_str()),
+                    "{lang}: [many.{kind}] is no kind of the robot's names"
+                );
+                sections.push((format!("many.{kind}"), section.words));
             }
             for (name, words) in sections {
                 assert!(!words.is_empty(), "{lang}: [{name}] is empty");

@@ -15,7 +15,9 @@
 //!   "battery", "dónde" and "where");
 //! - a word counts by how few tools it meets (BM25's inverse document frequency), so
 //!   words every description has ("the", "of", "de") count for nearly nothing. There is
-//!   no stop-word list and no stemming: nothing here is English-only.
+//!   no stop-word list and no stemming: nothing here is English-only. Words that ask to
+//!   be told ("show", "dime": `concepts::tells`) frame the request and are not read;
+//!   a tool may be named after one (`ros_interface_show`).
 //!
 //! The best scoring tools are offered, best first, within the budget and down to a
 //! share of the best score; the always-on ones (the answer, the stop) last. Cheap and deterministic; the trace records what was
@@ -220,7 +222,7 @@ struct Document {
 const WRITTEN_NAME: f64 = 4.0;
 
 /// Arguments that name a ROS thing of the robot's graph (the kinds of `names`).
-const NAME_KINDS: &[&str] = &["node", "topic", "service", "action", "type"];
+pub(crate) const NAME_KINDS: &[&str] = &["node", "topic", "service", "action", "type"];
 
 /// The kinds of the robot's names `spec` takes (its string arguments of those names).
 pub(crate) fn name_kinds(spec: &ToolSpec) -> impl Iterator<Item = &'static str> + '_ {
@@ -279,7 +281,11 @@ fn lexical(query: &str, specs: &[ToolSpec], names: &[(String, String)]) -> Vec<f
         .iter()
         .map(|s| Document::new(s, names, &written))
         .collect();
-    let words = words_of(query);
+    // Words that ask to be told ("show", "describe") frame a request, and say nothing of
+    // which tool: "show the services" met `ros_interface_show` by its name.
+    let words = words_of(query)
+        .into_iter()
+        .filter(|w| !super::concepts::tells(&w.text));
     let n = docs.len() as f64;
     let mut out = vec![0.0; docs.len()];
     for w in words {
@@ -522,6 +528,51 @@ pub(crate) fn hold_to_written(
     }
 }
 
+/// The share a tool's score is cut to when the request asks about several of the
+/// robot's names of a kind ("which topics carry turtle data?",
+/// `concepts::kinds_in_plural`), writes none of that kind, and the tool takes exactly one
+/// (a required argument of that kind): it would answer about one topic where the
+/// operator asked about the topics. A tool that takes a node, or none, is not cut.
+const ONE_OF_MANY_SHARE: f64 = 0.5;
+
+/// Cut (`ONE_OF_MANY_SHARE`) the scores (in `specs`' order) of the tools that take one
+/// name of a kind `query` asks about in the plural without writing one of it. A name
+/// written whole that the robot lacks may be of any kind, so it keeps every tool.
+fn cut_one_of_many(
+    query: &str,
+    specs: &[ToolSpec],
+    names: &[(String, String)],
+    scored: &mut [f64],
+) {
+    let plural = super::concepts::kinds_in_plural(&folded_words(query));
+    if plural.is_empty() {
+        return;
+    }
+    let bare = |n: &str| n.trim_start_matches('/').to_string();
+    let written: Vec<String> = super::bound::written_names(query)
+        .iter()
+        .map(|w| bare(w))
+        .collect();
+    let writes = |kind: &str| {
+        written.iter().any(|w| {
+            let kinds: Vec<&str> = names
+                .iter()
+                .filter(|(_, n)| bare(n) == *w)
+                .map(|(k, _)| k.as_str())
+                .collect();
+            kinds.is_empty() || kinds.contains(&kind)
+        })
+    };
+    for (spec, score) in specs.iter().zip(scored.iter_mut()) {
+        let required = crate::tool::schema::required(&spec.parameters);
+        if name_kinds(spec)
+            .any(|k| plural.contains(&k) && required.iter().any(|r| r == k) && !writes(k))
+        {
+            *score *= ONE_OF_MANY_SHARE;
+        }
+    }
+}
+
 /// Which candidates (by their priors) the request points at more than at every tool
 /// whose call already answered it (`done`, their priors): what may follow a result
 /// (`Run::settled`).
@@ -567,7 +618,8 @@ pub fn prior(
     fallback: &str,
 ) -> Vec<f64> {
     let by_meaning = scores(query, specs, names, sims);
-    let scored = blend(by_meaning.clone(), query, specs, names, sims);
+    let mut scored = blend(by_meaning.clone(), query, specs, names, sims);
+    cut_one_of_many(query, specs, names, &mut scored);
     let at = |name: &str| specs.iter().position(|s| s.name == name);
     if tracing::enabled!(target: "ferrosa::select", tracing::Level::DEBUG) {
         let each: Vec<(&str, Option<f64>, Option<f64>)> = candidates
@@ -643,6 +695,47 @@ mod tests {
             .into_iter()
             .map(|i| s[i].name.clone())
             .collect()
+    }
+
+    #[test]
+    fn a_kind_asked_about_in_the_plural_is_not_for_a_tool_that_takes_one() {
+        let one = |name: &str, kind: &str| {
+            ToolSpec::new(
+                name,
+                "Read the laser data.",
+                json!({"type": "object", "properties": {kind: {"type": "string"}}, "required": [kind]}),
+            )
+            .unwrap()
+        };
+        let s = vec![
+            spec("ros_topic_list", "List the laser topics.", json!({})),
+            one("ros_topic_echo", "topic"),
+            one("ros_node_info", "node"),
+        ];
+        let names = [
+            ("topic".to_string(), "/laser/scan".to_string()),
+            ("node".to_string(), "/laser_driver".to_string()),
+        ];
+        let cands = ["ros_topic_list", "ros_topic_echo", "ros_node_info"];
+        // Each tool's prior against the listing's.
+        let of = |q: &str| {
+            let p = prior(q, &s, &names, None, &cands, "reply");
+            [p[1] - p[0], p[2] - p[0]]
+        };
+        // Singular, the echo leads the listing; in the plural, the echo that takes one
+        // topic is cut, the node's info (one node) is not.
+        let single = of("read the laser topic");
+        let plural = of("read the laser topics");
+        assert!(plural[0] < single[0] - 0.5, "{single:?} {plural:?}");
+        assert!(
+            (plural[1] - single[1]).abs() < 1e-9,
+            "{single:?} {plural:?}"
+        );
+        // A topic written whole is the one asked about: nothing is cut.
+        let written = of("read the laser topics /laser/scan");
+        assert!(written[0] > plural[0] + 0.5, "{written:?} {plural:?}");
+        // Spanish says it too.
+        assert!(of("lee los topicos del laser")[0] < of("lee el topico del laser")[0] - 0.5);
     }
 
     #[test]

@@ -9,6 +9,7 @@
 //!
 //! Without the sentence encoder the model's own reply stands.
 
+use crate::lexicon::folded_words;
 use crate::tool::examples::{replies, ReplyKind};
 use crate::tool::Effect;
 
@@ -43,15 +44,39 @@ pub fn kind(meaning: &Meaning, request: &str) -> (&'static str, Option<&'static 
 }
 
 /// The agent's reply to `request`: in `set` when the operator set a language, else in
-/// the request's when it shows one, else in that of the example it is nearest (a short
-/// "merci beaucoup" shows too little of its language to tell), else in English.
+/// the request's when it shows one, else in that of the small talk examples that share
+/// the most of its words ("thanks, bye": English's "bye"), else in that of the example
+/// it is nearest by meaning (a short "merci beaucoup" shows too little of its language
+/// to tell), else in English.
 pub fn reply(meaning: &Meaning, request: &str, set: Option<Language>, tools: &Tools) -> String {
     let (kind, near) = kind(meaning, request);
     let language = set
         .or_else(|| Language::of(request))
+        .or_else(|| by_examples(request))
         .or_else(|| near.and_then(|l| Language::parse(l).ok()))
         .unwrap_or_default();
     say(kind, language, tools)
+}
+
+/// The language whose small talk examples (every kind's) hold more of `request`'s words
+/// than any other language's do; none on a tie or when none holds one. Nearness by
+/// meaning crosses languages, so the nearest example of "thanks, bye" was German.
+fn by_examples(request: &str) -> Option<Language> {
+    let words = folded_words(request);
+    let mut held: Vec<(&str, usize)> = Vec::new();
+    for (lang, _, k) in replies() {
+        let theirs: Vec<String> = k.examples.iter().flat_map(|e| folded_words(e)).collect();
+        let n = words.iter().filter(|w| theirs.contains(w)).count();
+        match held.iter_mut().find(|(l, _)| l == lang) {
+            Some((_, m)) => *m += n,
+            None => held.push((lang, n)),
+        }
+    }
+    let top = held.iter().map(|(_, n)| *n).max().filter(|n| *n > 0)?;
+    match held.iter().filter(|(_, n)| *n == top).collect::<Vec<_>>()[..] {
+        [(lang, _)] => Language::parse(lang).ok(),
+        _ => None,
+    }
 }
 
 /// The line of `kind` in `language` (English when the language lacks it), its
@@ -111,6 +136,13 @@ fn grouped(names: &[&str]) -> Vec<String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_request_too_short_to_show_its_language_is_read_by_the_examples_words() {
+        assert_eq!(by_examples("ok thanks, bye now"), Some(Language::English));
+        assert_eq!(by_examples("tschüss!"), Some(Language::German));
+        assert_eq!(by_examples("xyzzy"), None);
+    }
 
     fn tools() -> Tools<'static> {
         Tools {

@@ -57,6 +57,15 @@ impl Grounding {
         self
     }
 
+    /// `with_numbers`, the numbers held to this `request`'s (and those tools return from
+    /// here on), while words stay grounded by the whole session: a number an earlier
+    /// request said is no ground for this one's optional arguments ("half a meter",
+    /// then a status read waiting 0.5 s, too short for a 1 Hz battery topic).
+    pub(crate) fn with_numbers_of(mut self, request: &str) -> Grounding {
+        self.numbers = Some(vec![Request::new(request)]);
+        self
+    }
+
     /// Add text a tool returned.
     pub fn add(&mut self, text: &str) {
         self.text.push('\n');
@@ -248,6 +257,10 @@ mod tests {
         assert_eq!(g.drop_ungrounded(&mut c, &spec), ["gravity"]);
         let mut c = call(json!({"time": 5, "gravity": -9.81, "drag": 2}));
         assert_eq!(g.drop_ungrounded(&mut c, &spec), ["drag"]);
+        // Held to this request's numbers: an earlier request's 0.3 is no ground.
+        let g2 = Grounding::new(["drive at 0.3 m/s", "and now?"]).with_numbers_of("and now?");
+        let mut c = call(json!({"time": 5, "drag": 0.3}));
+        assert_eq!(g2.drop_ungrounded(&mut c, &spec), ["drag"]);
         // Numbers a tool returned later ground too.
         let mut g = g;
         g.add("{\"drag\": 2}");

@@ -126,6 +126,10 @@ pub trait Tool: Send + Sync + 'static {
     const EFFECT: Effect;
     /// Arguments that list things in the order they are done (`ToolSpec::sequence`).
     const SEQUENCE: &'static [&'static str] = &[];
+    /// Whether a call writes down what the agent keeps for later (a place taught at the
+    /// robot's pose, a note): it reads the robot, but what it records must be true, so
+    /// it is not made once an act of the request came to nothing (`ToolSpec::records`).
+    const RECORDS: bool = false;
     /// The contract the model reads: one or two sentences with ranges, side effects and
     /// time bounds.
     fn description(&self) -> String;

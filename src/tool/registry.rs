@@ -76,6 +76,7 @@ pub(crate) fn erase<T: Tool>(tool: T) -> Arc<dyn DynTool> {
     let mut spec = ToolSpec::new(T::NAME, tool.description(), schema::schema_for::<T::Args>())
         .unwrap_or_else(|e| panic!("tool {} has an invalid schema: {e}", T::NAME));
     spec.sequence = T::SEQUENCE.iter().map(|s| s.to_string()).collect();
+    spec.records = T::RECORDS;
     Arc::new(Typed { tool, spec })
 }
 

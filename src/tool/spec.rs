@@ -39,6 +39,11 @@ pub struct ToolSpec {
     /// held to the request's (`agent::said_order`).
     #[serde(skip)]
     pub sequence: Vec<String>,
+    /// Whether a call records what the agent keeps (`Tool::RECORDS`): after an act of
+    /// the part failed, it is not made (`agent::guard`'s no-substitute), so a drive
+    /// that never arrived is not remembered as the place it was for.
+    #[serde(skip)]
+    pub records: bool,
 }
 
 impl ToolSpec {
@@ -76,6 +81,7 @@ impl ToolSpec {
             parameters,
             alone: false,
             sequence: Vec::new(),
+            records: false,
         })
     }
 

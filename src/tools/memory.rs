@@ -49,6 +49,7 @@ impl Tool for MemoryNote {
     type Args = NoteArgs;
     const NAME: &'static str = "memory_note";
     const EFFECT: Effect = Effect::Observes;
+    const RECORDS: bool = true;
     fn description(&self) -> String {
         "Keep a fact the operator states, across restarts, for memory_recall. Moves nothing.".into()
     }

@@ -627,6 +627,7 @@ impl Tool for PlaceRemember {
     type Args = RememberArgs;
     const NAME: &'static str = "place_remember";
     const EFFECT: Effect = Effect::Observes;
+    const RECORDS: bool = true;
     fn description(&self) -> String {
         "Remember where the robot is now as a named place, kept across restarts, so it can be sent back there by name.".into()
     }

@@ -181,8 +181,19 @@ impl Tool for ServiceInfo {
         let ifaces = self.0.graph.interfaces();
         let request = cdr::template(ifaces, &format!("{ty}_Request")).ok();
         let response = cdr::template(ifaces, &format!("{ty}_Response")).ok();
-        Ok(json!({"service": service, "type": ty, "servers": servers,
-                  "request": request, "response": response,
-                  "definition": ifaces.source(&ty).ok()}))
+        let definition = ifaces.source(&ty).ok();
+        // The fields as a definition says them ("request: r (uint8), ..."): the
+        // templates' zeros, summarized as values, read as the service's state ("what
+        // colour is the pen?" was answered "request.r 0").
+        let served: Vec<&str> = servers.iter().filter_map(|s| s.as_deref()).collect();
+        let mut summary = format!("service {service}, type {ty}, servers {}", served.join(" "));
+        if let Some(d) = &definition {
+            summary.push_str(&format!("; {}", super::iface::fields(d, &ty, Some(ifaces))));
+        }
+        Ok(
+            json!({"summary": summary, "service": service, "type": ty, "servers": servers,
+                  "example": {"request": request, "response": response},
+                  "definition": definition}),
+        )
     }
 }

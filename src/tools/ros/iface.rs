@@ -46,7 +46,11 @@ impl Tool for InterfaceShow {
 /// The fields a definition declares, "name (type)", a service's or an action's parts
 /// named ("request: a (int64); response: sum (int64)"): what an operator asking for a
 /// type's fields wants said, without its comments and constants.
-fn fields(definition: &str, ty: &str, nested: Option<&crate::ros::Interfaces>) -> String {
+pub(super) fn fields(
+    definition: &str,
+    ty: &str,
+    nested: Option<&crate::ros::Interfaces>,
+) -> String {
     let parts: &[&str] = if ty.contains("/srv/") {
         &["request", "response"]
     } else if ty.contains("/action/") {
