@@ -103,35 +103,44 @@ pub fn say(kind: &str, language: Language, tools: &Tools) -> String {
         .filter(|(_, e)| *e != Effect::Observes)
         .map(|(n, _)| *n)
         .collect();
-    let listed = grouped(&reads).join(", ");
     k.say
         .replace("{count}", &tools.each.len().to_string())
-        .replace("{reads}", &listed)
-        .replace("{acts}", &acts.join(", "))
+        .replace("{reads}", &grouped(&reads))
+        .replace("{acts}", &grouped(&acts))
 }
 
-/// Tool names as a line lists them: those that share a prefix (`ros_topic_list`,
-/// `ros_node_list`) as one entry with their count (`ros_* (2)`), in the order met.
-fn grouped(names: &[&str]) -> Vec<String> {
-    let prefix = |n: &str| {
-        n.split_once('_')
-            .map_or(n.to_string(), |(p, _)| p.to_string())
-    };
-    let mut out: Vec<(String, Vec<&str>)> = Vec::new();
+/// Tool names as an operator reads them: those that share a prefix (`turtle_move`,
+/// `turtle_rotate`) as one entry, the prefix then what each does ("turtle: move,
+/// rotate"), at most `SHOWN` of them and how many more; a tool alone in its words
+/// ("robot status"). Entries in the order met, apart by "; ".
+fn grouped(names: &[&str]) -> String {
+    let mut out: Vec<(&str, Vec<&str>)> = Vec::new();
     for n in names {
-        let p = prefix(n);
+        let (p, rest) = n.split_once('_').unwrap_or((n, ""));
         match out.iter_mut().find(|(q, _)| *q == p) {
-            Some((_, v)) => v.push(n),
-            None => out.push((p, vec![n])),
+            Some((_, v)) => v.push(rest),
+            None => out.push((p, vec![rest])),
         }
     }
+    let words = |n: &str| n.replace('_', " ");
     out.into_iter()
         .map(|(p, v)| match v.as_slice() {
-            [one] => one.to_string(),
-            _ => format!("{p}_* ({})", v.len()),
+            [one] if one.is_empty() => p.to_string(),
+            [one] => format!("{p} {}", words(one)),
+            _ => {
+                let mut each: Vec<String> = v.iter().take(SHOWN).map(|r| words(r)).collect();
+                if v.len() > SHOWN {
+                    each.push(format!("+{}", v.len() - SHOWN));
+                }
+                format!("{p}: {}", each.join(", "))
+            }
         })
-        .collect()
+        .collect::<Vec<_>>()
+        .join("; ")
 }
+
+/// The most tools of one prefix a line names.
+const SHOWN: usize = 6;
 
 #[cfg(test)]
 mod tests {
@@ -160,8 +169,8 @@ mod tests {
     fn a_line_is_filled_from_the_robots_tools() {
         let abilities = say("abilities", Language::English, &tools());
         assert!(
-            abilities.contains("(arm_* (2), gripper_state)")
-                && abilities.contains("(arm_move, robot_stop)"),
+            abilities.contains("(arm: joints, limits; gripper state)")
+                && abilities.contains("(arm move; robot stop)"),
             "{abilities}"
         );
         assert!(say("identity", Language::German, &tools()).contains(" 5 "));
