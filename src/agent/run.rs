@@ -401,8 +401,10 @@ impl Run<'_> {
 
     /// Once a call of the part succeeded, the part's next step may answer, or call a
     /// tool the part's words point at more than at every tool whose call succeeded
-    /// (the retrieval prior); one that acts (or cancels) only when the part asks for an
-    /// act. So a
+    /// (the retrieval prior); one that acts (or cancels), or records what the agent
+    /// keeps (`ToolSpec::records`), only when the part asks for an act ("where am I
+    /// pointing now?" read the pose, then taught it as a place called "pointing now").
+    /// So a
     /// first call of the tool the request names best is followed by the answer, and a
     /// first call of a weaker match may be followed by a better one. A small model
     /// otherwise goes on with calls nobody asked for (`ros_action_cancel` after a
@@ -435,7 +437,7 @@ impl Run<'_> {
         let acts = |n: &str| {
             registry
                 .get(n)
-                .is_some_and(|t| t.effect() != crate::tool::Effect::Observes)
+                .is_some_and(|t| t.effect() != crate::tool::Effect::Observes || t.spec().records)
         };
         let kept: Vec<String> = names
             .iter()

@@ -424,14 +424,19 @@ fn said_phrases(request: &str) -> Vec<String> {
         .filter(|w| w.parse::<f64>().is_err())
         .collect();
     (1..=PHRASE_WORDS.min(words.len()))
-        .map(|n| words[words.len() - n..].join(" "))
-        .filter(|p| {
-            p.split(' ')
-                .next()
-                .is_some_and(|w| w.chars().count() >= NAME_WORD)
+        .filter_map(|n| {
+            let phrase = &words[words.len() - n..];
+            let least = if n == 1 { LAST_WORD } else { NAME_WORD };
+            (phrase[0].chars().count() >= least).then(|| phrase.join(" "))
         })
         .collect()
 }
+
+/// Shortest a name of one word, the request's last, may be: a request that gives a
+/// name ends with it, not with a little word ("remember this spot as the lab": "lab";
+/// before, no phrase was left, and the grammar wrote a known place, moving it here),
+/// though "it", "on" and "up" end some.
+const LAST_WORD: usize = 3;
 
 /// Of the robot's `names` (key, name), per key, those the words of `sources` point at
 /// most: each word a name shares with them weighs more the fewer of the key's names have
@@ -707,6 +712,11 @@ mod tests {
             held("save this spot as checkpoint alpha"),
             ["alpha", "checkpoint alpha"]
         );
+        // A short last word is a name too; a little word that ends a request is not.
+        assert_eq!(held("mark where we are as the lab"), ["lab"]);
+        let mut all = held("go to it");
+        all.sort_unstable();
+        assert_eq!(all, ["Ladestation", "dock", "loading area"]);
         // Identifiers are not said in words: the known ones only.
         let params: Vec<String> = ["gain_p", "max_speed"].map(String::from).to_vec();
         let held = held_to(&params, "name", &[], "what is the greenhouse", &[], None);

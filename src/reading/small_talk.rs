@@ -125,7 +125,7 @@ fn grouped(names: &[&str]) -> String {
     let words = |n: &str| n.replace('_', " ");
     out.into_iter()
         .map(|(p, v)| match v.as_slice() {
-            [one] if one.is_empty() => p.to_string(),
+            [""] => p.to_string(),
             [one] => format!("{p} {}", words(one)),
             _ => {
                 let mut each: Vec<String> = v.iter().take(SHOWN).map(|r| words(r)).collect();
