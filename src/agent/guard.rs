@@ -139,11 +139,7 @@ impl Guards {
                 part_text: None,
             }));
             guards.push(Box::new(ActFirst::new(query, actuators)));
-            guards.push(Box::new(NoSubstitute {
-                effects,
-                records,
-                failed: None,
-            }));
+            guards.push(Box::new(NoSubstitute::new(effects, records)));
         }
         Guards { guards }
     }
@@ -901,15 +897,28 @@ impl Guard for ActFirst {
 /// instead; refused a drive by the fence, it reaches for a teleport.
 struct NoSubstitute {
     effects: BTreeMap<String, Effect>,
-    /// Tools that record what the agent keeps: after a failed act, what they would
-    /// record is not so ("drive to the library" failed, then the robot's pose was taught
-    /// as the library).
+    /// Tools that record what the agent keeps (a place taught at the robot's pose, a
+    /// note): after a failed act, what they would record is not so ("drive to the
+    /// library" failed, then the robot's pose was taught as the library); beside an act
+    /// in one step, they would record the robot before the act is done.
     records: BTreeSet<String>,
     /// The act of this part that failed or was refused.
     failed: Option<String>,
+    /// The first act of the run that failed or was refused: kept across parts, since a
+    /// later part's "then save this spot as the library" is as untrue.
+    run_failed: Option<String>,
 }
 
 impl NoSubstitute {
+    fn new(effects: BTreeMap<String, Effect>, records: BTreeSet<String>) -> NoSubstitute {
+        NoSubstitute {
+            effects,
+            records,
+            failed: None,
+            run_failed: None,
+        }
+    }
+
     /// Whether `tool` moves or changes the robot: stopping (`robot_stop`, a goal's
     /// cancel) is never held back.
     fn actuates(&self, tool: &str) -> bool {
@@ -917,9 +926,14 @@ impl NoSubstitute {
     }
 
     fn other_act(&self, tool: &str) -> bool {
-        self.failed.as_deref().is_some_and(|failed| {
-            tool != failed && (self.actuates(tool) || self.records.contains(tool))
-        })
+        self.failed
+            .as_deref()
+            .is_some_and(|failed| tool != failed && self.actuates(tool))
+    }
+
+    /// Whether `tool` would record after an act of the run came to nothing.
+    fn untrue(&self, tool: &str) -> bool {
+        self.run_failed.is_some() && self.records.contains(tool)
     }
 }
 
@@ -929,22 +943,33 @@ impl Guard for NoSubstitute {
     }
 
     fn narrow(&self, offered: &[ToolSpec]) -> Option<Vec<String>> {
-        self.failed.as_ref()?;
+        if self.failed.is_none() && self.run_failed.is_none() {
+            return None;
+        }
         Some(
             offered
                 .iter()
-                .filter(|s| !self.other_act(&s.name))
+                .filter(|s| !self.other_act(&s.name) && !self.untrue(&s.name))
                 .map(|s| s.name.clone())
                 .collect(),
         )
     }
 
     fn check(&mut self, calls: &mut [ToolCall], _: &[ToolSpec]) -> Vec<Verdict> {
+        let acting = calls.iter().any(|c| self.actuates(&c.name));
         calls
             .iter()
-            .map(|c| match &self.failed {
-                Some(failed) if self.other_act(&c.name) => Verdict::Refuse(format!(
+            .map(|c| match (&self.failed, &self.run_failed) {
+                (Some(failed), _) if self.other_act(&c.name) => Verdict::Refuse(format!(
                     "not made: {failed} came to nothing, and {} is not what the operator asked for; answer with what went wrong",
+                    c.name
+                )),
+                (_, Some(failed)) if self.untrue(&c.name) => Verdict::Refuse(format!(
+                    "not made: {failed} came to nothing, so what {} would record is not so; answer with what went wrong",
+                    c.name
+                )),
+                _ if acting && self.records.contains(&c.name) => Verdict::Refuse(format!(
+                    "not made: {} records the robot as it is, and the act beside it has not run yet; call it once the act is done",
                     c.name
                 )),
                 _ => Verdict::Pass,
@@ -956,8 +981,9 @@ impl Guard for NoSubstitute {
         // A call a guard turned down was the model's mistake: the act the operator asked
         // for may still come.
         let came_to_nothing = matches!(came, Came::Refused | Came::Failed);
-        if came_to_nothing && self.actuates(&call.name) && self.failed.is_none() {
-            self.failed = Some(call.name.clone());
+        if came_to_nothing && self.actuates(&call.name) {
+            self.failed.get_or_insert_with(|| call.name.clone());
+            self.run_failed.get_or_insert_with(|| call.name.clone());
         }
     }
 
@@ -1184,11 +1210,7 @@ mod tests {
         ]
         .map(|(n, e)| (n.to_string(), e))
         .into();
-        let mut g = NoSubstitute {
-            effects,
-            records: ["place_remember".to_string()].into(),
-            failed: None,
-        };
+        let mut g = NoSubstitute::new(effects, ["place_remember".to_string()].into());
         let offered = [
             spec("place_go"),
             spec("turtle_move"),
@@ -1229,22 +1251,54 @@ mod tests {
         assert!(matches!(verdicts[0], Verdict::Refuse(_)), "{verdicts:?}");
         assert!(matches!(verdicts[1], Verdict::Refuse(_)), "{verdicts:?}");
         assert_eq!(verdicts[2..], [Verdict::Pass, Verdict::Pass]);
-        // A refused act counts too; the next part starts afresh.
-        g.next_part("then turn left");
-        assert_eq!(g.narrow(&offered), None);
-        // A call a guard turned down is the model's mistake: nothing is held back.
+        // The next part starts afresh for acts; what the run would record after the
+        // failed drive stays untrue.
+        g.next_part("then save this spot as the greenhouse");
+        let names = |n: &[&str]| Some(n.iter().map(|s| s.to_string()).collect::<Vec<_>>());
+        let but_recording = names(&[
+            "place_go",
+            "turtle_move",
+            "place_list",
+            "robot_stop",
+            "reply",
+        ]);
+        assert_eq!(g.narrow(&offered), but_recording);
+        let verdicts = g.check(
+            &mut [call("place_remember", json!({"name": "greenhouse"}))],
+            &offered,
+        );
+        assert!(matches!(verdicts[0], Verdict::Refuse(_)), "{verdicts:?}");
+        // A call a guard turned down is the model's mistake: nothing more is held back.
         g.observe(&call("place_go", json!({})), Came::TurnedDown, "not asked");
-        assert_eq!(g.narrow(&offered), None);
+        assert_eq!(g.narrow(&offered), but_recording);
+        // A refused act counts too.
         g.observe(&call("turtle_move", json!({})), Came::Refused, "refused");
         assert_eq!(
             g.narrow(&offered),
-            Some(vec![
-                "turtle_move".into(),
-                "place_list".into(),
-                "robot_stop".into(),
-                "reply".into()
-            ])
+            names(&["turtle_move", "place_list", "robot_stop", "reply"])
         );
+    }
+
+    #[test]
+    fn nothing_is_recorded_beside_an_act_in_one_step() {
+        let effects = [
+            ("place_go", Effect::Actuates),
+            ("place_remember", Effect::Observes),
+        ]
+        .map(|(n, e)| (n.to_string(), e))
+        .into();
+        let mut g = NoSubstitute::new(effects, ["place_remember".to_string()].into());
+        let offered = [spec("place_go"), spec("place_remember")];
+        let remember = || call("place_remember", json!({"name": "lab"}));
+        let verdicts = g.check(
+            &mut [call("place_go", json!({"place": "dock"})), remember()],
+            &offered,
+        );
+        assert_eq!(verdicts[0], Verdict::Pass);
+        assert!(matches!(verdicts[1], Verdict::Refuse(_)), "{verdicts:?}");
+        // Alone, or after the act ran, it is made.
+        assert_eq!(g.check(&mut [remember()], &offered), [Verdict::Pass]);
+        assert_eq!(g.narrow(&offered), None);
     }
 
     fn asked(actuators: &[&str]) -> Asked {

@@ -152,7 +152,7 @@ const WORDS: [&[&str]; 6] = [
         "der", "die", "das", "den", "dem", "des", "ein", "eine", "einen", "einem", "und", "ist",
         "sind", "wie", "wo", "was", "welche", "welcher", "welches", "wer", "zeige", "zeig", "mir",
         "bitte", "nach", "mit", "auf", "fur", "von", "zu", "im", "jetzt", "gib", "sag", "wieviele",
-        "viele", "es", "um", "du", "dich", "dir", "ich", "kannst", "kann", "bist", "hast", "nicht",
+        "viele", "es", "um", "dich", "dir", "ich", "kannst", "kann", "bist", "hast", "nicht",
         "auch", "noch", "alles", "mein", "dein",
     ],
     // Italian
@@ -446,8 +446,9 @@ mod tests {
             ("pivote doucement la tortue de trente degrés", Some(French)),
             ("Welche ROS-Knoten laufen gerade?", Some(German)),
             ("Fahre die Schildkröte zwei Meter nach vorne", Some(German)),
-            // "du" is French too; "kannst" is German alone.
+            // "du" is French alone: German's own words say it.
             ("was kannst du für mich tun?", Some(German)),
+            ("position du robot ?", Some(French)),
             ("qual è lo stato della batteria?", Some(Italian)),
             ("mostre os tópicos do robô", Some(Portuguese)),
             // Names and numbers alone say nothing.

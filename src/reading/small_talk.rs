@@ -9,6 +9,8 @@
 //!
 //! Without the sentence encoder the model's own reply stands.
 
+use std::collections::BTreeSet;
+
 use crate::lexicon::folded_words;
 use crate::tool::examples::{replies, ReplyKind};
 use crate::tool::Effect;
@@ -63,15 +65,19 @@ pub fn reply(meaning: &Meaning, request: &str, set: Option<Language>, tools: &To
 /// meaning crosses languages, so the nearest example of "thanks, bye" was German.
 fn by_examples(request: &str) -> Option<Language> {
     let words = folded_words(request);
-    let mut held: Vec<(&str, usize)> = Vec::new();
+    // Each language's words, every kind's examples together: a word counts once.
+    let mut theirs: Vec<(&str, BTreeSet<String>)> = Vec::new();
     for (lang, _, k) in replies() {
-        let theirs: Vec<String> = k.examples.iter().flat_map(|e| folded_words(e)).collect();
-        let n = words.iter().filter(|w| theirs.contains(w)).count();
-        match held.iter_mut().find(|(l, _)| l == lang) {
-            Some((_, m)) => *m += n,
-            None => held.push((lang, n)),
+        let each = k.examples.iter().flat_map(|e| folded_words(e));
+        match theirs.iter_mut().find(|(l, _)| l == lang) {
+            Some((_, set)) => set.extend(each),
+            None => theirs.push((lang, each.collect())),
         }
     }
+    let held: Vec<(&str, usize)> = theirs
+        .iter()
+        .map(|(lang, set)| (*lang, words.iter().filter(|w| set.contains(*w)).count()))
+        .collect();
     let top = held.iter().map(|(_, n)| *n).max().filter(|n| *n > 0)?;
     match held.iter().filter(|(_, n)| *n == top).collect::<Vec<_>>()[..] {
         [(lang, _)] => Language::parse(lang).ok(),
@@ -122,12 +128,17 @@ fn grouped(names: &[&str]) -> String {
             None => out.push((p, vec![rest])),
         }
     }
-    let words = |n: &str| n.replace('_', " ");
     out.into_iter()
         .map(|(p, v)| match v.as_slice() {
             [""] => p.to_string(),
-            [one] => format!("{p} {}", words(one)),
+            [one] => format!("{p} {}", one.replace('_', " ")),
             _ => {
+                // A tool named by the prefix alone, beside others that share it, says
+                // the prefix ("arm: arm, move").
+                let words = |r: &str| match r {
+                    "" => p.to_string(),
+                    r => r.replace('_', " "),
+                };
                 let mut each: Vec<String> = v.iter().take(SHOWN).map(|r| words(r)).collect();
                 if v.len() > SHOWN {
                     each.push(format!("+{}", v.len() - SHOWN));

@@ -186,7 +186,12 @@ impl Tool for ServiceInfo {
         // templates' zeros, summarized as values, read as the service's state ("what
         // colour is the pen?" was answered "request.r 0").
         let served: Vec<&str> = servers.iter().filter_map(|s| s.as_deref()).collect();
-        let mut summary = format!("service {service}, type {ty}, servers {}", served.join(" "));
+        let served = if served.is_empty() {
+            "none".to_string()
+        } else {
+            served.join(" ")
+        };
+        let mut summary = format!("service {service}, type {ty}, servers {served}");
         if let Some(d) = &definition {
             summary.push_str(&format!("; {}", super::iface::fields(d, &ty, Some(ifaces))));
         }
