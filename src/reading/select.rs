@@ -246,7 +246,6 @@ impl Document {
             }
         }
         let kinds: Vec<&str> = name_kinds(spec).collect();
-        let bare = |n: &str| n.trim_start_matches('/').to_string();
         let (whole, graph): (Vec<&str>, Vec<&str>) = names
             .iter()
             .filter(|(kind, _)| kinds.contains(&kind.as_str()))
@@ -494,19 +493,28 @@ fn live_values(live: &ToolSpec, declared: Option<&ToolSpec>) -> Vec<String> {
 /// name (`bound::written_names`) among its live values. A request that names a
 /// parameter or a topic asks for a tool that can be given it.
 pub(crate) fn takes_written(part: &str, live: &[ToolSpec], declared: &[ToolSpec]) -> Vec<bool> {
-    let bare = |n: &str| n.trim_start_matches('/').to_string();
-    let written: Vec<String> = super::bound::written_names(part)
-        .iter()
-        .map(|w| bare(w))
-        .collect();
+    let written = written_bare(part);
     live.iter()
         .map(|spec| {
             !written.is_empty()
                 && live_values(spec, declared.iter().find(|d| d.name == spec.name))
                     .iter()
-                    .any(|v| written.contains(&bare(v)))
+                    .any(|v| written.iter().any(|w| w == bare(v)))
         })
         .collect()
+}
+
+/// The names `text` writes whole (`bound::written_names`), without a leading `/`.
+fn written_bare(text: &str) -> Vec<String> {
+    super::bound::written_names(text)
+        .iter()
+        .map(|w| bare(w).to_string())
+        .collect()
+}
+
+/// A ROS name without its leading `/`: "/clear" and "clear" are the same name written.
+fn bare(name: &str) -> &str {
+    name.trim_start_matches('/')
 }
 
 /// Cut the priors of the candidates that cannot take a name the request writes when
@@ -548,11 +556,7 @@ fn cut_one_of_many(
     if plural.is_empty() {
         return;
     }
-    let bare = |n: &str| n.trim_start_matches('/').to_string();
-    let written: Vec<String> = super::bound::written_names(query)
-        .iter()
-        .map(|w| bare(w))
-        .collect();
+    let written = written_bare(query);
     let writes = |kind: &str| {
         written.iter().any(|w| {
             let kinds: Vec<&str> = names

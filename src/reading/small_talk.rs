@@ -10,6 +10,7 @@
 //! Without the sentence encoder the model's own reply stands.
 
 use std::collections::BTreeSet;
+use std::sync::OnceLock;
 
 use crate::lexicon::folded_words;
 use crate::tool::examples::{replies, ReplyKind};
@@ -65,16 +66,7 @@ pub fn reply(meaning: &Meaning, request: &str, set: Option<Language>, tools: &To
 /// meaning crosses languages, so the nearest example of "thanks, bye" was German.
 fn by_examples(request: &str) -> Option<Language> {
     let words = folded_words(request);
-    // Each language's words, every kind's examples together: a word counts once.
-    let mut theirs: Vec<(&str, BTreeSet<String>)> = Vec::new();
-    for (lang, _, k) in replies() {
-        let each = k.examples.iter().flat_map(|e| folded_words(e));
-        match theirs.iter_mut().find(|(l, _)| l == lang) {
-            Some((_, set)) => set.extend(each),
-            None => theirs.push((lang, each.collect())),
-        }
-    }
-    let held: Vec<(&str, usize)> = theirs
+    let held: Vec<(&str, usize)> = example_words()
         .iter()
         .map(|(lang, set)| (*lang, words.iter().filter(|w| set.contains(*w)).count()))
         .collect();
@@ -83,6 +75,23 @@ fn by_examples(request: &str) -> Option<Language> {
         [(lang, _)] => Language::parse(lang).ok(),
         _ => None,
     }
+}
+
+/// Each language's small talk words, every kind's examples together (a word counts
+/// once), read once.
+fn example_words() -> &'static [(&'static str, BTreeSet<String>)] {
+    static WORDS: OnceLock<Vec<(&'static str, BTreeSet<String>)>> = OnceLock::new();
+    WORDS.get_or_init(|| {
+        let mut theirs: Vec<(&'static str, BTreeSet<String>)> = Vec::new();
+        for (lang, _, k) in replies() {
+            let each = k.examples.iter().flat_map(|e| folded_words(e));
+            match theirs.iter_mut().find(|(l, _)| l == lang) {
+                Some((_, set)) => set.extend(each),
+                None => theirs.push((lang, each.collect())),
+            }
+        }
+        theirs
+    })
 }
 
 /// The line of `kind` in `language` (English when the language lacks it), its
