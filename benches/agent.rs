@@ -230,6 +230,7 @@ fn main() {
             prompt_cache: false,
             draft: ferrosa::decode::Draft::default(),
             remote: None,
+            adapter: "default".into(),
         },
         yes: true,
         read_only: false,

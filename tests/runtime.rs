@@ -395,3 +395,76 @@ fn kv_cache_size_follows_the_file_dimensions() {
     assert_eq!(g.kv_cache_bytes(8192), Some(8192 * 30 * 3 * (64 + 64) * 2));
     assert_eq!(g.kv_cache_bytes(8192).unwrap() / (1 << 20), 180);
 }
+
+/// The tool chooser's adapter reads only the chooser's branches: the names'
+/// log-probabilities change with it, while the main sequence (the prompt's cache, and
+/// so every token a turn writes after its tool's name) stays what the base model gives.
+#[test]
+#[ignore = "needs the model weights (or a ROS peer): cargo test --release -- --include-ignored"]
+fn the_chooser_adapter_reads_the_names_and_leaves_the_cache_alone() {
+    let max_diff = |a: &[f32], b: &[f32]| {
+        a.iter()
+            .zip(b)
+            .map(|(x, y)| (x - y).abs())
+            .fold(0.0f32, f32::max)
+    };
+    let resolved = ferrosa::models::resolve(Some(SMOL), &crate::util::models_dir()).unwrap();
+    let adapter = ferrosa::models::adapter::resolve(
+        "smollm2-135m-tools",
+        &resolved.path,
+        resolved.entry.as_ref(),
+    )
+    .unwrap()
+    .expect("the built-in adapter is for the default model");
+    let mut plain = load(SMOL, BackendKind::Llama, 2048);
+    let mut opts = ferrosa::backend::LoadOptions::new(resolved.path.clone());
+    opts.max_context = 2048;
+    opts.family = Some("smollm2".into());
+    opts.adapter = Some(adapter.path.clone());
+    let mut adapted = ferrosa::backend::load(BackendKind::Llama, &opts).unwrap();
+    assert!(adapted.has_chooser() && !plain.has_chooser());
+
+    let text = "<|im_start|>user\nhow often does the pose topic publish?<|im_end|>\n<|im_start|>assistant\n<tool_call>[\n{\"name\": \"";
+    let context = plain.tokenize(text, true).unwrap();
+    let (n, last) = (context.len(), *context.last().unwrap());
+    let names: Vec<Vec<u32>> = ["ros_topic_hz\"", "ros_topic_echo\"", "robot_status\""]
+        .iter()
+        .map(|w| plain.tokenize(w, false).unwrap())
+        .collect();
+    // The main sequence: the same logits with the adapter loaded as without it.
+    let base = plain.forward(0, &context).unwrap().to_vec();
+    let before = adapted.forward(0, &context).unwrap().to_vec();
+    assert!(
+        max_diff(&base, &before) < 1e-3,
+        "the adapter read the prompt"
+    );
+
+    // The branches: the context's last token read again, then each name, adapter on.
+    let rows: Vec<Vec<u32>> = names
+        .iter()
+        .map(|t| std::iter::once(last).chain(t.iter().copied()).collect())
+        .collect();
+    let refs: Vec<&[u32]> = rows.iter().map(Vec::as_slice).collect();
+    let mut read = Vec::new();
+    let took = adapted
+        .chooser_branches(n - 1, &refs, &mut |b, j, logits| {
+            read.push((b, j, logits.to_vec()))
+        })
+        .unwrap();
+    assert!(took, "the chooser read no branches");
+    assert_eq!(
+        read.len(),
+        rows.iter().map(Vec::len).sum::<usize>(),
+        "a row per branch token"
+    );
+    let first = &read.iter().find(|(_, j, _)| *j == 0).unwrap().2;
+    let moved = max_diff(first, &base);
+    assert!(moved > 0.5, "the adapter changed nothing: {moved}");
+
+    // Afterwards the cache is the base model's: the next token reads as it does without.
+    let next = plain.tokenize("ros", false).unwrap();
+    let want = plain.forward(n, &next).unwrap().to_vec();
+    let got = adapted.forward(n, &next).unwrap().to_vec();
+    let diff = max_diff(&want, &got);
+    assert!(diff < 1e-3, "the cache changed under the chooser: {diff}");
+}

@@ -292,6 +292,7 @@ fn stack(setup: &Setup, script: &[String]) -> Stack {
             prompt_cache: false,
             draft: ferrosa::decode::Draft::default(),
             remote: None,
+            adapter: "default".into(),
         },
         yes: setup.yes,
         read_only: setup.read_only,

@@ -119,6 +119,7 @@ pub fn agent_args(robot: ferrosa::ui::agent::Robot, yes: bool) -> ferrosa::ui::a
             prompt_cache: true,
             draft: ferrosa::decode::Draft::default(),
             remote: None,
+            adapter: "default".into(),
         },
         yes,
         read_only: false,

@@ -15,6 +15,7 @@ use llama_cpp_2::context::LlamaContext;
 use llama_cpp_2::llama_backend::LlamaBackend;
 use llama_cpp_2::llama_batch::LlamaBatch;
 use llama_cpp_2::model::params::LlamaModelParams;
+use llama_cpp_2::model::LlamaLoraAdapter;
 use llama_cpp_2::model::LlamaModel;
 use llama_cpp_2::token::LlamaToken;
 use llama_cpp_2::token_type::LlamaTokenAttr;
@@ -71,6 +72,9 @@ pub(crate) struct LlamaCpp {
     logits: Vec<f32>,
     vocab: Vocab,
     template: ChatTemplate,
+    /// The tool chooser's adapter (`LoadOptions::adapter`), owned by the model and
+    /// switched on only while `chooser_branches` evaluates.
+    adapter: Option<LlamaLoraAdapter>,
 }
 
 impl Drop for LlamaCpp {
@@ -217,12 +221,22 @@ impl LlamaCpp {
         };
         let template = ChatTemplate::for_model(gguf, opts.family.as_deref())?;
         let params = LlamaModelParams::default().with_use_mmap(true);
-        let model = LlamaModel::load_from_file(rt, &opts.path, &params).map_err(|e| {
+        let mut model = LlamaModel::load_from_file(rt, &opts.path, &params).map_err(|e| {
             fail(format!(
                 "{e} (architecture '{}'; is it supported by this llama.cpp?)",
                 gguf.architecture().unwrap_or("unknown")
             ))
         })?;
+        // The model owns the adapter once loaded (llama.cpp frees it with the model).
+        let adapter = match &opts.adapter {
+            Some(path) => Some(model.lora_adapter_init(path).map_err(|e| {
+                fail(format!(
+                    "the adapter {} does not load over this model: {e} (it was trained for another model, or the file is damaged; run without it with --adapter none)",
+                    path.display()
+                ))
+            })?),
+            None => None,
+        };
         let model = Arc::new(model);
         // SAFETY: the Arc's allocation does not move and outlives the context: `LlamaCpp`
         // holds a clone and drops the context first (see Drop).
@@ -270,7 +284,44 @@ impl LlamaCpp {
             logits: vec![0.0; vocab.len()],
             vocab,
             template,
+            adapter,
         })
+    }
+
+    /// `branch_group` over `branches` in groups that each fit a batch, `lead` riding in
+    /// the first; each group's sequences are removed after it. Returns the logits after
+    /// `lead`, if it has tokens.
+    fn grouped(
+        &mut self,
+        keep: usize,
+        lead: &[TokenId],
+        branches: &[&[TokenId]],
+        each: &mut dyn FnMut(usize, usize, &[f32]),
+    ) -> Result<Option<Vec<f32>>, BackendError> {
+        let (mut keep, mut lead, mut root) = (keep, lead, None);
+        let mut start = 0;
+        while start < branches.len() {
+            let mut end = start;
+            let mut len = lead.len();
+            while end < branches.len()
+                && end - start < self.max_branches
+                && (end == start || len + branches[end].len() <= self.n_batch)
+            {
+                len += branches[end].len();
+                end += 1;
+            }
+            let group = &branches[start..end];
+            let result = self.branch_group(keep, lead, group, &mut |b, j, l| each(start + b, j, l));
+            for s in 1..=group.len() {
+                let _ = self.ctx.kv_cache_seq_rm(s as i32, None, None);
+            }
+            if let Some(r) = result? {
+                root = Some(r);
+            }
+            (keep, lead) = (keep + lead.len(), &[]);
+            start = end;
+        }
+        Ok(root)
     }
 }
 
@@ -403,31 +454,51 @@ impl Backend for LlamaCpp {
         // Every cell at once, at most: shared tokens take one.
         let total = lead.len() + branches.iter().map(|b| b.len()).sum::<usize>();
         let tokens = lead.iter().chain(branches.iter().flat_map(|b| b.iter()));
-        let mut keep = self.make_room(keep, total, tokens)?;
-        // Groups of branches that fit one batch and the sequence ids.
-        let mut start = 0;
-        while start < branches.len() {
-            let mut end = start;
-            let mut len = lead.len();
-            while end < branches.len()
-                && end - start < self.max_branches
-                && (end == start || len + branches[end].len() <= self.n_batch)
-            {
-                len += branches[end].len();
-                end += 1;
-            }
-            let group = &branches[start..end];
-            let result = self.branch_group(keep, lead, group, &mut |b, j, l| each(start + b, j, l));
-            for s in 1..=group.len() {
-                let _ = self.ctx.kv_cache_seq_rm(s as i32, None, None);
-            }
-            if let Some(r) = result? {
-                root = Some(r);
-            }
-            (keep, lead) = (keep + lead.len(), &[]);
-            start = end;
+        let keep = self.make_room(keep, total, tokens)?;
+        if let Some(r) = self.grouped(keep, lead, branches, each)? {
+            root = Some(r);
         }
         Ok(root.expect("the first group carries `shared`, or it was evaluated first"))
+    }
+
+    fn has_chooser(&self) -> bool {
+        self.adapter.is_some()
+    }
+
+    fn chooser_branches(
+        &mut self,
+        keep: usize,
+        branches: &[&[TokenId]],
+        each: &mut dyn FnMut(usize, usize, &[f32]),
+    ) -> Result<bool, BackendError> {
+        let fits = branches
+            .iter()
+            .all(|b| !b.is_empty() && b.len() <= self.n_batch);
+        // The branches' cells beside the main sequence's, in the one cache.
+        let cells = self.n_past + branches.iter().map(|b| b.len()).sum::<usize>();
+        if self.adapter.is_none()
+            || self.max_branches == 0
+            || !fits
+            || keep >= self.n_past
+            || cells > self.n_ctx
+        {
+            return Ok(false);
+        }
+        let _span = tracing::trace_span!("chooser", n = branches.len()).entered();
+        let held = self.n_past;
+        let adapter = self.adapter.as_mut().expect("checked above");
+        self.ctx
+            .lora_adapter_set(adapter, 1.0)
+            .map_err(|e| eval(format!("cannot switch the adapter on: {e}")))?;
+        let result = self.grouped(keep, &[], branches, each).map(|_| ());
+        // Off again whatever happened: every other evaluation is the base model's.
+        let adapter = self.adapter.as_mut().expect("checked above");
+        let off = self.ctx.lora_adapter_remove(adapter);
+        // A failed batch drops the main sequence from `keep` on (`branch_group`).
+        self.n_past = if result.is_ok() { held } else { keep };
+        result?;
+        off.map_err(|e| eval(format!("cannot switch the adapter off: {e}")))?;
+        Ok(true)
     }
 
     fn snapshot_key(&self) -> Option<String> {

@@ -210,6 +210,25 @@ pub trait Backend: Send {
     ) -> Result<Vec<f32>, BackendError> {
         branches_one_by_one(self, keep, shared, branches, each)
     }
+    /// The tool chooser's reading (`strategy::likelihood`): each branch read after the
+    /// cache's first `keep` cells with the chooser's adapter (`LoadOptions::adapter`) on,
+    /// the cache itself left the base model's. A branch starts with the token at `keep`
+    /// read again (the one whose logits give a name's first token). `each(b, j, logits)`
+    /// as in `branches`. False, having evaluated nothing, when this runtime has no
+    /// adapter loaded (`has_chooser`) or cannot take these branches: the caller reads
+    /// without it.
+    fn has_chooser(&self) -> bool {
+        false
+    }
+    fn chooser_branches(
+        &mut self,
+        keep: usize,
+        branches: &[&[TokenId]],
+        each: &mut dyn FnMut(usize, usize, &[f32]),
+    ) -> Result<bool, BackendError> {
+        let _ = (keep, branches, each);
+        Ok(false)
+    }
     /// Most tokens one evaluation step takes (`forward` cuts longer input into such
     /// batches, from its first token): what keeps a restored prefix's state the one
     /// evaluating it gives (`Session::prepare`).

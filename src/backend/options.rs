@@ -33,6 +33,9 @@ pub struct LoadOptions {
     pub max_context: usize,
     /// Prompt tokens evaluated per forward pass.
     pub batch: usize,
+    /// The tool chooser's LoRA adapter (GGUF, `models::adapter`), on only while it reads
+    /// (`Backend::chooser_branches`); llama.cpp only.
+    pub adapter: Option<PathBuf>,
 }
 
 impl LoadOptions {
@@ -43,6 +46,7 @@ impl LoadOptions {
             threads: physical_cores(),
             max_context: 8192,
             batch: 512,
+            adapter: None,
         }
     }
 }

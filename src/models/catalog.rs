@@ -75,6 +75,10 @@ pub struct Entry {
     pub notes: String,
     /// Parts in order; their member files concatenate to `file`.
     pub source: Vec<Source>,
+    /// The built-in adapter applied over these weights by default (`models::adapter`,
+    /// which refuses a name it does not build in).
+    #[serde(default)]
+    pub adapter: Option<String>,
 }
 
 #[derive(Debug, Clone, Deserialize)]

@@ -3,6 +3,7 @@
 //!
 //! It never loads a model (that is `backend`) and never contacts a model hub.
 
+pub mod adapter;
 pub mod catalog;
 pub mod checksum;
 pub mod fetch;

@@ -29,7 +29,7 @@ pub mod verify;
 use crate::backend::{Backend, BackendError, TokenId};
 use crate::decode::{DecodeError, LogitsHook, Session, TokenContext};
 use crate::tool::{ToolCall, ToolSpec};
-use likelihood::continuation_logprobs;
+use likelihood::{chooser_logprobs, continuation_logprobs};
 
 /// What to do with a call a turn just wrote.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
@@ -216,7 +216,8 @@ pub struct Scores {
 }
 
 impl Scorer<'_> {
-    /// Each candidate's log-probability after `written`, with the request only.
+    /// Each candidate's log-probability after `written`, with the request only, read by
+    /// the tool chooser's adapter where the runtime has one (`likelihood::chooser_logprobs`).
     pub fn real(
         &mut self,
         written: &[TokenId],
@@ -224,7 +225,7 @@ impl Scorer<'_> {
     ) -> Result<Vec<f64>, BackendError> {
         let mut ctx = self.real.to_vec();
         ctx.extend_from_slice(written);
-        continuation_logprobs(self.backend, self.session, &ctx, candidates)
+        chooser_logprobs(self.backend, self.session, &ctx, candidates)
     }
 
     /// Both scores of each candidate after `written`. The baseline goes first so the

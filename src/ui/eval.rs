@@ -513,6 +513,7 @@ fn report(
         _ => String::new(),
     };
     let pick = format!("{:?}", args.agent.pick).to_lowercase();
+    let pick = format!("{pick}, adapter {}", args.agent.model.adapter);
     println!(
         "model {} | suite {}{copy} | tool pick {pick} | {} | {} cases per mode\n",
         run.model,

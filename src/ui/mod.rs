@@ -53,6 +53,9 @@ pub struct ModelArgs {
     pub draft: crate::decode::Draft,
     /// Run the model on a server (`--engine openai`): only its vocabulary is loaded here.
     pub remote: Option<crate::remote::RemoteOptions>,
+    /// `--adapter`: `default` (the catalog's for the model), `none`, a built-in name or a
+    /// path to a GGUF LoRA file (`models::adapter`).
+    pub adapter: String,
 }
 
 impl ModelArgs {
@@ -78,11 +81,43 @@ impl ModelArgs {
         if let Some(t) = self.threads {
             opts.threads = t;
         }
+        opts.adapter = self.adapter(&resolved)?.map(|a| a.path);
         let model = match &self.remote {
             Some(_) => backend::load_vocabulary(&opts)?,
             None => backend::load(self.backend, &opts)?,
         };
         Ok((resolved, opts, model))
+    }
+
+    /// The adapter to apply, when this runtime applies one: llama.cpp in this process.
+    /// The catalog's default is left out, with a note, where it cannot apply; an adapter
+    /// the operator named is an error there.
+    fn adapter(
+        &self,
+        resolved: &ResolvedModel,
+    ) -> anyhow::Result<Option<crate::models::adapter::Adapter>> {
+        use crate::models::adapter;
+        let named = !matches!(self.adapter.as_str(), adapter::DEFAULT | adapter::NONE);
+        let elsewhere = if self.remote.is_some() {
+            Some("the model server")
+        } else if self.backend == BackendKind::Candle {
+            Some("candle")
+        } else {
+            None
+        };
+        match (elsewhere, named) {
+            (Some(runtime), true) => anyhow::bail!(
+                "--adapter {}: {runtime} does not apply adapters; use the local llama.cpp runtime (--backend llama, --engine local) or leave --adapter out",
+                self.adapter
+            ),
+            (Some(runtime), false) => {
+                if let Some(a) = adapter::resolve(&self.adapter, &resolved.path, resolved.entry.as_ref())? {
+                    tracing::info!("{runtime} does not apply adapters: the model runs without {}", a.name);
+                }
+                Ok(None)
+            }
+            (None, _) => Ok(adapter::resolve(&self.adapter, &resolved.path, resolved.entry.as_ref())?),
+        }
     }
 
     /// With `--engine openai`, the server reached and checked against `model` (the

@@ -41,6 +41,17 @@ pub struct Cli {
     /// copies).
     #[arg(long, global = true, env = "FERROSA_DRAFT", default_value_t = 0)]
     draft: usize,
+    /// The tool chooser's LoRA adapter: default (the one the model's catalog entry
+    /// names, if any), none, a built-in name (smollm2-135m-tools, trained for the default
+    /// model), or a path to a GGUF LoRA file. On only while the chooser reads the tools'
+    /// names; llama.cpp in this process only.
+    #[arg(
+        long,
+        global = true,
+        env = "FERROSA_ADAPTER",
+        default_value = "default"
+    )]
+    adapter: String,
     /// Where the model runs: local (in this process) or openai (a server with OpenAI's
     /// completions API, e.g. llama-server or vLLM, at --url; the model file given with
     /// --model is read here for its vocabulary and chat template only).
@@ -235,6 +246,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         prompt_cache: cli.prompt_cache == Switch::On,
         draft: crate::decode::Draft::up_to(cli.draft),
         remote: cli.remote()?,
+        adapter: cli.adapter.clone(),
     };
     match cli.command {
         Command::Generate(g) => ui::generate::run(&g.into_args(&common)),

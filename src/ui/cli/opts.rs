@@ -18,6 +18,7 @@ pub(super) struct Common {
     pub(super) prompt_cache: bool,
     pub(super) draft: crate::decode::Draft,
     pub(super) remote: Option<crate::remote::RemoteOptions>,
+    pub(super) adapter: String,
 }
 
 impl Common {
@@ -38,6 +39,7 @@ impl Common {
             prompt_cache: self.prompt_cache,
             draft: self.draft,
             remote: self.remote.clone(),
+            adapter: self.adapter.clone(),
         }
     }
 
