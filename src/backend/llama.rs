@@ -192,7 +192,9 @@ impl LlamaCpp {
         }
         if let Err(e) = self.ctx.decode(&mut self.branch_batch) {
             // The main sequence may hold part of `lead`: drop it so `n_past` stays true.
-            let _ = self.ctx.kv_cache_seq_rm(0, Some(keep as u32), None);
+            if !lead.is_empty() {
+                let _ = self.ctx.kv_cache_seq_rm(0, Some(keep as u32), None);
+            }
             return Err(eval(e));
         }
         self.n_past = start;
@@ -487,17 +489,25 @@ impl Backend for LlamaCpp {
         let _span = tracing::trace_span!("chooser", n = branches.len()).entered();
         let held = self.n_past;
         let adapter = self.adapter.as_mut().expect("checked above");
-        self.ctx
-            .lora_adapter_set(adapter, 1.0)
-            .map_err(|e| eval(format!("cannot switch the adapter on: {e}")))?;
+        self.ctx.lora_adapter_set(adapter, 1.0).map_err(|e| {
+            eval(format!(
+                "cannot switch the adapter on: {e} (run with --adapter none)"
+            ))
+        })?;
         let result = self.grouped(keep, &[], branches, each).map(|_| ());
-        // Off again whatever happened: every other evaluation is the base model's.
+        // Off again whatever happened: every other evaluation is the base model's. With
+        // no lead, the main sequence was not written: it holds what it held.
         let adapter = self.adapter.as_mut().expect("checked above");
         let off = self.ctx.lora_adapter_remove(adapter);
-        // A failed batch drops the main sequence from `keep` on (`branch_group`).
-        self.n_past = if result.is_ok() { held } else { keep };
+        self.n_past = held;
+        if let Err(e) = off {
+            // An adapter that may still be on is never used again.
+            self.adapter = None;
+            return Err(eval(format!(
+                "cannot switch the adapter off: {e}; the chooser reads without it from now on"
+            )));
+        }
         result?;
-        off.map_err(|e| eval(format!("cannot switch the adapter off: {e}")))?;
         Ok(true)
     }
 

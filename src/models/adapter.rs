@@ -14,9 +14,9 @@
 //! other file. A catalog entry may name one (`adapter = ...`) to apply it by default;
 //! the operator may name any GGUF LoRA file by path instead, or turn adapters off.
 //!
-//! A built-in adapter is written once to the cache directory (llama.cpp reads adapters
-//! from files), under a name holding its hash, so a new build's adapter never meets an
-//! old build's file.
+//! llama.cpp reads adapters from files: a built-in one is written to a new file in the
+//! cache directory, opened and unlinked at once, and read through `/proc/self/fd`, so no
+//! file another process planted or swapped is ever loaded in its place.
 
 use std::path::{Path, PathBuf};
 
@@ -41,12 +41,11 @@ pub const BUILTIN: &[Builtin] = &[Builtin {
     bytes: include_bytes!("../../data/adapters/smollm2-135m-tools.gguf"),
 }];
 
-/// An adapter ready to load: its file and its hash (which keys the prompt cache).
+/// An adapter ready to load: its name and the file llama.cpp reads.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Adapter {
     pub name: String,
     pub path: PathBuf,
-    pub sha256: String,
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -59,6 +58,10 @@ pub enum AdapterError {
         base: String,
         model: String,
     },
+    #[error("no adapter file at {0}: check the path, or pass a built-in adapter ({known}) or 'none'", known = builtin_names())]
+    NoFile(PathBuf),
+    #[error("the catalog names adapter '{0}', which this build does not have (built in: {known}): fix the catalog entry, or pass --adapter none", known = builtin_names())]
+    NotBuiltIn(String),
     #[error("cannot read the adapter {path}: {source}")]
     Read {
         path: PathBuf,
@@ -85,32 +88,58 @@ impl Builtin {
         BUILTIN.iter().find(|b| b.name == name)
     }
 
-    pub fn sha256(&self) -> String {
-        checksum::sha256_bytes(self.bytes)
-    }
-
-    /// The adapter as a file in `dir` (written when absent or not whole).
+    /// The adapter as a file only this process can reach: written to a new file in `dir`
+    /// (created exclusively, under a name no other file has, so nothing planted there is
+    /// written through or read), opened, and unlinked; llama.cpp reads it through
+    /// `/proc/self/fd`. The descriptor stays open for the process's life (one file of a
+    /// few MiB), so the path stays valid for any later load.
     fn materialize(&self, dir: &Path) -> Result<Adapter, AdapterError> {
-        let sha = self.sha256();
-        let path = dir.join(format!("{}-{}.gguf", self.name, &sha[..16]));
-        let whole = std::fs::metadata(&path).is_ok_and(|m| m.len() == self.bytes.len() as u64);
-        if !whole {
-            let fail = |source| AdapterError::Write {
+        use std::io::Write;
+        let fail = |path: &Path| {
+            let path = path.to_path_buf();
+            move |source| AdapterError::Write {
                 name: self.name.into(),
                 path: path.clone(),
                 source,
+            }
+        };
+        std::fs::create_dir_all(dir).map_err(fail(dir))?;
+        let stamp = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.as_nanos());
+        let mut last = None;
+        for attempt in 0..8 {
+            let path = dir.join(format!(
+                ".{}-{}-{stamp:x}-{attempt}.gguf",
+                self.name,
+                std::process::id()
+            ));
+            let mut file = match std::fs::OpenOptions::new()
+                .write(true)
+                .create_new(true)
+                .open(&path)
+            {
+                Ok(f) => f,
+                Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {
+                    last = Some(e);
+                    continue;
+                }
+                Err(e) => return Err(fail(&path)(e)),
             };
-            std::fs::create_dir_all(dir).map_err(fail)?;
-            // Written beside, then renamed: a process reading it never sees half a file.
-            let tmp = path.with_extension(format!("{}.tmp", std::process::id()));
-            std::fs::write(&tmp, self.bytes).map_err(fail)?;
-            std::fs::rename(&tmp, &path).map_err(fail)?;
+            let written = file.write_all(self.bytes).and_then(|()| file.flush());
+            let reader = written.and_then(|()| std::fs::File::open(&path));
+            let _ = std::fs::remove_file(&path);
+            let reader = reader.map_err(fail(&path))?;
+            use std::os::unix::io::IntoRawFd;
+            let fd = reader.into_raw_fd();
+            return Ok(Adapter {
+                name: self.name.into(),
+                path: PathBuf::from(format!("/proc/self/fd/{fd}")),
+            });
         }
-        Ok(Adapter {
-            name: self.name.into(),
-            path,
-            sha256: sha,
-        })
+        Err(fail(dir)(last.unwrap_or_else(|| {
+            std::io::Error::other("no free file name")
+        })))
     }
 }
 
@@ -137,7 +166,7 @@ pub fn resolve(
                 return Ok(None);
             };
             let builtin =
-                Builtin::find(name).ok_or_else(|| AdapterError::Unknown(name.to_string()))?;
+                Builtin::find(name).ok_or_else(|| AdapterError::NotBuiltIn(name.to_string()))?;
             if !builtin.base_sha256.eq_ignore_ascii_case(&entry.sha256) {
                 return Ok(None);
             }
@@ -164,17 +193,16 @@ pub fn resolve(
                 return builtin.materialize(&dir).map(Some);
             }
             let path = PathBuf::from(name);
+            let looks_like_path = name.contains('/') || name.ends_with(".gguf");
+            if looks_like_path && !path.is_file() {
+                return Err(AdapterError::NoFile(path));
+            }
             if !path.is_file() {
                 return Err(AdapterError::Unknown(name.into()));
             }
-            let sha = checksum::sha256_remembered(&path).map_err(|source| AdapterError::Read {
-                path: path.clone(),
-                source,
-            })?;
             Ok(Some(Adapter {
                 name: path.display().to_string(),
                 path,
-                sha256: sha,
             }))
         }
     }
@@ -207,9 +235,10 @@ mod tests {
                 "{} was trained over no model of the catalog",
                 b.name
             );
-            // Written once: a second call finds the whole file and keeps it.
-            let again = b.materialize(dir.path()).unwrap();
-            assert_eq!(again, a);
+            // Nothing is left in the directory: the file is reached through the
+            // descriptor alone, and holds exactly the built-in bytes.
+            assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
+            assert_eq!(std::fs::read(&a.path).unwrap(), b.bytes);
         }
     }
 

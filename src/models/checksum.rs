@@ -45,11 +45,6 @@ pub(crate) fn sha256_file(path: &Path, mut progress: impl FnMut(u64)) -> std::io
     Ok(to_hex(&h.finalize()))
 }
 
-/// The sha256 of bytes in memory, as hex.
-pub(crate) fn sha256_bytes(bytes: &[u8]) -> String {
-    to_hex(&Sha256::digest(bytes))
-}
-
 pub(crate) fn to_hex(bytes: &[u8]) -> String {
     bytes.iter().map(|b| format!("{b:02x}")).collect()
 }

@@ -109,8 +109,15 @@ pub(crate) fn chooser_logprobs(
             scores[i] += f64::from(logits[continuations[i][j] as usize] - norm);
         }
     });
-    // A failed read leaves the cache short of the context's last token.
-    let read = read.inspect_err(|_| session.truncate(context.len() - 1))?;
+    let read = match read {
+        Ok(read) => read,
+        Err(e) => {
+            // The base model's reading still answers: the turn goes on without the adapter.
+            tracing::warn!("the tool chooser's adapter failed ({e}); reading the names without it");
+            session.truncate(context.len() - 1);
+            false
+        }
+    };
     if !read {
         return continuation_logprobs(backend, session, context, continuations);
     }

@@ -97,7 +97,7 @@ impl ModelArgs {
         resolved: &ResolvedModel,
     ) -> anyhow::Result<Option<crate::models::adapter::Adapter>> {
         use crate::models::adapter;
-        let named = !matches!(self.adapter.as_str(), adapter::DEFAULT | adapter::NONE);
+        let named = !matches!(self.adapter.as_str(), adapter::DEFAULT | adapter::NONE | "");
         let elsewhere = if self.remote.is_some() {
             Some("the model server")
         } else if self.backend == BackendKind::Candle {
@@ -111,8 +111,9 @@ impl ModelArgs {
                 self.adapter
             ),
             (Some(runtime), false) => {
-                if let Some(a) = adapter::resolve(&self.adapter, &resolved.path, resolved.entry.as_ref())? {
-                    tracing::info!("{runtime} does not apply adapters: the model runs without {}", a.name);
+                let listed = resolved.entry.as_ref().and_then(|e| e.adapter.as_deref());
+                if let (Some(name), adapter::DEFAULT) = (listed, self.adapter.as_str()) {
+                    tracing::info!("{runtime} does not apply adapters: the model runs without {name}");
                 }
                 Ok(None)
             }
