@@ -16,7 +16,6 @@ use ferrosa::backend::{load_vocabulary, LoadOptions};
 use ferrosa::chat::{ChatMessage, Role};
 use ferrosa::decode::envelope::Envelope;
 use ferrosa::decode::request::render_prompt_split;
-use ferrosa::tool::ToolCall;
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().skip(1).collect();
@@ -27,18 +26,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     opts.family = Some(family.clone());
     let backend = load_vocabulary(&opts)?;
     let envelope = Envelope::for_family(family);
+    // The call's opening up to the name's opening quote (what the grammar forces), and
+    // the name with its closing quote (what the gate scores).
     let opening_of = |name: &str| -> (String, String) {
-        let call = ToolCall {
-            name: name.into(),
-            arguments: serde_json::json!({}),
-        };
-        let text = envelope.render_calls(&[call]);
-        let quoted = serde_json::to_string(name).expect("a name is a string");
-        let at = text.find(&quoted).expect("the call writes its name");
-        (
-            text[..at + 1].to_string(),
-            text[at + 1..at + quoted.len()].to_string(),
-        )
+        let text = envelope.call_opening(name);
+        let at = text.len() - name.len() - 1;
+        (text[..at].to_string(), text[at..].to_string())
     };
     let mut out = std::io::BufWriter::new(std::fs::File::create(output)?);
     let mut n = 0;

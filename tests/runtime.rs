@@ -420,7 +420,7 @@ fn the_chooser_adapter_reads_the_names_and_leaves_the_cache_alone() {
     let mut opts = ferrosa::backend::LoadOptions::new(resolved.path.clone());
     opts.max_context = 2048;
     opts.family = Some("smollm2".into());
-    opts.adapter = Some(adapter.path.clone());
+    opts.adapter = Some(adapter);
     let mut adapted = ferrosa::backend::load(BackendKind::Llama, &opts).unwrap();
     assert!(adapted.has_chooser() && !plain.has_chooser());
 

@@ -25,7 +25,6 @@ agent's retrieval prior). Prints both; writes the adapter as a GGUF LoRA (f16).
 
 import argparse
 import math
-import os
 import sys
 import time
 

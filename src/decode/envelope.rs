@@ -291,6 +291,22 @@ impl Envelope {
         }
     }
 
+    /// What this envelope writes from the start of a turn to the end of the first call's
+    /// tool name, closing quote included (the tool chooser scores what follows the
+    /// opening the grammar forces).
+    pub fn call_opening(&self, name: &str) -> String {
+        let call = ToolCall {
+            name: name.into(),
+            arguments: serde_json::json!({}),
+        };
+        let text = self.render_calls(&[call]);
+        let quoted = serde_json::to_string(name).unwrap_or_default();
+        let end = text
+            .find(&quoted)
+            .map_or(text.len(), |at| at + quoted.len());
+        text[..end].to_string()
+    }
+
     /// How calls appear in an assistant message: exactly what the grammar produces.
     pub fn render_calls(&self, calls: &[ToolCall]) -> String {
         let objs: Vec<Value> = calls

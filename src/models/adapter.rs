@@ -41,13 +41,6 @@ pub const BUILTIN: &[Builtin] = &[Builtin {
     bytes: include_bytes!("../../data/adapters/smollm2-135m-tools.gguf"),
 }];
 
-/// An adapter ready to load: its name and the file llama.cpp reads.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct Adapter {
-    pub name: String,
-    pub path: PathBuf,
-}
-
 #[derive(Debug, thiserror::Error)]
 pub enum AdapterError {
     #[error("unknown adapter '{0}': pass a built-in adapter ({known}), a path to a GGUF LoRA file, 'default' or 'none'", known = builtin_names())]
@@ -93,7 +86,7 @@ impl Builtin {
     /// written through or read), opened, and unlinked; llama.cpp reads it through
     /// `/proc/self/fd`. The descriptor stays open for the process's life (one file of a
     /// few MiB), so the path stays valid for any later load.
-    fn materialize(&self, dir: &Path) -> Result<Adapter, AdapterError> {
+    fn materialize(&self, dir: &Path) -> Result<PathBuf, AdapterError> {
         use std::io::Write;
         let fail = |path: &Path| {
             let path = path.to_path_buf();
@@ -132,10 +125,7 @@ impl Builtin {
             let reader = reader.map_err(fail(&path))?;
             use std::os::unix::io::IntoRawFd;
             let fd = reader.into_raw_fd();
-            return Ok(Adapter {
-                name: self.name.into(),
-                path: PathBuf::from(format!("/proc/self/fd/{fd}")),
-            });
+            return Ok(PathBuf::from(format!("/proc/self/fd/{fd}")));
         }
         Err(fail(dir)(last.unwrap_or_else(|| {
             std::io::Error::other("no free file name")
@@ -152,7 +142,7 @@ pub fn resolve(
     choice: &str,
     model: &Path,
     entry: Option<&Entry>,
-) -> Result<Option<Adapter>, AdapterError> {
+) -> Result<Option<PathBuf>, AdapterError> {
     let dir = crate::dirs::cache_dir()
         .map(|d| d.join("adapters"))
         .unwrap_or_else(|| std::env::temp_dir().join("ferrosa-adapters"));
@@ -200,10 +190,7 @@ pub fn resolve(
             if !path.is_file() {
                 return Err(AdapterError::Unknown(name.into()));
             }
-            Ok(Some(Adapter {
-                name: path.display().to_string(),
-                path,
-            }))
+            Ok(Some(path))
         }
     }
 }
@@ -220,7 +207,7 @@ mod tests {
         for b in BUILTIN {
             let dir = tempfile::tempdir().unwrap();
             let a = b.materialize(dir.path()).unwrap();
-            let g = Gguf::open(&a.path).unwrap();
+            let g = Gguf::open(&a).unwrap();
             let text = |k: &str| g.get(k).and_then(|v| v.as_str()).map(str::to_string);
             assert_eq!(
                 text("general.type").as_deref(),
@@ -238,7 +225,7 @@ mod tests {
             // Nothing is left in the directory: the file is reached through the
             // descriptor alone, and holds exactly the built-in bytes.
             assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
-            assert_eq!(std::fs::read(&a.path).unwrap(), b.bytes);
+            assert_eq!(std::fs::read(&a).unwrap(), b.bytes);
         }
     }
 

@@ -28,15 +28,10 @@ pub(crate) fn continuation_logprobs(
     // The context's tail and the branches after it, together.
     let mut scores = vec![0.0; continuations.len()];
     let root = backend.branches(keep, &context[keep..], &branches, &mut |b, j, logits| {
-        let wanted = served[b]
+        let next = served[b]
             .iter()
-            .filter(|&&i| j + 1 < continuations[i].len());
-        let mut norm = None;
-        for &i in wanted {
-            let norm = *norm.get_or_insert_with(|| log_sum_exp(logits));
-            let next = continuations[i][j + 1] as usize;
-            scores[i] += f64::from(logits[next] - norm);
-        }
+            .filter_map(|&i| continuations[i].get(j + 1).map(|&t| (i, t)));
+        add_logprobs(&mut scores, logits, next);
     })?;
     session.extend(&context[keep..]);
     let root = log_softmax(&root);
@@ -102,12 +97,10 @@ pub(crate) fn chooser_logprobs(
     let (branches, served) = tree(&inputs);
     let mut scores = vec![0.0; continuations.len()];
     let read = backend.chooser_branches(context.len() - 1, &branches, &mut |b, j, logits| {
-        let wanted = served[b].iter().filter(|&&i| j < continuations[i].len());
-        let mut norm = None;
-        for &i in wanted {
-            let norm = *norm.get_or_insert_with(|| log_sum_exp(logits));
-            scores[i] += f64::from(logits[continuations[i][j] as usize] - norm);
-        }
+        let next = served[b]
+            .iter()
+            .filter_map(|&i| continuations[i].get(j).map(|&t| (i, t)));
+        add_logprobs(&mut scores, logits, next);
     });
     let read = match read {
         Ok(read) => read,
@@ -122,6 +115,16 @@ pub(crate) fn chooser_logprobs(
         return continuation_logprobs(backend, session, context, continuations);
     }
     Ok(scores)
+}
+
+/// Adds to each continuation's score (`i`) the log-probability `logits` give its next
+/// token (`t`); the normalizer is computed once, and only when some continuation wants it.
+fn add_logprobs(scores: &mut [f64], logits: &[f32], next: impl Iterator<Item = (usize, TokenId)>) {
+    let mut norm = None;
+    for (i, t) in next {
+        let norm = *norm.get_or_insert_with(|| log_sum_exp(logits));
+        scores[i] += f64::from(logits[t as usize] - norm);
+    }
 }
 
 fn log_sum_exp(logits: &[f32]) -> f32 {

@@ -18,7 +18,7 @@ use std::ops::ControlFlow;
 use crate::backend::{Backend, TokenId};
 use crate::chat::Role;
 use crate::decode::request::{render_prompt, with_tools, TurnRequest, TurnResult};
-use crate::decode::{DecodeError, Draft, Envelope, Finish, Grammars, Sampler, Session, ToolChoice};
+use crate::decode::{DecodeError, Draft, Finish, Grammars, Sampler, Session, ToolChoice};
 use crate::remote::Remote;
 use crate::strategy::choice::CONTENT_FREE;
 use crate::strategy::{Pipeline, Review, Scorer};
@@ -113,7 +113,7 @@ impl Gate {
         let forced = turn.text();
         let mut tokens = Vec::with_capacity(names.len());
         for name in &names {
-            let opening = call_opening(req.envelope, name);
+            let opening = req.envelope.call_opening(name);
             let Some(rest) = opening.strip_prefix(forced.as_str()) else {
                 tracing::debug!(%opening, "gate skipped: the grammar forces something else");
                 return Ok(None);
@@ -314,21 +314,6 @@ enum After {
     Rest,
     /// A further call, proposed.
     Another(Proposal),
-}
-
-/// What `envelope` writes from the start of a turn to the end of the first call's tool
-/// name, closing quote included.
-fn call_opening(envelope: Envelope, name: &str) -> String {
-    let call = ToolCall {
-        name: name.into(),
-        arguments: serde_json::json!({}),
-    };
-    let text = envelope.render_calls(&[call]);
-    let quoted = serde_json::to_string(name).unwrap_or_default();
-    let end = text
-        .find(&quoted)
-        .map_or(text.len(), |at| at + quoted.len());
-    text[..end].to_string()
 }
 
 /// The call that just closed, parsed, and where its text ends.

@@ -81,7 +81,7 @@ impl ModelArgs {
         if let Some(t) = self.threads {
             opts.threads = t;
         }
-        opts.adapter = self.adapter(&resolved)?.map(|a| a.path);
+        opts.adapter = self.adapter(&resolved)?;
         let model = match &self.remote {
             Some(_) => backend::load_vocabulary(&opts)?,
             None => backend::load(self.backend, &opts)?,
@@ -92,10 +92,7 @@ impl ModelArgs {
     /// The adapter to apply, when this runtime applies one: llama.cpp in this process.
     /// The catalog's default is left out, with a note, where it cannot apply; an adapter
     /// the operator named is an error there.
-    fn adapter(
-        &self,
-        resolved: &ResolvedModel,
-    ) -> anyhow::Result<Option<crate::models::adapter::Adapter>> {
+    fn adapter(&self, resolved: &ResolvedModel) -> anyhow::Result<Option<PathBuf>> {
         use crate::models::adapter;
         let named = !matches!(self.adapter.as_str(), adapter::DEFAULT | adapter::NONE | "");
         let elsewhere = if self.remote.is_some() {
