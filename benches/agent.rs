@@ -18,10 +18,13 @@
 //!    tool paths are exercised by part 1.
 //!
 //! 4. The remote engine (when llama-server is built: `scripts/build-llama-cpp.sh
-//!    llama-server`, or `LLAMA_SERVER`): the same requests with the same model on a
-//!    llama-server on loopback with as many threads, against part 1's in-process figures,
-//!    per turn; and what the remote path adds to each completion: its wall time here less
-//!    the server's own prompt and generation time.
+//!    llama-server`, or `LLAMA_SERVER`): the same requests with the same model in this
+//!    process and on a llama-server on loopback with as many threads, alternated run by
+//!    run (in process, then remote, N times for each request), so that drift of a noisy
+//!    machine enters both sides alike; the ratio of their model time per turn is taken
+//!    within each round and its median and spread printed, per request and over all;
+//!    and what the remote path adds to each completion: its wall time here less the
+//!    server's own prompt and generation time.
 //!
 //! 5. This build against main at 2065ce7 (before the answer step), side by side in one
 //!    run: `VERSUS`, 37 requests of nine kinds (listing, state, count, field,
@@ -39,7 +42,7 @@
 //! The sim speaks DDS, so the bench re-runs itself in a network namespace with only
 //! loopback (`unshare -n`, as root), under a time limit. Settings: FERROSA_BENCH_RUNS (3),
 //! FERROSA_BENCH_TURNS (40), FERROSA_BENCH_THREADS (physical cores), FERROSA_BENCH_PARTS
-//! (the parts to run, e.g. `2` or `1,4`; all by default; 4 needs 1), FERROSA_BENCH_BASELINE
+//! (the parts to run, e.g. `2` or `1,4`; all by default), FERROSA_BENCH_BASELINE
 //! (the baseline binary of part 5). Output: markdown on
 //! stdout, target/bench/agent.json, target/bench/agent.svg.
 
@@ -170,11 +173,24 @@ struct RequestRow {
 
 /// One request `runs` times after `/clear`, as a row.
 fn request_row(agent: &mut ferrosa::agent::Agent, q: &str, runs: usize) -> RequestRow {
-    let mut results = Vec::new();
-    for _ in 0..runs {
-        agent.clear();
-        results.push(agent.ask(q, &mut |_| {}).expect("the agent runs"));
-    }
+    let results: Vec<RunResult> = (0..runs).map(|_| cleared_run(agent, q)).collect();
+    row_of(q, &results)
+}
+
+/// `q` asked once after `/clear`.
+fn cleared_run(agent: &mut ferrosa::agent::Agent, q: &str) -> RunResult {
+    agent.clear();
+    agent.ask(q, &mut |_| {}).expect("the agent runs")
+}
+
+/// The model's time per turn of a run (a turn: the model writing one step's calls or
+/// answer).
+fn per_turn_ms(r: &RunResult) -> f64 {
+    r.timings.model_ms / r.timings.prompt_tokens.len().max(1) as f64
+}
+
+/// A request's runs as a row.
+fn row_of(q: &str, results: &[RunResult]) -> RequestRow {
     let spread = |f: &dyn Fn(&RunResult) -> f64| Spread::of(results.iter().map(f).collect());
     let turns = |r: &RunResult| r.timings.prompt_tokens.len().max(1) as f64;
     let last = results.last().expect("runs ≥ 1");
@@ -184,7 +200,7 @@ fn request_row(agent: &mut ferrosa::agent::Agent, q: &str, runs: usize) -> Reque
         first_token_ms: spread(&|r| r.timings.first_token_ms.unwrap_or(0.0)),
         first_call_ms: spread(&|r| r.timings.first_call_ms.unwrap_or(0.0)),
         model_ms: spread(&|r| r.timings.model_ms),
-        turn_ms: spread(&|r| r.timings.model_ms / turns(r)),
+        turn_ms: spread(&per_turn_ms),
         turns: spread(&turns),
         tools_ms: spread(&|r| r.timings.tools_ms),
         steps: spread(&|r| r.steps.len() as f64),
@@ -231,6 +247,7 @@ fn main() {
             draft: ferrosa::decode::Draft::default(),
             remote: None,
             adapter: "default".into(),
+            dense_weights: false,
         },
         yes: true,
         read_only: false,
@@ -404,21 +421,19 @@ fn main() {
     memory
     });
 
-    // 6. Drafting off and on, request by request, in this process (before the model
-    // is dropped for part 4's server).
+    // 6. Drafting off and on, request by request, in this process.
     let drafting = part("6").then(|| drafting_off_on(&mut agent));
 
-    // 4. The remote engine, on a llama-server with the same model.
-    drop(agent);
-    let wanted = part("4") && !rows.is_empty();
+    // 4. The remote engine, on a llama-server with the same model, alternated with
+    // this process's.
+    let wanted = part("4");
     let remote = match llama_server::binary().filter(|_| wanted) {
         Some(bin) => Some(remote_engine(
+            &mut agent,
             &args,
             graph.clone(),
             &bin,
-            threads,
-            runs,
-            &rows,
+            (threads, runs),
         )),
         None if !wanted => None,
         None => {
@@ -429,6 +444,7 @@ fn main() {
     };
 
     // 5. This build and the baseline side by side, each as its own chat process.
+    drop(agent);
     drop(link);
     let versus = part("5").then(|| side_by_side(&root)).flatten();
 
@@ -733,21 +749,32 @@ fn cold_start(
 #[derive(Debug, Serialize)]
 struct RemoteReport {
     engine: String,
-    requests: Vec<RequestRow>,
+    requests: Vec<RemoteRow>,
+    /// Remote model time per turn over in-process, every round of every request.
+    per_turn_ratio: Spread,
     /// Per completion: wall time here less the server's own time (ms).
     overhead_ms: Spread,
     completions: usize,
 }
 
-/// Part 4: the requests through a llama-server running the same model with `threads`
-/// threads, printed beside `local` (part 1).
+#[derive(Debug, Serialize)]
+struct RemoteRow {
+    local: RequestRow,
+    remote: RequestRow,
+    /// Remote model time per turn over in-process, within each round.
+    per_turn_ratio: Spread,
+    ratios: Vec<f64>,
+}
+
+/// Part 4: each request in this process (`local`) and through a llama-server running
+/// the same model with as many threads, alternated run by run, `runs` rounds each; the
+/// ratio of their model time per turn within each round.
 fn remote_engine(
+    local: &mut ferrosa::agent::Agent,
     args: &AgentArgs,
     graph: Option<Arc<dyn ferrosa::ros::RosGraph>>,
     bin: &std::path::Path,
-    threads: usize,
-    runs: usize,
-    local: &[RequestRow],
+    (threads, runs): (usize, usize),
 ) -> RemoteReport {
     let model = ferrosa::models::resolve(None, &args.model.models_dir)
         .expect("default model")
@@ -761,17 +788,38 @@ fn remote_engine(
         grammar: ferrosa::remote::GrammarMode::Auto,
         timeout: std::time::Duration::from_secs(120),
     });
-    let mut agent = build_with(&a, Arc::new(Yes), graph, ferrosa::estop::EStop::new())
+    let mut remote = build_with(&a, Arc::new(Yes), graph, ferrosa::estop::EStop::new())
         .expect("build the agent on the server");
-    let engine = agent.engine();
-    // As part 1: the first request fills the server's cache with the system prompt.
-    agent.ask(REQUESTS[0], &mut |_| {}).expect("the agent runs");
-    let skip = agent.remote().map_or(0, |r| r.times().len());
-    let rows: Vec<RequestRow> = REQUESTS
+    let engine = remote.engine();
+    // Both sides hold the system prompt before the first measured run.
+    cleared_run(local, REQUESTS[0]);
+    cleared_run(&mut remote, REQUESTS[0]);
+    let skip = remote.remote().map_or(0, |r| r.times().len());
+    // A side's threads may still spin for a moment after its run: let them settle, so
+    // that neither starts beside the other's.
+    let settle = || std::thread::sleep(std::time::Duration::from_millis(200));
+    let rows: Vec<RemoteRow> = REQUESTS
         .iter()
-        .map(|q| request_row(&mut agent, q, runs))
+        .map(|q| {
+            let (mut here, mut there, mut ratios) = (Vec::new(), Vec::new(), Vec::new());
+            for _ in 0..runs {
+                let l = cleared_run(local, q);
+                settle();
+                let r = cleared_run(&mut remote, q);
+                settle();
+                ratios.push(per_turn_ms(&r) / per_turn_ms(&l).max(1e-9));
+                here.push(l);
+                there.push(r);
+            }
+            RemoteRow {
+                local: row_of(q, &here),
+                remote: row_of(q, &there),
+                per_turn_ratio: Spread::of(ratios.clone()),
+                ratios,
+            }
+        })
         .collect();
-    let times = agent
+    let times = remote
         .remote()
         .map(|r| r.times()[skip..].to_vec())
         .unwrap_or_default();
@@ -780,15 +828,17 @@ fn remote_engine(
         .filter_map(|t| Some((t.wall.saturating_sub(t.server?)).as_secs_f64() * 1e3))
         .collect();
     let f = |s: &Spread| format!("{:.0} / **{:.0}** / {:.0}", s.min, s.median, s.max);
-    println!("## Remote engine: the same requests, the model on llama-server ({engine}), {threads} threads, loopback");
+    let ratio = |s: &Spread| format!("**{:.2}** ({:.2}–{:.2})", s.median, s.min, s.max);
+    println!("## Remote engine: the same requests, the model in this process and on llama-server ({engine}), {threads} threads, loopback, alternated run by run");
     println!();
-    println!("Model time per turn, ms, min / **median** / max over {runs} (a turn: the model writing one step's calls or answer; the remote engine has no weighed pick or copy bias, so its turns and calls can differ):");
+    println!("Model time per turn, ms, min / **median** / max over {runs} (a turn: the model writing one step's calls or answer; the remote engine has no weighed pick or copy bias, so its turns and calls can differ); the ratio remote / in process within each round, median (min–max):");
     println!();
-    println!("| request | in-process per turn | turns | remote per turn | turns | remote first token | remote calls (last run) | remote answer (last run) |");
-    println!("|---|---|---|---|---|---|---|---|");
-    for (l, r) in local.iter().zip(&rows) {
+    println!("| request | in-process per turn | turns | remote per turn | turns | remote / in process | remote first token | remote calls (last run) | remote answer (last run) |");
+    println!("|---|---|---|---|---|---|---|---|---|");
+    for row in &rows {
+        let (l, r) = (&row.local, &row.remote);
         println!(
-            "| {} | {} | {:.0}–{:.0} | {} | {:.0}–{:.0} | {} | {} | {} |",
+            "| {} | {} | {:.0}–{:.0} | {} | {:.0}–{:.0} | {} | {} | {} | {} |",
             r.request,
             f(&l.turn_ms),
             l.turns.min,
@@ -796,12 +846,21 @@ fn remote_engine(
             f(&r.turn_ms),
             r.turns.min,
             r.turns.max,
+            ratio(&row.per_turn_ratio),
             f(&r.first_token_ms),
             r.tools.join(" → "),
             r.answer.replace('|', "\\|"),
         );
     }
+    let all: Vec<f64> = rows.iter().flat_map(|r| r.ratios.clone()).collect();
+    let rounds = all.len();
+    let all = Spread::of(all);
     let overhead_ms = Spread::of(overhead.clone());
+    println!();
+    println!(
+        "Remote / in process, model time per turn, over all {rounds} rounds: {}",
+        ratio(&all)
+    );
     println!();
     println!(
         "What the remote path adds per completion (wall time here less the server's own prompt and generation time), ms over {} completions: {}",
@@ -809,11 +868,12 @@ fn remote_engine(
         f(&overhead_ms)
     );
     println!();
-    drop(agent);
+    drop(remote);
     drop(server);
     RemoteReport {
         engine,
         requests: rows,
+        per_turn_ratio: all,
         overhead_ms,
         completions: overhead.len(),
     }

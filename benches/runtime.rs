@@ -45,6 +45,8 @@ use header::Spread;
 use serde::{Deserialize, Serialize};
 
 const CHILD_ENV: &str = "FERROSA_BENCH_CHILD";
+/// candle with its layers' weights also held dense, for prompts.
+const CANDLE_DENSE: &str = "candle-dense";
 const PROMPT: usize = 512;
 const GEN: usize = 128;
 /// Room for the agent-sized prompt, a reply and a second turn.
@@ -222,14 +224,20 @@ fn main() {
             .and_then(|g| g.architecture().map(str::to_string))
             .unwrap_or_default();
         let upstream_bin = std::env::var_os("LLAMA_BENCH").map(PathBuf::from);
-        for kind in [BackendKind::Llama, BackendKind::Candle] {
+        // candle twice: with its weights as the file holds them (its default), and
+        // also dense for prompts (`--candle-weights dense`).
+        for (kind, name) in [
+            (BackendKind::Llama, "llama"),
+            (BackendKind::Candle, "candle"),
+            (BackendKind::Candle, CANDLE_DENSE),
+        ] {
             let compiled = match kind {
                 BackendKind::Llama => cfg!(feature = "llama"),
                 BackendKind::Candle => {
                     cfg!(feature = "candle") && matches!(arch.as_str(), "llama" | "gemma3")
                 }
             };
-            if !compiled || !header::wanted("FERROSA_BENCH_BACKENDS", kind.name()) {
+            if !compiled || !header::wanted("FERROSA_BENCH_BACKENDS", name) {
                 continue;
             }
             for decoding in ["plain", "constrained"] {
@@ -240,20 +248,20 @@ fn main() {
                     model: e.name.clone(),
                     path: path.clone(),
                     family: e.family.clone(),
-                    backend: kind.name().to_string(),
+                    backend: name.to_string(),
                     decoding: decoding.to_string(),
                     threads,
                     runs,
                     throughput_only: false,
                 };
-                eprintln!("measuring {} / {} / {decoding} …", e.name, kind.name());
+                eprintln!("measuring {} / {name} / {decoding} …", e.name);
                 let paired = upstream_bin
                     .as_deref()
                     .map(|bin| interleave(bin, &cfg))
                     .unwrap_or_default();
                 match run_child(&cfg) {
                     Ok(m) => rows.push((m, paired)),
-                    Err(err) => eprintln!("{} / {} / {decoding}: {err}", e.name, kind.name()),
+                    Err(err) => eprintln!("{} / {name} / {decoding}: {err}", e.name),
                 }
             }
         }
@@ -525,10 +533,11 @@ fn drafting(c: &mut Child, specs: &[ToolSpec], lark: &str, runs: usize) -> Draft
 /// One configuration, in this (child) process.
 fn measure(cfg: &Config) -> Measured {
     let kind = match cfg.backend.as_str() {
-        "candle" => BackendKind::Candle,
+        "candle" | CANDLE_DENSE => BackendKind::Candle,
         _ => BackendKind::Llama,
     };
     let mut opts = LoadOptions::new(cfg.path.clone());
+    opts.dense_weights = cfg.backend == CANDLE_DENSE;
     opts.family = Some(cfg.family.clone());
     opts.threads = cfg.threads;
     opts.max_context = header::env_usize("FERROSA_BENCH_CONTEXT", CONTEXT);
@@ -850,7 +859,7 @@ fn draw(rows: &[(Measured, Interleaved)], path: &Path) -> Result<(), String> {
             .map_or(m.tool_turn_tps.median, |s| s.median);
         speed.group(&label(m), &[m.prompt_tps.median, m.gen_tps_d0.median, out]);
         memory.group(&label(m), &[m.peak_rss_mib, m.budget_mib()]);
-        if m.config.decoding == "plain" && m.config.backend == "llama.cpp" && u.rounds > 0 {
+        if m.config.decoding == "plain" && m.config.backend == "llama" && u.rounds > 0 {
             let [p, g, _] = &u.upstream;
             speed.group(
                 &format!("{} llama-bench", m.config.model),

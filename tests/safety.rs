@@ -293,6 +293,7 @@ fn stack(setup: &Setup, script: &[String]) -> Stack {
             draft: ferrosa::decode::Draft::default(),
             remote: None,
             adapter: "default".into(),
+            dense_weights: false,
         },
         yes: setup.yes,
         read_only: setup.read_only,

@@ -120,6 +120,7 @@ pub fn agent_args(robot: ferrosa::ui::agent::Robot, yes: bool) -> ferrosa::ui::a
             draft: ferrosa::decode::Draft::default(),
             remote: None,
             adapter: "default".into(),
+            dense_weights: false,
         },
         yes,
         read_only: false,

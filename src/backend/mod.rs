@@ -165,6 +165,14 @@ pub trait Backend: Send {
     /// Keep the first `keep` cached tokens, evaluate `tokens` after them in batches, and
     /// return the logits of the last one. `tokens` must not be empty.
     fn forward(&mut self, keep: usize, tokens: &[TokenId]) -> Result<&mut [f32], BackendError>;
+    /// Batches shorter than this are evaluated row by row exactly as one-token steps
+    /// would be, bit for bit (candle's rows pass); None where a batch's rows may differ
+    /// from them in their last bits (llama.cpp's batched kernels sum in another order
+    /// than its one-token ones). Drafting keeps its batches below it, so that a drafted
+    /// turn writes exactly what the turn writes without.
+    fn exact_rows_below(&self) -> Option<usize> {
+        None
+    }
     /// Keep the first `keep` cached tokens and evaluate `tokens` after them, as `forward`
     /// does, handing `each(i, logits)` the logits after token `i` for every `i` from
     /// `from` on, in order: to check a guess of several tokens in one pass. The default

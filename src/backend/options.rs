@@ -36,6 +36,10 @@ pub struct LoadOptions {
     /// The tool chooser's LoRA adapter (GGUF, `models::adapter`), on only while it reads
     /// (`Backend::chooser_branches`); llama.cpp only.
     pub adapter: Option<PathBuf>,
+    /// candle: also hold each layer's weights dequantized (4 bytes a weight: 560 MiB
+    /// more for SmolLM2), which prompts of 16 tokens or more are evaluated through,
+    /// faster than through the quantized weights (see docs/performance.md).
+    pub dense_weights: bool,
 }
 
 impl LoadOptions {
@@ -47,6 +51,7 @@ impl LoadOptions {
             max_context: 8192,
             batch: 512,
             adapter: None,
+            dense_weights: false,
         }
     }
 }

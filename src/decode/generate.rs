@@ -519,8 +519,14 @@ impl Rows {
         // grammar forces anyway, and guesses from it are rarely kept.
         let held_tokens = session.tokens();
         let head = &held_tokens[session.stable_len().min(held_tokens.len())..];
+        // Where the runtime's rows are exact only in batches below a size, the guess
+        // keeps the batch below it (none when the step's own tokens reach it).
+        let exact = backend
+            .exact_rows_below()
+            .map_or(usize::MAX, |n| n.saturating_sub(rest.len() + 1));
         let mut guess = std::mem::take(&mut self.guess);
-        self.draft.guess(head, rest, limit.min(room), &mut guess);
+        self.draft
+            .guess(head, rest, limit.min(room).min(exact), &mut guess);
         if let (Some(c), false) = (constraint, guess.is_empty()) {
             let t = Instant::now();
             guess.truncate(c.allowed_prefix(&guess));
@@ -529,7 +535,16 @@ impl Rows {
         self.guess = guess;
         stats.gen_forwards += 1;
         if self.guess.is_empty() {
-            return forward(backend, session, rest);
+            // In pieces the runtime evaluates as one-token steps, so that every token
+            // a turn writes is read alike, drafted or not.
+            let piece = backend
+                .exact_rows_below()
+                .map_or(rest.len(), |n| n.max(2) - 1);
+            let (head, last) = rest.split_at(rest.len() - rest.len().min(piece));
+            for chunk in head.chunks(piece) {
+                forward(backend, session, chunk)?;
+            }
+            return forward(backend, session, last);
         }
         self.make_room();
         self.batch.clear();

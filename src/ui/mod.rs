@@ -56,6 +56,8 @@ pub struct ModelArgs {
     /// `--adapter`: `default` (the catalog's for the model), `none`, a built-in name or a
     /// path to a GGUF LoRA file (`models::adapter`).
     pub adapter: String,
+    /// candle: hold each layer's weights dequantized too (`LoadOptions::dense_weights`).
+    pub dense_weights: bool,
 }
 
 impl ModelArgs {
@@ -82,6 +84,7 @@ impl ModelArgs {
             opts.threads = t;
         }
         opts.adapter = self.adapter(&resolved)?;
+        opts.dense_weights = self.dense_weights;
         let model = match &self.remote {
             Some(_) => backend::load_vocabulary(&opts)?,
             None => backend::load(self.backend, &opts)?,

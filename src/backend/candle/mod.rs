@@ -1,10 +1,12 @@
 //! A pure-Rust runtime on candle: llama (SmolLM2) and Gemma 3 with quantized weights
-//! read from GGUF (`model`, with `matvec` for the one weight format candle has no fast
-//! kernel for), tokenized through the `tokenizers` crate built from the file's
-//! vocabulary (`tokenizer`).
+//! read from GGUF (`model`: prompts as tensors; `rows`: a few tokens at a time, each
+//! row as if alone; `matvec`: the kernels for SmolLM2's weight formats, Q4_1 and Q8_0),
+//! tokenized through the `tokenizers` crate built from the file's vocabulary
+//! (`tokenizer`).
 
 mod matvec;
 mod model;
+mod rows;
 mod tokenizer;
 
 use std::fs::File;
@@ -67,7 +69,14 @@ impl Candle {
         let content = gguf_file::Content::read(&mut reader).map_err(|e| fail(e.to_string()))?;
         let train_ctx = gguf.context_length().unwrap_or(2048) as usize;
         let n_ctx = opts.max_context.min(train_ctx).max(16);
-        let model = Model::load(family, gguf, &content, &mut reader, n_ctx).map_err(fail)?;
+        let model = Model::load(
+            family,
+            gguf,
+            &content,
+            &mut reader,
+            (n_ctx, opts.dense_weights),
+        )
+        .map_err(fail)?;
         Ok(Candle {
             model,
             tokenizer,
@@ -111,6 +120,10 @@ impl Backend for Candle {
         Ok(&mut self.logits)
     }
 
+    fn exact_rows_below(&self) -> Option<usize> {
+        Some(rows::ROWS_UNTIL)
+    }
+
     fn forward_each(
         &mut self,
         keep: usize,
@@ -131,12 +144,15 @@ impl Backend for Candle {
             let offset = c * 512;
             // Rows from `from` on, or the last one only (no row wanted in this chunk).
             let first = from.saturating_sub(offset).min(chunk.len() - 1);
-            let rows = self.model.forward(chunk, self.n_past, first).map_err(err)?;
+            let rows = match chunk.len() < rows::ROWS_UNTIL {
+                true => self.model.forward_rows(chunk, self.n_past, first),
+                false => self.model.forward(chunk, self.n_past, first),
+            }
+            .map_err(err)?;
             self.n_past += chunk.len();
             if offset + chunk.len() <= from {
                 continue;
             }
-            let rows = rows.to_vec1::<f32>().map_err(err)?;
             // The output's rows may be padded past the vocabulary.
             let width = rows.len() / (chunk.len() - first);
             for (r, row) in rows.chunks(width).enumerate() {

@@ -16,12 +16,14 @@
 //! - attention scaled by 1/√key_length.
 //!
 //! The KV cache keeps every position, so a prefix can be kept and its tail dropped.
+//! This file holds the weights, the caches and the pass for prompts, as candle tensors
+//! (attention as matrix products); a few tokens at a time go through `rows` instead.
 
 use candle_core::quantized::{gguf_file, GgmlDType, QMatMul, QTensor};
 use candle_core::{DType, Device, Module, Tensor};
 
 use super::super::{Gguf, TokenId};
-use super::matvec::Q41;
+use super::matvec::{Format, QRows};
 
 /// Positions the KV cache grows by when full (amortises the copy).
 const KV_GROW: usize = 256;
@@ -47,104 +49,172 @@ impl Family {
     }
 }
 
-/// A batch of at least this many tokens goes through the dense copy of each weight.
+/// A batch of at least this many tokens goes through the dense copy of each weight,
+/// when there is one.
 const DENSE_FROM: usize = 16;
 
-/// A weight matrix: quantized, as the file holds it, for a few tokens at a time (memory
-/// bound: fewer bytes read is faster); and dequantized, for batches (compute bound: the
-/// `gemm` crate's kernels outrun candle's quantized dot products several times).
-struct Linear {
+/// A weight matrix, quantized as the file holds it; and, when the model is loaded with
+/// them (`LoadOptions::dense_weights`), dequantized, for batches (compute bound: the
+/// `gemm` crate's kernels outrun quantized dot products, at 4 bytes a weight instead
+/// of about 0.6: 560 MiB more for SmolLM2).
+pub(super) struct Linear {
     quantized: Quantized,
-    dense: QMatMul,
+    dense: Option<QMatMul>,
+    rows: usize,
+    cols: usize,
 }
 
 enum Quantized {
     Candle(QMatMul),
-    /// Q4_1, which candle computes with a scalar loop: `matvec`.
-    Q41(Q41),
+    /// Q4_1 and Q8_0, which `matvec` computes (candle computes Q4_1 with a scalar loop).
+    Own(QRows),
 }
 
 impl Linear {
-    fn new(t: QTensor, device: &Device) -> candle_core::Result<Linear> {
-        let dense = QMatMul::Tensor(t.dequantize(device)?);
-        let quantized = match t.dtype() {
-            GgmlDType::Q4_1 => {
-                let (rows, cols) = t.shape().dims2()?;
-                let q = Q41::new(t.data()?.into_owned(), rows, cols).ok_or_else(|| {
-                    candle_core::Error::Msg("a Q4_1 tensor of the wrong size".into())
-                })?;
-                Quantized::Q41(q)
-            }
-            _ => Quantized::Candle(QMatMul::from_qtensor(t)?),
+    fn new(t: QTensor, dense: bool, device: &Device) -> candle_core::Result<Linear> {
+        let (rows, cols) = t.shape().dims2()?;
+        let dense = match dense {
+            true => Some(QMatMul::Tensor(t.dequantize(device)?)),
+            false => None,
         };
-        Ok(Linear { quantized, dense })
+        let format = match t.dtype() {
+            GgmlDType::Q4_1 => Some(Format::Q41),
+            GgmlDType::Q8_0 => Some(Format::Q80),
+            _ => None,
+        };
+        let quantized = match format {
+            Some(format) => {
+                let q =
+                    QRows::new(format, t.data()?.into_owned(), rows, cols).ok_or_else(|| {
+                        candle_core::Error::Msg(format!("a {format:?} tensor of the wrong size"))
+                    })?;
+                Quantized::Own(q)
+            }
+            None => Quantized::Candle(QMatMul::from_qtensor(t)?),
+        };
+        Ok(Linear {
+            quantized,
+            dense,
+            rows,
+            cols,
+        })
     }
 
     /// `x`: (1, seq, in).
     fn forward(&self, x: &Tensor) -> candle_core::Result<Tensor> {
         let seq = x.dim(1)?;
-        if seq >= DENSE_FROM {
-            return self.dense.forward(x);
+        if let (Some(dense), true) = (&self.dense, seq >= DENSE_FROM) {
+            return dense.forward(x);
         }
         match &self.quantized {
             Quantized::Candle(q) => q.forward(x),
-            Quantized::Q41(q) => {
-                let rows = x.squeeze(0)?.to_vec2::<f32>()?;
-                let out: Vec<f32> = rows.iter().flat_map(|r| q.matvec(r)).collect();
-                Tensor::from_vec(out, (1, seq, q.rows()), x.device())
+            Quantized::Own(q) => {
+                let xs = x.flatten_all()?.to_vec1::<f32>()?;
+                let mut out = vec![0.0; seq * self.rows];
+                q.matvecs(&xs, seq, &mut out);
+                Tensor::from_vec(out, (1, seq, self.rows), x.device())
             }
+        }
+    }
+
+    /// W·x for `n` vectors one after another in `xs`, into `out` (`n` × out): each
+    /// vector's product as it would be alone, bit for bit (the rows pass).
+    pub(super) fn rows(&self, xs: &[f32], n: usize, out: &mut [f32]) -> candle_core::Result<()> {
+        match &self.quantized {
+            Quantized::Own(q) => q.matvecs(xs, n, out),
+            Quantized::Candle(q) => {
+                // candle's kernels take another path for several vectors than for one:
+                // one at a time, so that none depends on the others.
+                for (x, o) in xs
+                    .chunks_exact(self.cols)
+                    .zip(out.chunks_exact_mut(self.rows))
+                {
+                    let x = Tensor::from_slice(x, (1, 1, self.cols), &Device::Cpu)?;
+                    o.copy_from_slice(&q.forward(&x)?.flatten_all()?.to_vec1::<f32>()?);
+                }
+            }
+        }
+        Ok(())
+    }
+
+    pub(super) fn out_dim(&self) -> usize {
+        self.rows
+    }
+
+    /// Row `r` of the matrix, dequantized, when `matvec` holds it (an embedding
+    /// shared with the output layer).
+    fn row(&self, r: usize, out: &mut [f32]) -> bool {
+        match &self.quantized {
+            Quantized::Own(q) => q.dequantize_row(r, out),
+            Quantized::Candle(_) => false,
         }
     }
 }
 
-struct Layer {
-    attn_norm: Tensor,
-    wq: Linear,
-    wk: Linear,
-    wv: Linear,
-    wo: Linear,
-    ffn_norm: Tensor,
-    gate: Linear,
-    up: Linear,
-    down: Linear,
+pub(super) struct Layer {
+    pub(super) attn_norm: Norm,
+    pub(super) wq: Linear,
+    pub(super) wk: Linear,
+    pub(super) wv: Linear,
+    pub(super) wo: Linear,
+    pub(super) ffn_norm: Norm,
+    pub(super) gate: Linear,
+    pub(super) up: Linear,
+    pub(super) down: Linear,
     /// Gemma 3: per-head query and key norms, and the norms after attention and after
     /// the feed-forward.
-    q_norm: Option<Tensor>,
-    k_norm: Option<Tensor>,
-    post_attn_norm: Option<Tensor>,
-    post_ffn_norm: Option<Tensor>,
+    pub(super) q_norm: Option<Norm>,
+    pub(super) k_norm: Option<Norm>,
+    pub(super) post_attn_norm: Option<Norm>,
+    pub(super) post_ffn_norm: Option<Norm>,
     /// Positions a query sees on this layer (itself included); None: all before it.
-    window: Option<usize>,
+    pub(super) window: Option<usize>,
     /// Which RoPE table this layer uses.
-    rope: usize,
+    pub(super) rope: usize,
     /// (1, n_kv_head, capacity, head_dim); the first `len` positions are valid.
-    k_cache: Option<Tensor>,
-    v_cache: Option<Tensor>,
+    pub(super) k_cache: Option<Tensor>,
+    pub(super) v_cache: Option<Tensor>,
 }
 
 pub struct Model {
-    family: Family,
-    embed: QTensor,
-    layers: Vec<Layer>,
-    norm: Tensor,
-    output: QMatMul,
-    n_head: usize,
-    n_kv_head: usize,
-    head_dim: usize,
-    eps: f64,
+    pub(super) family: Family,
+    /// The token embedding, when the output layer does not hold it (`Linear::row`).
+    embed: Option<QTensor>,
+    pub(super) layers: Vec<Layer>,
+    pub(super) norm: Norm,
+    pub(super) output: Linear,
+    pub(super) n_embd: usize,
+    pub(super) n_head: usize,
+    pub(super) n_kv_head: usize,
+    pub(super) head_dim: usize,
+    pub(super) eps: f64,
     /// cos and sin per RoPE base, `n_ctx` rows of `head_dim / 2`.
-    ropes: Vec<(Tensor, Tensor)>,
+    pub(super) ropes: Vec<(Tensor, Tensor)>,
+}
+
+/// An RMS norm's weights, as the tensor pass and the rows pass read them.
+pub(super) struct Norm {
+    pub(super) tensor: Tensor,
+    pub(super) values: Vec<f32>,
+}
+
+impl Norm {
+    fn new(t: Tensor) -> candle_core::Result<Norm> {
+        let values = t.flatten_all()?.to_vec1::<f32>()?;
+        Ok(Norm { tensor: t, values })
+    }
 }
 
 impl Model {
     /// The model of `family` in `content` (the file `reader` reads), for contexts up
     /// to `n_ctx` positions.
+    /// With `dense`, each layer's weights are also held dequantized, for batches.
     pub fn load<R: std::io::Read + std::io::Seek>(
         family: Family,
         gguf: &Gguf,
         content: &gguf_file::Content,
         reader: &mut R,
-        n_ctx: usize,
+        (n_ctx, dense): (usize, bool),
     ) -> Result<Model, String> {
         let device = Device::Cpu;
         let arch = match family {
@@ -187,22 +257,28 @@ impl Model {
             .map(|w| w as usize);
 
         let e = |e: candle_core::Error| e.to_string();
-        let dequant = |t: QTensor| t.dequantize(&device).map_err(e);
-        let qmm = |t: QTensor| QMatMul::from_qtensor(t).map_err(e);
-        let embed = get("token_embd.weight")?;
-        // Tied embeddings (SmolLM2, Gemma 3): the output layer is the embedding matrix.
-        let output = match content.tensor_infos.contains_key("output.weight") {
-            true => qmm(get("output.weight")?)?,
-            false => qmm(get("token_embd.weight")?)?,
+        let norm = |t: QTensor| t.dequantize(&device).and_then(Norm::new).map_err(e);
+        let linear = |t: QTensor| Linear::new(t, false, &device).map_err(e);
+        // Tied embeddings (SmolLM2, Gemma 3): the output layer is the embedding matrix,
+        // and its rows are read from there when our kernels hold it.
+        let tied = !content.tensor_infos.contains_key("output.weight");
+        let output = linear(get(if tied {
+            "token_embd.weight"
+        } else {
+            "output.weight"
+        })?)?;
+        let embed = match tied && output.row(0, &mut vec![0.0; n_embd]) {
+            true => None,
+            false => Some(get("token_embd.weight")?),
         };
-        let norm = dequant(get("output_norm.weight")?)?;
+        let norm = norm(get("output_norm.weight")?)?;
         let gemma = family == Family::Gemma3;
         let mut layers = Vec::with_capacity(n_layer);
         for i in 0..n_layer {
             let global = !gemma || i % GEMMA3_GLOBAL_EVERY == GEMMA3_GLOBAL_EVERY - 1;
             let mut t = |s: &str| get(&format!("blk.{i}.{s}.weight"));
             let local = (!global).then_some(window);
-            layers.push(Layer::load(&mut t, gemma, local, &device)?);
+            layers.push(Layer::load(&mut t, (gemma, dense), local, &device)?);
         }
         let mut ropes = vec![rope_tables(head_dim, base, scale, n_ctx, &device).map_err(e)?];
         if gemma {
@@ -214,6 +290,7 @@ impl Model {
             layers,
             norm,
             output,
+            n_embd,
             n_head,
             n_kv_head,
             head_dim,
@@ -230,16 +307,11 @@ impl Model {
         tokens: &[TokenId],
         pos: usize,
         from: usize,
-    ) -> candle_core::Result<Tensor> {
-        let device = self.embed.device();
+    ) -> candle_core::Result<Vec<f32>> {
+        let device = Device::Cpu;
         let seq = tokens.len();
         let gemma = self.family == Family::Gemma3;
-        let ids = Tensor::new(tokens, &device)?;
-        let mut x = self.embed.embedding(&ids)?.unsqueeze(0)?; // (1, seq, n_embd)
-        if gemma {
-            let n_embd = x.dim(2)?;
-            x = (x * (n_embd as f64).sqrt())?;
-        }
+        let mut x = Tensor::from_vec(self.embed(tokens)?, (1, seq, self.n_embd), &device)?;
         let ropes: Vec<(Tensor, Tensor)> = self
             .ropes
             .iter()
@@ -269,18 +341,40 @@ impl Model {
             } else {
                 None
             };
-            let h = candle_nn::ops::rms_norm(&x, &layer.attn_norm, pass.eps)?;
+            let h = candle_nn::ops::rms_norm(&x, &layer.attn_norm.tensor, pass.eps)?;
             let mut a = layer.attention(&h, &pass, mask.as_ref())?;
             if let Some(n) = &layer.post_attn_norm {
-                a = candle_nn::ops::rms_norm(&a, n, pass.eps)?;
+                a = candle_nn::ops::rms_norm(&a, &n.tensor, pass.eps)?;
             }
             x = (x + a)?;
             let f = layer.feed_forward(&x, &pass)?;
             x = (x + f)?;
         }
         let rows = x.narrow(1, from, seq - from)?;
-        let rows = candle_nn::ops::rms_norm(&rows, &self.norm, pass.eps)?;
-        self.output.forward(&rows)?.flatten_all()
+        let rows = candle_nn::ops::rms_norm(&rows, &self.norm.tensor, pass.eps)?;
+        self.output.forward(&rows)?.flatten_all()?.to_vec1::<f32>()
+    }
+
+    /// The embeddings of `tokens`, one after another (Gemma 3's scaled by √n_embd).
+    pub(super) fn embed(&self, tokens: &[TokenId]) -> candle_core::Result<Vec<f32>> {
+        let n = self.n_embd;
+        let mut x = vec![0.0f32; tokens.len() * n];
+        match &self.embed {
+            None => {
+                for (&t, row) in tokens.iter().zip(x.chunks_exact_mut(n)) {
+                    self.output.row(t as usize, row);
+                }
+            }
+            Some(embed) => {
+                let ids = Tensor::new(tokens, &Device::Cpu)?;
+                x = embed.embedding(&ids)?.flatten_all()?.to_vec1::<f32>()?;
+            }
+        }
+        if self.family == Family::Gemma3 {
+            let scale = (n as f32).sqrt();
+            x.iter_mut().for_each(|v| *v *= scale);
+        }
+        Ok(x)
     }
 }
 
@@ -290,15 +384,15 @@ impl Layer {
     /// uses the second RoPE table; otherwise a global layer with the first.
     fn load(
         t: &mut dyn FnMut(&str) -> Result<QTensor, String>,
-        gemma: bool,
+        (gemma, dense): (bool, bool),
         local: Option<Option<usize>>,
         device: &Device,
     ) -> Result<Layer, String> {
         let e = |e: candle_core::Error| e.to_string();
-        let dequant = |t: QTensor| t.dequantize(device).map_err(e);
-        let mut gemma_norm = |s: &str| -> Result<Option<Tensor>, String> {
+        let norm = |t: QTensor| t.dequantize(device).and_then(Norm::new).map_err(e);
+        let mut gemma_norm = |s: &str| -> Result<Option<Norm>, String> {
             if gemma {
-                Ok(Some(dequant(t(s)?)?))
+                Ok(Some(norm(t(s)?)?))
             } else {
                 Ok(None)
             }
@@ -307,7 +401,8 @@ impl Layer {
         let k_norm = gemma_norm("attn_k_norm")?;
         let post_attn_norm = gemma_norm("post_attention_norm")?;
         let post_ffn_norm = gemma_norm("post_ffw_norm")?;
-        let mut lin = |s: &str| -> Result<Linear, String> { Linear::new(t(s)?, device).map_err(e) };
+        let mut lin =
+            |s: &str| -> Result<Linear, String> { Linear::new(t(s)?, dense, device).map_err(e) };
         let (wq, wk, wv, wo) = (
             lin("attn_q")?,
             lin("attn_k")?,
@@ -316,12 +411,12 @@ impl Layer {
         );
         let (gate, up, down) = (lin("ffn_gate")?, lin("ffn_up")?, lin("ffn_down")?);
         Ok(Layer {
-            attn_norm: dequant(t("attn_norm")?)?,
+            attn_norm: norm(t("attn_norm")?)?,
             wq,
             wk,
             wv,
             wo,
-            ffn_norm: dequant(t("ffn_norm")?)?,
+            ffn_norm: norm(t("ffn_norm")?)?,
             gate,
             up,
             down,
@@ -373,8 +468,8 @@ impl Layer {
             heads(&self.wv, nkv)?,
         );
         if let (Some(qn), Some(kn)) = (&self.q_norm, &self.k_norm) {
-            q = candle_nn::ops::rms_norm(&q, qn, eps)?;
-            k = candle_nn::ops::rms_norm(&k, kn, eps)?;
+            q = candle_nn::ops::rms_norm(&q, &qn.tensor, eps)?;
+            k = candle_nn::ops::rms_norm(&k, &kn.tensor, eps)?;
         }
         let (cos, sin) = &pass.ropes[self.rope];
         let (q, k) = if pass.gemma {
@@ -423,13 +518,13 @@ impl Layer {
 
     /// The feed-forward block on `x` (normed here), its own post-norm applied.
     fn feed_forward(&self, x: &Tensor, pass: &Pass) -> candle_core::Result<Tensor> {
-        let h = candle_nn::ops::rms_norm(x, &self.ffn_norm, pass.eps)?;
+        let h = candle_nn::ops::rms_norm(x, &self.ffn_norm.tensor, pass.eps)?;
         let g = self.gate.forward(&h)?;
         let g = if pass.gemma { g.gelu()? } else { g.silu()? };
         let u = self.up.forward(&h)?;
         let mut f = self.down.forward(&(g * u)?)?;
         if let Some(n) = &self.post_ffn_norm {
-            f = candle_nn::ops::rms_norm(&f, n, pass.eps)?;
+            f = candle_nn::ops::rms_norm(&f, &n.tensor, pass.eps)?;
         }
         Ok(f)
     }
@@ -482,6 +577,28 @@ fn rope_tables(
 }
 
 impl Layer {
+    /// Room in both caches for `need` positions of `nkv` heads of `hd` values, the
+    /// first `keep` kept.
+    pub(super) fn reserve_kv(
+        &mut self,
+        (nkv, hd): (usize, usize),
+        need: usize,
+        keep: usize,
+    ) -> candle_core::Result<()> {
+        for cache in [&mut self.k_cache, &mut self.v_cache] {
+            let cap = cache.as_ref().map_or(0, |c| c.dim(2).unwrap_or(0));
+            if cap < need {
+                let grown = need.div_ceil(KV_GROW) * KV_GROW;
+                let fresh = Tensor::zeros((1, nkv, grown, hd), DType::F32, &Device::Cpu)?;
+                if let Some(old) = cache.as_ref() {
+                    fresh.slice_set(&old.narrow(2, 0, keep.min(cap))?.contiguous()?, 2, 0)?;
+                }
+                *cache = Some(fresh);
+            }
+        }
+        Ok(())
+    }
+
     /// Write k/v at `pos..` into the cache (growing it if needed) and return views of the
     /// first `pos + seq` positions.
     fn append_kv(
@@ -492,31 +609,11 @@ impl Layer {
     ) -> candle_core::Result<(Tensor, Tensor)> {
         let (_, nkv, seq, hd) = k.dims4()?;
         let need = pos + seq;
-        for (cache, new) in [(&mut self.k_cache, k), (&mut self.v_cache, v)] {
-            let cap = cache.as_ref().map_or(0, |c| c.dim(2).unwrap_or(0));
-            if cap < need {
-                let grown = need.div_ceil(KV_GROW) * KV_GROW;
-                let fresh = Tensor::zeros((1, nkv, grown, hd), DType::F32, k.device())?;
-                if let Some(old) = cache.as_ref() {
-                    fresh.slice_set(&old.narrow(2, 0, pos.min(cap))?.contiguous()?, 2, 0)?;
-                }
-                *cache = Some(fresh);
-            }
-            cache
-                .as_ref()
-                .expect("cache allocated")
-                .slice_set(new, 2, pos)?;
-        }
-        let k_all = self
-            .k_cache
-            .as_ref()
-            .expect("cache allocated")
-            .narrow(2, 0, need)?;
-        let v_all = self
-            .v_cache
-            .as_ref()
-            .expect("cache allocated")
-            .narrow(2, 0, need)?;
-        Ok((k_all, v_all))
+        self.reserve_kv((nkv, hd), need, pos)?;
+        let cached = |c: &Option<Tensor>| c.clone().expect("reserve_kv allocates both caches");
+        let (k_cache, v_cache) = (cached(&self.k_cache), cached(&self.v_cache));
+        k_cache.slice_set(k, 2, pos)?;
+        v_cache.slice_set(v, 2, pos)?;
+        Ok((k_cache.narrow(2, 0, need)?, v_cache.narrow(2, 0, need)?))
     }
 }

@@ -19,6 +19,7 @@ pub(super) struct Common {
     pub(super) draft: crate::decode::Draft,
     pub(super) remote: Option<crate::remote::RemoteOptions>,
     pub(super) adapter: String,
+    pub(super) dense_weights: bool,
 }
 
 impl Common {
@@ -40,6 +41,7 @@ impl Common {
             draft: self.draft,
             remote: self.remote.clone(),
             adapter: self.adapter.clone(),
+            dense_weights: self.dense_weights,
         }
     }
 
