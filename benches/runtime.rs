@@ -684,13 +684,20 @@ fn measure(cfg: &Config) -> Measured {
     }
 }
 
-/// Upstream llama-bench on the same file: pp512, tg128 at depth 0 and at depth 512.
+/// Upstream llama-bench on the same file: pp512, tg128 at depth 0 and at depth 512,
+/// with the micro-batch ferrosa's llama.cpp runtime uses (`-ub`), so that the ratio
+/// compares the runtimes at one setting.
 fn llama_bench(bin: &Path, model: &Path, threads: usize, runs: usize) -> Upstream {
     eprintln!("running {} on {} …", bin.display(), model.display());
+    #[cfg(feature = "llama")]
+    let ubatch = backend::llama::UBATCH;
+    #[cfg(not(feature = "llama"))]
+    let ubatch = PROMPT;
     let out = Command::new(bin)
         .arg("-m")
         .arg(model)
         .args(["-t", &threads.to_string(), "-p", &PROMPT.to_string()])
+        .args(["-ub", &ubatch.to_string()])
         .args([
             "-n",
             &GEN.to_string(),
@@ -728,6 +735,36 @@ fn llama_bench(bin: &Path, model: &Path, threads: usize, runs: usize) -> Upstrea
         prompt_tps: pick(PROMPT as u64, 0, 0),
         gen_tps_d0: pick(0, GEN as u64, 0),
         gen_tps_d512: pick(0, GEN as u64, 512),
+    }
+}
+
+/// candle's runtimes against llama.cpp's on the same model and decoding, each measured
+/// against llama-bench in rounds of its own: the ratio of their median ratios.
+fn candle_against_llama(rows: &[(Measured, Interleaved)]) {
+    for (c, cu) in rows
+        .iter()
+        .filter(|(m, u)| m.config.backend != "llama" && u.rounds > 0)
+    {
+        let Some((_, lu)) = rows.iter().find(|(m, u)| {
+            m.config.backend == "llama"
+                && m.config.model == c.config.model
+                && m.config.decoding == c.config.decoding
+                && u.rounds > 0
+        }) else {
+            continue;
+        };
+        let r = |a: &Spread, b: &Spread| a.median / b.median.max(1e-9);
+        println!();
+        println!(
+            "{} / {} / {}: {} ÷ llama.cpp (ratio of their median ratios to llama-bench): pp{PROMPT} **{:.2}**, tg{GEN} @0 **{:.2}**, tg{GEN} @{PROMPT} **{:.2}**",
+            c.config.model,
+            c.config.decoding,
+            c.config.backend,
+            c.config.backend,
+            r(&cu.prompt, &lu.prompt),
+            r(&cu.gen_d0, &lu.gen_d0),
+            r(&cu.gen_d512, &lu.gen_d512),
+        );
     }
 }
 
@@ -771,6 +808,7 @@ fn print_table(rows: &[(Measured, Interleaved)]) {
             "Ratios: ferrosa / llama-bench within each round (upstream, then ferrosa, each in a process of its own, one repetition each), **median** (min–max) over the rounds; ferrosa's own columns are from its separate run of {} repetitions.",
             rows[0].0.config.runs
         );
+        candle_against_llama(rows);
     }
     println!();
     println!("## Tool calls, first token, memory");

@@ -26,6 +26,14 @@ use super::{Backend, BackendError, ChatTemplate, Gguf, LoadOptions, TokenId, Tok
 const NAME: &str = "llama.cpp";
 /// Most branches one batch evaluates side by side (`Backend::branches`).
 const BRANCHES: usize = 15;
+/// Tokens llama.cpp evaluates per graph. Its compute buffer grows with this times the
+/// context (the attention scores of every query against every cached key), and what a
+/// deep prompt touches of it stays resident: 110 MiB at 512 and a 4,096-token context,
+/// 28 MiB at 128 (the agent's 8,192: 151 and 38 MiB for the scores alone). A request's
+/// own tokens (tens) fit in one graph either way; a long prompt is split, which costs
+/// it speed (llama-bench here, noisy: pp2048 162–179 tok/s at 128 against 168–198 at
+/// 512; pp4096 138 against 172).
+pub const UBATCH: usize = 128;
 
 fn eval(e: impl std::fmt::Display) -> BackendError {
     BackendError::Eval {
@@ -253,7 +261,7 @@ impl LlamaCpp {
         let cparams = LlamaContextParams::default()
             .with_n_ctx(NonZeroU32::new(n_ctx as u32))
             .with_n_batch(n_batch as u32)
-            .with_n_ubatch(n_batch as u32)
+            .with_n_ubatch(n_batch.min(UBATCH) as u32)
             .with_n_threads(threads)
             .with_n_threads_batch(threads)
             // Sliding-window layers (Gemma 3) keep every position so a kept prefix can be

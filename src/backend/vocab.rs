@@ -72,7 +72,11 @@ pub struct Vocab {
 
 #[derive(Debug)]
 struct Table {
-    pieces: Vec<Vec<u8>>,
+    /// Every token's bytes one after another; token i's are `bytes[ends[i-1]..ends[i]]`
+    /// (one buffer, not a vector per token: 0.5 MiB for SmolLM2's 49k instead of 2.7,
+    /// 2.6 instead of 15 for Gemma 3's 262k).
+    bytes: Vec<u8>,
+    ends: Vec<u32>,
     kinds: Vec<TokenKind>,
     eog: Vec<TokenId>,
     bos: Option<TokenId>,
@@ -90,9 +94,18 @@ impl Vocab {
         assert_eq!(pieces.len(), kinds.len(), "one kind per token");
         eog.sort_unstable();
         eog.dedup();
+        let mut bytes = Vec::with_capacity(pieces.iter().map(Vec::len).sum());
+        let ends = pieces
+            .iter()
+            .map(|p| {
+                bytes.extend_from_slice(p);
+                u32::try_from(bytes.len()).expect("a vocabulary under 4 GiB of text")
+            })
+            .collect();
         Vocab {
             table: std::sync::Arc::new(Table {
-                pieces,
+                bytes,
+                ends,
                 kinds,
                 eog,
                 bos,
@@ -114,19 +127,24 @@ impl Vocab {
     }
 
     pub fn len(&self) -> usize {
-        self.table.pieces.len()
+        self.table.ends.len()
     }
 
     pub fn is_empty(&self) -> bool {
-        self.table.pieces.is_empty()
+        self.table.ends.is_empty()
     }
 
     /// The bytes a token stands for; control tokens give their marker text.
     pub fn piece(&self, id: TokenId) -> &[u8] {
-        self.table
-            .pieces
-            .get(id as usize)
-            .map_or(&[], Vec::as_slice)
+        let t = &self.table;
+        let Some(&end) = t.ends.get(id as usize) else {
+            return &[];
+        };
+        let start = match id {
+            0 => 0,
+            _ => t.ends[id as usize - 1],
+        };
+        &t.bytes[start as usize..end as usize]
     }
 
     pub fn kind(&self, id: TokenId) -> TokenKind {
@@ -152,11 +170,7 @@ impl Vocab {
 
     /// Id of the token whose text is exactly `text`, if any (linear: not for hot paths).
     pub fn find(&self, text: &str) -> Option<TokenId> {
-        self.table
-            .pieces
-            .iter()
-            .position(|p| p == text.as_bytes())
-            .map(|i| i as TokenId)
+        (0..self.len() as TokenId).find(|&id| self.piece(id) == text.as_bytes())
     }
 
     /// Bytes of a token sequence, control tokens included (for logs and tests).

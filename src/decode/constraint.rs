@@ -25,6 +25,15 @@ pub enum ConstraintError {
     Matcher(String),
 }
 
+/// The token sets llguidance's slicer precomputes, so that a mask inside a JSON string
+/// (most of a call's free text) is one set lookup, not a walk of the whole vocabulary:
+/// a string's characters up to 30 at a time (a bounded string accepts any such run until
+/// it is within 30 of its cap: `tool::spec` caps free strings at 160) and without bound.
+/// Each costs 2.5–3 MiB at a 49k vocabulary;
+/// llguidance's default list adds runs of whitespace (the grammars write none of their
+/// own: separators are fixed) and strings up to 10 characters (contained in the first).
+const SLICES: [&str; 2] = [r#"[^"\\\x00-\x1F\x7F]{1,30}"#, r#"[^"\\\x00-\x1F\x7F]+"#];
+
 /// The per-model half of constrained decoding.
 pub struct Grammars {
     factory: ParserFactory,
@@ -33,8 +42,9 @@ pub struct Grammars {
 impl Grammars {
     pub fn new(vocab: &Vocab, tokenizer: Arc<dyn Tokenize>) -> Result<Grammars, ConstraintError> {
         let env = TokenEnv::shared(vocab, tokenizer);
-        let mut factory =
-            ParserFactory::new_simple(&env).map_err(|e| ConstraintError::Compile(e.to_string()))?;
+        let slices: Vec<String> = SLICES.iter().map(|s| s.to_string()).collect();
+        let mut factory = ParserFactory::new(&env, Default::default(), &slices)
+            .map_err(|e| ConstraintError::Compile(e.to_string()))?;
         // llguidance writes grammar warnings to stderr by default; ours go to tracing.
         factory.quiet();
         Ok(Grammars { factory })
