@@ -216,7 +216,12 @@ fn main() {
             Ok(_) => header::wanted("FERROSA_BENCH_MODELS", &e.name),
             Err(_) => e.name == catalog.default,
         };
-        if !path.exists() || !chosen || e.kind == ferrosa::models::ModelKind::Speech {
+        // Language models only: not the speech recogniser nor the sentence encoder.
+        let language = !matches!(
+            e.kind,
+            ferrosa::models::ModelKind::Speech | ferrosa::models::ModelKind::Encoder
+        );
+        if !path.exists() || !chosen || !language {
             continue;
         }
         let arch = backend::Gguf::open(&path)

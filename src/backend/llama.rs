@@ -29,7 +29,7 @@ const BRANCHES: usize = 15;
 /// Tokens llama.cpp evaluates per graph. Its compute buffer grows with this times the
 /// context (the attention scores of every query against every cached key), and what a
 /// deep prompt touches of it stays resident: 110 MiB at 512 and a 4,096-token context,
-/// 28 MiB at 128 (the agent's 8,192: 151 and 38 MiB for the scores alone). A request's
+/// 28 MiB at 128 (the agent's 8,192: 144 and 36 MiB for the scores alone). A request's
 /// own tokens (tens) fit in one graph either way; a long prompt is split, which costs
 /// it speed (llama-bench here, noisy: pp2048 162–179 tok/s at 128 against 168–198 at
 /// 512; pp4096 138 against 172).

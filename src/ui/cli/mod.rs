@@ -54,7 +54,7 @@ pub struct Cli {
     adapter: String,
     /// candle's weights: quantized, as the file holds them (the least memory), or also
     /// dense, dequantized to 4 bytes a weight for prompts of 16 tokens or more (about
-    /// 1.5× faster prompts, 560 MiB more for the default model). llama.cpp ignores it.
+    /// 1.5× faster prompts, about 440 MiB more at peak for the default model). llama.cpp ignores it.
     #[arg(long, global = true, env = "FERROSA_CANDLE_WEIGHTS", value_enum, default_value_t = CandleWeightsArg::Quantized)]
     candle_weights: CandleWeightsArg,
     /// Where the model runs: local (in this process) or openai (a server with OpenAI's
