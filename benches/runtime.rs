@@ -694,10 +694,7 @@ fn measure(cfg: &Config) -> Measured {
 /// compares the runtimes at one setting.
 fn llama_bench(bin: &Path, model: &Path, threads: usize, runs: usize) -> Upstream {
     eprintln!("running {} on {} …", bin.display(), model.display());
-    #[cfg(feature = "llama")]
-    let ubatch = backend::llama::UBATCH;
-    #[cfg(not(feature = "llama"))]
-    let ubatch = PROMPT;
+    let ubatch = upstream_ubatch();
     let out = Command::new(bin)
         .arg("-m")
         .arg(model)
@@ -741,6 +738,15 @@ fn llama_bench(bin: &Path, model: &Path, threads: usize, runs: usize) -> Upstrea
         gen_tps_d0: pick(0, GEN as u64, 0),
         gen_tps_d512: pick(0, GEN as u64, 512),
     }
+}
+
+/// The micro-batch llama-bench is given: the one ferrosa's llama.cpp runtime uses, or
+/// llama-bench's own default where that runtime is not built.
+fn upstream_ubatch() -> usize {
+    #[cfg(feature = "llama")]
+    return backend::llama::UBATCH;
+    #[cfg(not(feature = "llama"))]
+    return PROMPT;
 }
 
 /// candle's runtimes against llama.cpp's on the same model and decoding, each measured
@@ -810,7 +816,8 @@ fn print_table(rows: &[(Measured, Interleaved)]) {
     if rows.iter().any(|(_, u)| u.rounds > 0) {
         println!();
         println!(
-            "Ratios: ferrosa / llama-bench within each round (upstream, then ferrosa, each in a process of its own, one repetition each), **median** (min–max) over the rounds; ferrosa's own columns are from its separate run of {} repetitions.",
+            "Ratios: ferrosa / llama-bench (`-ub {}`) within each round (upstream, then ferrosa, each in a process of its own, one repetition each), **median** (min–max) over the rounds; ferrosa's own columns are from its separate run of {} repetitions.",
+            upstream_ubatch(),
             rows[0].0.config.runs
         );
         candle_against_llama(rows);
