@@ -741,12 +741,12 @@ fn llama_bench(bin: &Path, model: &Path, threads: usize, runs: usize) -> Upstrea
 }
 
 /// The micro-batch llama-bench is given: the one ferrosa's llama.cpp runtime uses, or
-/// llama-bench's own default where that runtime is not built.
+/// llama-bench's own default (512) where that runtime is not built.
 fn upstream_ubatch() -> usize {
     #[cfg(feature = "llama")]
     return backend::llama::UBATCH;
     #[cfg(not(feature = "llama"))]
-    return PROMPT;
+    return 512;
 }
 
 /// candle's runtimes against llama.cpp's on the same model and decoding, each measured

@@ -72,11 +72,12 @@ pub struct Vocab {
 
 #[derive(Debug)]
 struct Table {
-    /// Every token's bytes one after another; token i's are `bytes[ends[i-1]..ends[i]]`
-    /// (one buffer, not a vector per token: 0.5 MiB for SmolLM2's 49k instead of 2.7,
-    /// 2.6 instead of 15 for Gemma 3's 262k).
+    /// Every token's bytes one after another; token i's are
+    /// `bytes[starts[i]..starts[i + 1]]`, `starts` having one entry more than there are
+    /// tokens (one buffer, not a vector per token: 0.5 MiB for SmolLM2's 49k instead of
+    /// 2.7, 2.6 instead of 15 for Gemma 3's 262k).
     bytes: Vec<u8>,
-    ends: Vec<u32>,
+    starts: Vec<u32>,
     kinds: Vec<TokenKind>,
     eog: Vec<TokenId>,
     bos: Option<TokenId>,
@@ -95,17 +96,16 @@ impl Vocab {
         eog.sort_unstable();
         eog.dedup();
         let mut bytes = Vec::with_capacity(pieces.iter().map(Vec::len).sum());
-        let ends = pieces
-            .iter()
-            .map(|p| {
-                bytes.extend_from_slice(p);
-                u32::try_from(bytes.len()).expect("a vocabulary under 4 GiB of text")
-            })
-            .collect();
+        let mut starts = Vec::with_capacity(pieces.len() + 1);
+        starts.push(0);
+        for p in &pieces {
+            bytes.extend_from_slice(p);
+            starts.push(u32::try_from(bytes.len()).expect("a vocabulary under 4 GiB of text"));
+        }
         Vocab {
             table: std::sync::Arc::new(Table {
                 bytes,
-                ends,
+                starts,
                 kinds,
                 eog,
                 bos,
@@ -127,24 +127,20 @@ impl Vocab {
     }
 
     pub fn len(&self) -> usize {
-        self.table.ends.len()
+        self.table.starts.len() - 1
     }
 
     pub fn is_empty(&self) -> bool {
-        self.table.ends.is_empty()
+        self.len() == 0
     }
 
     /// The bytes a token stands for; control tokens give their marker text.
     pub fn piece(&self, id: TokenId) -> &[u8] {
         let t = &self.table;
-        let Some(&end) = t.ends.get(id as usize) else {
-            return &[];
-        };
-        let start = match id {
-            0 => 0,
-            _ => t.ends[id as usize - 1],
-        };
-        &t.bytes[start as usize..end as usize]
+        match (t.starts.get(id as usize), t.starts.get(id as usize + 1)) {
+            (Some(&start), Some(&end)) => &t.bytes[start as usize..end as usize],
+            _ => &[],
+        }
     }
 
     pub fn kind(&self, id: TokenId) -> TokenKind {
