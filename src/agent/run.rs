@@ -451,6 +451,52 @@ impl Run<'_> {
         Some(if kept.is_empty() { names } else { kept })
     }
 
+    /// `allowed` (all offered when `None`) without the tools that record what the agent
+    /// keeps (`ToolSpec::records`) unless the part points at one of them most (the
+    /// retrieval prior, by meaning and words, of every tool it may call): what the
+    /// operator asks to keep, not a fact the model makes of another request. On the arm,
+    /// a request to drive the bolted-down arm to a dock was noted as a fact, and a German
+    /// request to raise the grip force was kept as one beside two junk calls.
+    fn asked_to_record(
+        &self,
+        allowed: Option<Vec<String>>,
+        robot_names: &[(String, String)],
+    ) -> Option<Vec<String>> {
+        let registry = self.agent.exec.registry();
+        let records = |n: &str| registry.get(n).is_some_and(|t| t.spec().records);
+        let names: Vec<String> = allowed
+            .clone()
+            .unwrap_or_else(|| self.offered.iter().map(|s| s.name.clone()).collect());
+        if !names.iter().any(|n| records(n)) {
+            return allowed;
+        }
+        let candidates: Vec<&str> = names
+            .iter()
+            .map(String::as_str)
+            .filter(|n| *n != ANSWER_TOOL && *n != STOP_TOOL)
+            .collect();
+        let priors = self
+            .agent
+            .prior(&self.parts[self.part], &candidates, robot_names);
+        let best = priors.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+        let pointed: Vec<&str> = candidates
+            .iter()
+            .zip(&priors)
+            .filter(|(_, p)| **p >= best - 1e-9)
+            .map(|(n, _)| *n)
+            .collect();
+        if pointed.iter().any(|n| records(n)) {
+            return allowed;
+        }
+        tracing::debug!(target: "ferrosa::guard", ?pointed, "recording tools held back");
+        let kept: Vec<String> = names.iter().filter(|n| !records(n)).cloned().collect();
+        Some(if kept.is_empty() {
+            vec![ANSWER_TOOL.to_string()]
+        } else {
+            kept
+        })
+    }
+
     /// The step's turn: the model writes calls, or the answer.
     fn think(&mut self, step: usize) -> Result<Thought, AgentError> {
         let allowed = if self.answer_only {
@@ -474,6 +520,7 @@ impl Run<'_> {
             ),
             other => other,
         };
+        let allowed = self.asked_to_record(allowed, &robot_names);
         // A result (or the part's failure) is in and answering is all that is left: the
         // answer is the result as `held` gives it, without the model. Its reply here would be one the
         // answer replaces (a small model's rarely states the result) and the turn's

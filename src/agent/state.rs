@@ -278,9 +278,47 @@ impl Agent {
         !self.listed(&[]).is_empty()
     }
 
+    /// `names` with the robot's parameters (`select::PARAMETER`, each by its own name)
+    /// as a tool that takes a node's parameter can be given them now (its live schema's
+    /// names, `Tool::live_parameters`), for tool choice: "which stored positions does
+    /// it know?" is near `stored_positions`, which a parameter tool reads. Those every node
+    /// declares of itself (`meant::every_node_parameter`) point at nothing. Not for the
+    /// grammar, which reads each tool's own live names (`bound`).
+    fn with_parameters(&self, names: &[(String, String)]) -> Vec<(String, String)> {
+        let mut out = names.to_vec();
+        if names.is_empty() {
+            return out;
+        }
+        let registry = self.exec.registry();
+        let live = registry
+            .specs()
+            .into_iter()
+            .filter(|s| select::name_kinds(s).any(|k| k == select::PARAMETER))
+            .find_map(|s| registry.get(&s.name)?.live_spec());
+        let Some(live) = live else {
+            return out;
+        };
+        let mut found = Vec::new();
+        crate::reading::bound::suggested_names(&live.parameters, &mut found);
+        let params: BTreeSet<String> = found
+            .into_iter()
+            .filter(|(key, name)| {
+                key == "name" && !crate::reading::meant::every_node_parameter(name)
+            })
+            .map(|(_, name)| name)
+            .collect();
+        out.extend(
+            params
+                .into_iter()
+                .map(|n| (select::PARAMETER.to_string(), n)),
+        );
+        out
+    }
+
     /// Which tools to offer for `query`, by the token cost of their specs.
     pub fn offered_tools(&self, query: &str) -> Vec<ToolSpec> {
-        let (specs, names) = (self.retrievable(), self.robot_names());
+        let specs = self.retrievable();
+        let names = self.with_parameters(&self.robot_names());
         let sims = self.similarities(query, &specs, &names);
         let chosen = select::select(
             query,
@@ -303,6 +341,7 @@ impl Agent {
         names: &[(String, String)],
     ) -> Vec<f64> {
         let specs = self.retrievable();
+        let names = &self.with_parameters(names);
         let sims = self.similarities(part, &specs, names);
         select::prior(
             part,

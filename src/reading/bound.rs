@@ -47,7 +47,22 @@ pub fn bind(
     for spec in specs {
         suggested_names(&spec.parameters, &mut every);
     }
-    let (names, met) = pointing(names, &[request], &written, near);
+    // A node's own parameter and type-description services are the parameter tools'
+    // way in (`meant::every_node`): no service argument is held to one the request does
+    // not write (a change of a gripper setting went to a hand-built
+    // `set_parameters_atomically`).
+    let names: Vec<(String, String)> = names
+        .iter()
+        .filter(|(k, n)| {
+            k != "service"
+                || !super::meant::every_node(n)
+                || written
+                    .iter()
+                    .any(|w| w.trim_start_matches('/') == n.trim_start_matches('/'))
+        })
+        .cloned()
+        .collect();
+    let (names, met) = pointing(&names, &[request], &written, near);
     let held = Held {
         names: &names,
         every: &every,
@@ -303,7 +318,7 @@ fn bind_object(object: &mut Value, h: &Held, taken: &[(String, String)]) -> bool
 }
 
 /// Each (key, name) a property of `schema` suggests (`suggested`), at any depth.
-fn suggested_names(schema: &Value, out: &mut Vec<(String, String)>) {
+pub(crate) fn suggested_names(schema: &Value, out: &mut Vec<(String, String)>) {
     match schema {
         Value::Object(map) => {
             if let Some(Value::Object(props)) = map.get("properties") {
@@ -672,6 +687,34 @@ mod tests {
         assert!(bound[0].parameters["properties"]["count"]
             .get("enum")
             .is_none());
+    }
+
+    #[test]
+    fn a_nodes_own_parameter_services_are_held_to_only_when_written() {
+        let specs = [spec(
+            "ros_service_call",
+            json!({"type": "object", "properties": {"service": {"type": "string"}},
+                   "required": ["service"]}),
+        )];
+        let names: Vec<(String, String)> =
+            ["/lamp/on", "/lamp/set_parameters", "/lamp/get_parameters"]
+                .iter()
+                .map(|n| ("service".to_string(), n.to_string()))
+                .collect();
+        let held = |request: &str| {
+            bind(&specs, &names, request, None)[0].parameters["properties"]["service"]["enum"]
+                .clone()
+        };
+        // Words that point at the parameter services ("set", "parameters") hold the
+        // call to the robot's own service.
+        assert_eq!(
+            held("set the lamp parameters to bright"),
+            json!(["/lamp/on"])
+        );
+        assert_eq!(
+            held("call /lamp/get_parameters"),
+            json!(["/lamp/get_parameters"])
+        );
     }
 
     #[test]

@@ -42,7 +42,8 @@ const MEANT_GAP: f64 = 0.05;
 const ACTED_ON: &[&str] = &["topic", "service", "action"];
 
 /// Names every node has, which no operator asks for by meaning: its parameter and type
-/// services, and the graph's own topics.
+/// services, and the graph's own topics. `bound` holds no service argument to one the
+/// request does not write.
 const EVERY_NODE: &[&str] = &[
     "list_parameters",
     "get_parameters",
@@ -117,7 +118,15 @@ pub(crate) fn meant(
     vec![name.to_string()]
 }
 
-fn every_node(name: &str) -> bool {
+/// Whether a parameter is one every ROS 2 node declares of itself (the clock it runs
+/// on, its publishers' QoS overrides, its type-description service), not a setting of
+/// the robot's: tool choice does not read it as one of the robot's names.
+pub(crate) fn every_node_parameter(name: &str) -> bool {
+    matches!(name, "use_sim_time" | "start_type_description_service")
+        || name.starts_with("qos_overrides.")
+}
+
+pub(crate) fn every_node(name: &str) -> bool {
     let last = name.rsplit('/').next().unwrap_or(name);
     EVERY_NODE.contains(&last)
 }
@@ -125,6 +134,15 @@ fn every_node(name: &str) -> bool {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_nodes_own_parameters_are_told_from_the_robots() {
+        assert!(every_node_parameter("use_sim_time"));
+        assert!(every_node_parameter(
+            "qos_overrides./rosout.publisher.depth"
+        ));
+        assert!(!every_node_parameter("grip_force"));
+    }
 
     fn names() -> Vec<(String, String)> {
         [

@@ -224,13 +224,22 @@ const WRITTEN_NAME: f64 = 4.0;
 /// Arguments that name a ROS thing of the robot's graph (the kinds of `names`).
 pub(crate) const NAME_KINDS: &[&str] = &["node", "topic", "service", "action", "type"];
 
-/// The kinds of the robot's names `spec` takes (its string arguments of those names).
+/// The kind of the robot's names that are its nodes' parameters. A parameter is
+/// addressed by its node and its name, so a tool takes one when it takes both as
+/// strings (the parameter tools, and a declared tool addressed the same way).
+pub(crate) const PARAMETER: &str = "parameter";
+
+/// The kinds of the robot's names `spec` takes (its string arguments of those names,
+/// and `PARAMETER` for a node and a name).
 pub(crate) fn name_kinds(spec: &ToolSpec) -> impl Iterator<Item = &'static str> + '_ {
     let props = spec.parameters["properties"].as_object();
+    let string =
+        move |k: &str| props.is_some_and(|p| p.get(k).is_some_and(|v| v["type"] == "string"));
     NAME_KINDS
         .iter()
         .copied()
-        .filter(move |k| props.is_some_and(|p| p.get(*k).is_some_and(|v| v["type"] == "string")))
+        .filter(move |k| string(k))
+        .chain((string("node") && string("name")).then_some(PARAMETER))
 }
 
 impl Document {
@@ -245,7 +254,10 @@ impl Document {
                 text.push_str(d);
             }
         }
-        let kinds: Vec<&str> = name_kinds(spec).collect();
+        // Parameters are read by meaning only: as words, a setting's ("grip_force")
+        // met a question about the state ("how hard does the gripper squeeze now?")
+        // that no topic's name says in its words.
+        let kinds: Vec<&str> = name_kinds(spec).filter(|k| *k != PARAMETER).collect();
         let (whole, graph): (Vec<&str>, Vec<&str>) = names
             .iter()
             .filter(|(kind, _)| kinds.contains(&kind.as_str()))
@@ -754,6 +766,24 @@ mod tests {
         // One it does not meet answered: those it meets more may follow.
         assert_eq!(beyond(&priors, &priors[2..]), [true, true, false]);
         assert_eq!(beyond(&priors, &priors[1..2]), [true, false, false]);
+    }
+
+    #[test]
+    fn a_node_and_a_name_take_a_parameter_and_parameters_are_not_read_as_words() {
+        let string = json!({"type": "string"});
+        let param = spec(
+            "param_read",
+            "Read a setting.",
+            json!({"node": string, "name": string}),
+        );
+        let place = spec("place_go", "Drive to a place.", json!({"name": string}));
+        assert_eq!(name_kinds(&param).collect::<Vec<_>>(), ["node", PARAMETER]);
+        assert!(name_kinds(&place).next().is_none());
+        // A parameter's words ("grip force") do not meet a question about the state:
+        // by words, the request meets neither tool.
+        let names = vec![(PARAMETER.to_string(), "grip_force".to_string())];
+        let scores = lexical("how much grip force now", &[param, place], &names);
+        assert_eq!(scores, [0.0, 0.0]);
     }
 
     #[test]

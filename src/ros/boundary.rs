@@ -91,6 +91,18 @@ const PARAMETER_SERVICES: &[(&str, &str, NamedBy)] = &[
     ),
 ];
 
+/// Whether a service of type `ty` is one every ROS 2 node serves of itself, for its
+/// parameters (`rcl_interfaces`) or its types' descriptions: the node's machinery,
+/// not something the robot does. The parameter tools are their way in, so a tool
+/// choice and a generic service call's grammar leave them out unless the operator
+/// writes one (on the arm, a change of the gripper's setting was sent as a hand-built
+/// `set_parameters_atomically` request, and a drive the arm cannot make as a
+/// `get_parameters` call).
+pub fn node_machinery(ty: &str) -> bool {
+    let ty = normalize_type(ty);
+    PARAMETER_SERVICES.iter().any(|(_, t, _)| *t == ty) || READ_ONLY_SERVICES.contains(&ty.as_str())
+}
+
 /// The field of `rcl_interfaces/msg/ParameterValue` each `ParameterType` from 1
 /// (`PARAMETER_BOOL`) to 9 (`PARAMETER_STRING_ARRAY`) sets.
 const PARAMETER_FIELDS: [&str; 9] = [
@@ -759,6 +771,15 @@ impl RosGraph for Guarded {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_nodes_own_services_are_told_from_the_robots() {
+        assert!(node_machinery("rcl_interfaces/srv/SetParametersAtomically"));
+        assert!(node_machinery(
+            "type_description_interfaces/srv/GetTypeDescription"
+        ));
+        assert!(!node_machinery("std_srvs/srv/Trigger"));
+    }
     use crate::ros::fake::{FakeGraph, Sent as Published};
     use serde_json::json;
 

@@ -134,6 +134,64 @@ pub(crate) struct ConvertArgs {
     pub to: String,
 }
 
+/// The units a conversion's grammar offers, as `unit` and the temperatures read them
+/// (the operator's own spelling among them, for the copy bias to find): a small model
+/// otherwise writes units of its own ("100" to "30" for a percentage; a robot's topic
+/// name, repeated).
+const UNITS: &[&str] = &[
+    "m",
+    "meter",
+    "meters",
+    "metre",
+    "metres",
+    "cm",
+    "mm",
+    "km",
+    "in",
+    "inch",
+    "inches",
+    "ft",
+    "foot",
+    "feet",
+    "mi",
+    "mile",
+    "miles",
+    "rad",
+    "radian",
+    "radians",
+    "deg",
+    "degree",
+    "degrees",
+    "m/s",
+    "km/h",
+    "mph",
+    "kn",
+    "knot",
+    "knots",
+    "s",
+    "sec",
+    "second",
+    "seconds",
+    "min",
+    "minute",
+    "minutes",
+    "h",
+    "hour",
+    "hours",
+    "kg",
+    "g",
+    "lb",
+    "lbs",
+    "pound",
+    "pounds",
+    "C",
+    "celsius",
+    "F",
+    "fahrenheit",
+    "K",
+    "kelvin",
+];
+
 /// (kind, factor to the kind's base unit, offset) for linear units; temperatures are special.
 fn unit(u: &str) -> Option<(&'static str, f64)> {
     Some(match u.trim().to_lowercase().as_str() {
@@ -185,6 +243,22 @@ impl Tool for CalcConvert {
 
     fn description(&self) -> String {
         "Convert a value between units of length (m, cm, km, in, ft, mi), angle (deg, rad), speed (m/s, km/h, mph, kn), temperature (C, F, K), time (s, min, h) or mass (kg, g, lb).".into()
+    }
+
+    /// `from` and `to` held to the units it converts (`UNITS`); the prompt still shows
+    /// them as text, which also takes the units' longer names.
+    fn live_parameters(&self) -> Option<Value> {
+        let unit = |what: &str| json!({"type": "string", "enum": UNITS, "description": what});
+        Some(json!({
+            "type": "object",
+            "properties": {
+                "value": {"type": "number"},
+                "from": unit("Unit of `value`."),
+                "to": unit("Unit to convert to (same kind as `from`)."),
+            },
+            "required": ["value", "from", "to"],
+            "additionalProperties": false,
+        }))
     }
 
     async fn call(&self, a: ConvertArgs, _: &ToolContext) -> Result<Value, ToolError> {
@@ -268,6 +342,16 @@ mod tests {
 
     fn cx() -> ToolContext {
         ToolContext::new(Duration::from_secs(1))
+    }
+
+    #[test]
+    fn the_grammar_offers_only_units_it_converts() {
+        for u in UNITS {
+            assert!(unit(u).is_some() || to_kelvin(0.0, u).is_some(), "{u}");
+        }
+        let live = CalcConvert.live_parameters().unwrap();
+        assert_eq!(live["properties"]["from"]["enum"], json!(UNITS));
+        assert_eq!(live["properties"]["to"]["enum"], json!(UNITS));
     }
 
     fn run<T: Tool>(t: T, args: Value) -> Result<Value, ToolError> {

@@ -287,6 +287,39 @@ mod tests {
     }
 
     #[test]
+    fn a_service_call_is_not_offered_a_nodes_own_parameter_services() {
+        let graph = turtlesim(&[
+            ep(
+                1,
+                false,
+                "rq/turtle1/teleport_absoluteRequest",
+                "turtlesim::srv::dds_::TeleportAbsolute_Request_",
+            ),
+            ep(
+                2,
+                false,
+                "rq/turtlesim/set_parameters_atomicallyRequest",
+                "rcl_interfaces::srv::dds_::SetParametersAtomically_Request_",
+            ),
+            ep(
+                3,
+                false,
+                "rq/turtlesim/get_type_descriptionRequest",
+                "type_description_interfaces::srv::dds_::GetTypeDescription_Request_",
+            ),
+        ]);
+        let ros = Ros::new(Arc::new(FakeGraph::new().with_graph(graph)));
+        let live = ServiceCall(ros).live_parameters().unwrap();
+        let named: Vec<&str> = live["anyOf"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter_map(|b| b["properties"]["service"]["const"].as_str())
+            .collect();
+        assert_eq!(named, ["/turtle1/teleport_absolute"]);
+    }
+
+    #[test]
     fn calls_take_arguments_typed_by_the_names_the_robot_holds() {
         let ros = Ros::new(fake());
         let live = ServiceCall(ros.clone()).live_parameters().unwrap();

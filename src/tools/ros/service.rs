@@ -55,9 +55,18 @@ impl Tool for ServiceCall {
             "required": ["service"],
             "additionalProperties": false,
         });
+        // A node's own parameter and type-description services are the parameter
+        // tools' (`boundary::node_machinery`): a request that writes one still reaches
+        // it through the open branch.
+        let mut services = g.services();
+        services.retain(|_, types| {
+            !types
+                .iter()
+                .any(|t| crate::ros::boundary::node_machinery(t))
+        });
         typed_by_name(
             &self.0,
-            g.services(),
+            services,
             ("service", "request", "_Request"),
             false,
             open,
