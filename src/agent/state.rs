@@ -284,15 +284,19 @@ impl Agent {
     /// it know?" is near `stored_positions`, which a parameter tool reads. Those every node
     /// declares of itself (`meant::every_node_parameter`) point at nothing. Not for the
     /// grammar, which reads each tool's own live names (`bound`).
-    fn with_parameters(&self, names: &[(String, String)]) -> Vec<(String, String)> {
+    /// `specs`: the tools as retrieval reads them, the parameter tool among them.
+    fn with_parameters(
+        &self,
+        specs: &[ToolSpec],
+        names: &[(String, String)],
+    ) -> Vec<(String, String)> {
         let mut out = names.to_vec();
         if names.is_empty() {
             return out;
         }
         let registry = self.exec.registry();
-        let live = registry
-            .specs()
-            .into_iter()
+        let live = specs
+            .iter()
             .filter(|s| select::name_kinds(s).any(|k| k == select::PARAMETER))
             .find_map(|s| registry.get(&s.name)?.live_spec());
         let Some(live) = live else {
@@ -318,7 +322,7 @@ impl Agent {
     /// Which tools to offer for `query`, by the token cost of their specs.
     pub fn offered_tools(&self, query: &str) -> Vec<ToolSpec> {
         let specs = self.retrievable();
-        let names = self.with_parameters(&self.robot_names());
+        let names = self.with_parameters(&specs, &self.robot_names());
         let sims = self.similarities(query, &specs, &names);
         let chosen = select::select(
             query,
@@ -341,7 +345,7 @@ impl Agent {
         names: &[(String, String)],
     ) -> Vec<f64> {
         let specs = self.retrievable();
-        let names = &self.with_parameters(names);
+        let names = &self.with_parameters(&specs, names);
         let sims = self.similarities(part, &specs, names);
         select::prior(
             part,

@@ -126,6 +126,7 @@ pub(crate) fn every_node_parameter(name: &str) -> bool {
         || name.starts_with("qos_overrides.")
 }
 
+/// Whether `name` is one of the names every node has (`EVERY_NODE`), by its last part.
 pub(crate) fn every_node(name: &str) -> bool {
     let last = name.rsplit('/').next().unwrap_or(name);
     EVERY_NODE.contains(&last)

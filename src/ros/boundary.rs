@@ -771,6 +771,8 @@ impl RosGraph for Guarded {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::ros::fake::{FakeGraph, Sent as Published};
+    use serde_json::json;
 
     #[test]
     fn a_nodes_own_services_are_told_from_the_robots() {
@@ -780,8 +782,6 @@ mod tests {
         ));
         assert!(!node_machinery("std_srvs/srv/Trigger"));
     }
-    use crate::ros::fake::{FakeGraph, Sent as Published};
-    use serde_json::json;
 
     /// Issue 41: parameters are judged by their full names on every parameter service,
     /// whoever calls it, and listings and parameter events leave denied ones out.
