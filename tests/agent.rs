@@ -143,7 +143,7 @@ fn a_part_the_model_answers_without_a_call_is_kept_and_the_next_part_worked() {
     assert_eq!(r.steps.len(), 1);
     // The first part's answer, then the second's: its result.
     assert!(r.answer.starts_with("Hello! "), "{}", r.answer);
-    assert!(r.answer.contains("result 4.0"), "{}", r.answer);
+    assert!(r.answer.contains("2 + 2 = 4"), "{}", r.answer);
 }
 
 /// Two tools that each wait until both have started: run one after the other, the first
@@ -238,7 +238,7 @@ fn a_tool_error_is_an_observation_the_model_recovers_from() {
         .unwrap()
         .contains("invalid arguments"));
     assert!(r.steps[1].ok);
-    assert!(r.answer.contains("result 4.0"), "{}", r.answer);
+    assert!(r.answer.contains("2 + 2 = 4"), "{}", r.answer);
 }
 
 struct Sleepy;

@@ -424,7 +424,22 @@ impl Run<'_> {
         let part = &self.parts[self.part];
         let mut candidates: Vec<&str> = names.iter().map(String::as_str).collect();
         candidates.extend(self.grounds.iter().map(|(t, _)| t.as_str()));
-        let priors = self.agent.prior(part, &candidates, robot_names);
+        let mut priors = self.agent.prior(part, &candidates, robot_names);
+        // An amount the part gives in a unit (`bound::writes_a_unit`) is for the tool
+        // that converts it, after its call as before it (`select::hold_to_written` on
+        // the first step): a conversion asked in Portuguese was followed by junk
+        // arithmetic over its result, which the words met better.
+        let registry = self.agent.exec.registry();
+        let converts: Vec<bool> = candidates
+            .iter()
+            .map(|c| {
+                registry
+                    .get(c)
+                    .and_then(|t| t.live_spec())
+                    .is_some_and(|s| crate::reading::bound::writes_a_unit(&s.parameters, part))
+            })
+            .collect();
+        crate::reading::select::hold_to_written(&mut priors, &candidates, &converts, ANSWER_TOOL);
         let (offered, done) = priors.split_at(names.len());
         let further = crate::reading::select::beyond(offered, done);
         let part_acts = {
@@ -433,7 +448,6 @@ impl Run<'_> {
                 .iter()
                 .any(|a| !matches!(a, Act::Stop | Act::Fence))
         };
-        let registry = self.agent.exec.registry();
         let acts = |n: &str| {
             registry
                 .get(n)

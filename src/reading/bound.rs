@@ -23,7 +23,7 @@ use std::collections::{BTreeMap, BTreeSet};
 use serde_json::{json, Value};
 
 use crate::lexicon::{folded_words, number_word};
-use crate::tool::schema::QUOTE;
+use crate::tool::schema::{QUOTE, UNIT};
 use crate::tool::ToolSpec;
 
 /// `specs` with each name argument held to the `names` (key, name) of its key that
@@ -78,6 +78,7 @@ pub fn bind(
             bind_schema(&mut spec.parameters, &held);
             require_given(&mut spec.parameters, &given, 0);
             quote(&mut spec.parameters, request);
+            hold_units(&mut spec.parameters, request);
             cap_free(&mut spec.parameters, request);
             spec
         })
@@ -143,6 +144,202 @@ fn quote(schema: &mut Value, request: &str) {
             *prop = json!({"type": "string", "enum": phrases});
         }
     }
+}
+
+/// Most words a unit's name is written in ("kilómetros por hora", "chilometri all'ora").
+const UNIT_WORDS: usize = 4;
+
+/// The unit arguments of `schema` (marked `UNIT`) held to the units `request` writes:
+/// `from` to the unit written right after a number ("3 feet", "10km/h", "20 Grad
+/// Celsius"), `to` to the other units of that kind it writes. Of a schema with a branch
+/// a kind of quantity, only the kind written after a number stays. A small model
+/// reverses the two at times (10 km/h asked in m/s went m/s → km/h). A request with no
+/// unit after a number leaves them as they are; the marks go either way.
+fn hold_units(schema: &mut Value, request: &str) {
+    let spellings = unit_spellings(schema);
+    if spellings.is_empty() {
+        return;
+    }
+    let tokens = unit_tokens(request);
+    let written = units_written(&tokens, &spellings);
+    let Some(branches) = schema.get_mut("anyOf").and_then(Value::as_array_mut) else {
+        hold_branch_units(schema, &tokens, &written);
+        return;
+    };
+    let held: Vec<Option<bool>> = branches
+        .iter_mut()
+        .map(|b| hold_branch_units(b, &tokens, &written))
+        .collect();
+    if held.contains(&Some(true)) {
+        let mut held = held.into_iter();
+        branches.retain(|_| held.next().flatten() != Some(false));
+    }
+}
+
+/// Every unit a schema's `from` arguments (marked `UNIT`) name, in all its branches.
+fn unit_spellings(schema: &Value) -> Vec<String> {
+    let branches: Vec<&Value> = match schema.get("anyOf").and_then(Value::as_array) {
+        Some(b) => b.iter().collect(),
+        None => vec![schema],
+    };
+    branches
+        .iter()
+        .filter_map(|b| b["properties"].as_object())
+        .flat_map(|props| props.values())
+        .filter(|p| p.get(UNIT).and_then(Value::as_str) == Some("from"))
+        .flat_map(|p| p["enum"].as_array().into_iter().flatten())
+        .filter_map(|s| Some(s.as_str()?.to_string()))
+        .collect()
+}
+
+/// Whether `request` writes, right after a number, a unit that a `from` argument of
+/// `schema` (marked `UNIT`) names: "5 Meilen" asks for the tool that converts miles.
+pub(crate) fn writes_a_unit(schema: &Value, request: &str) -> bool {
+    let spellings = unit_spellings(schema);
+    if spellings.is_empty() {
+        return false;
+    }
+    let tokens = unit_tokens(request);
+    units_written(&tokens, &spellings)
+        .iter()
+        .any(|w| w.at > 0 && unit_number(&tokens[w.at - 1]))
+}
+
+/// `hold_units` in one object, given the units the request writes: `None` when it has
+/// no unit argument, else whether the request writes one of its units after a number.
+fn hold_branch_units(
+    object: &mut Value,
+    tokens: &[String],
+    written: &[WrittenUnit],
+) -> Option<bool> {
+    let props = object.get_mut("properties")?.as_object_mut()?;
+    let role = |p: &Value, r: &str| p.get(UNIT).and_then(Value::as_str) == Some(r);
+    let from_key = props.iter().find(|(_, p)| role(p, "from"))?.0.clone();
+    let to_key = props
+        .iter()
+        .find(|(_, p)| role(p, "to"))
+        .map(|(k, _)| k.clone());
+    for p in props.values_mut() {
+        if let Some(p) = p.as_object_mut() {
+            p.remove(UNIT);
+        }
+    }
+    let spellings: Vec<String> = props[&from_key]["enum"]
+        .as_array()?
+        .iter()
+        .filter_map(|s| Some(s.as_str()?.to_string()))
+        .collect();
+    let after_number = |w: &WrittenUnit| w.at > 0 && unit_number(&tokens[w.at - 1]);
+    // A unit word between another unit and a number or a unit joins them (the "in" of
+    // "3 feet in meters", "meters in 3 feet"): it is not the unit asked for.
+    let joins = |i: usize| {
+        let w = &written[i];
+        let after_unit = i > 0 && written[i - 1].at + written[i - 1].len == w.at;
+        let next = w.at + w.len;
+        let before = tokens.get(next).is_some_and(|t| unit_number(t))
+            || written.get(i + 1).is_some_and(|n| n.at == next);
+        after_unit && before
+    };
+    let mut from: Vec<String> = Vec::new();
+    let mut to: Vec<String> = Vec::new();
+    for (i, w) in written.iter().enumerate() {
+        if !spellings.contains(&w.spelling) {
+            continue;
+        }
+        if after_number(w) {
+            if !from.contains(&w.spelling) {
+                from.push(w.spelling.clone());
+            }
+        } else if !joins(i) && !to.contains(&w.spelling) {
+            to.push(w.spelling.clone());
+        }
+    }
+    if from.is_empty() {
+        return Some(false);
+    }
+    to.retain(|s| !from.contains(s));
+    if to.is_empty() {
+        to = spellings
+            .into_iter()
+            .filter(|s| !from.contains(s))
+            .collect();
+    }
+    props[&from_key]["enum"] = json!(from);
+    if let Some(k) = to_key.filter(|_| !to.is_empty()) {
+        props[&k]["enum"] = json!(to);
+    }
+    Some(true)
+}
+
+/// A unit a request writes: at which token, in how many, and the schema's spelling.
+struct WrittenUnit {
+    at: usize,
+    len: usize,
+    spelling: String,
+}
+
+/// The units of `spellings` that `tokens` write, in order, the longest name at each
+/// place ("grad celsius" before "grad").
+fn units_written(tokens: &[String], spellings: &[String]) -> Vec<WrittenUnit> {
+    let spelt: Vec<(Vec<String>, &String)> =
+        spellings.iter().map(|s| (unit_tokens(s), s)).collect();
+    let mut out = Vec::new();
+    let mut i = 0;
+    while i < tokens.len() {
+        let found = (1..=UNIT_WORDS.min(tokens.len() - i))
+            .rev()
+            .find_map(|len| {
+                let here = &tokens[i..i + len];
+                spelt
+                    .iter()
+                    .find(|(t, _)| t.as_slice() == here)
+                    .map(|(_, s)| (len, (*s).clone()))
+            });
+        match found {
+            Some((len, spelling)) => {
+                out.push(WrittenUnit {
+                    at: i,
+                    len,
+                    spelling,
+                });
+                i += len;
+            }
+            None => i += 1,
+        }
+    }
+    out
+}
+
+/// Whether a unit token is a number ("3", "1,5", "-40", "drei").
+fn unit_number(t: &str) -> bool {
+    t.replace(',', ".").parse::<f64>().is_ok() || number_word(t).is_some()
+}
+
+/// `text` folded and cut into the tokens units are read from: words, numbers, and
+/// symbols with a slash or a degree sign ("km/h", "°c"); a number written against its
+/// unit is two ("10km" → 10, km).
+fn unit_tokens(text: &str) -> Vec<String> {
+    let kept = |c: char| c.is_alphanumeric() || matches!(c, '/' | '°' | '.' | ',' | '-');
+    let mut out = Vec::new();
+    for raw in crate::lexicon::fold(text).split(|c: char| !kept(c)) {
+        let t = raw
+            .trim_end_matches(['.', ',', '-', '/'])
+            .trim_start_matches(['.', ',', '/']);
+        let t = match t.strip_prefix('-') {
+            Some(rest) if !rest.starts_with(|c: char| c.is_ascii_digit()) => rest,
+            _ => t,
+        };
+        let numeric = |c: char| c.is_ascii_digit() || matches!(c, '.' | ',' | '-');
+        match t.find(|c: char| !numeric(c)) {
+            Some(cut) if cut > 0 && t[..cut].contains(|c: char| c.is_ascii_digit()) => {
+                out.push(t[..cut].to_string());
+                out.push(t[cut..].to_string());
+            }
+            _ if !t.is_empty() => out.push(t.to_string()),
+            _ => {}
+        }
+    }
+    out
 }
 
 /// The fields `request` gives a value: a word followed by a number ("at x 2 y 3",
@@ -899,6 +1096,74 @@ mod tests {
         // Nothing given: nothing required beyond the declared.
         let bound = bind(&specs, &[], "spawn a turtle", None);
         assert_eq!(bound[0].parameters, specs[0].parameters);
+    }
+
+    #[test]
+    fn the_unit_after_the_number_is_the_one_converted_from() {
+        let kind = |units: &[&str]| {
+            let unit = |role: &str| json!({"type": "string", "enum": units, UNIT: role});
+            json!({"type": "object", "properties": {
+                "value": {"type": "number"}, "from": unit("from"), "to": unit("to")},
+              "required": ["value", "from", "to"]})
+        };
+        let specs = [spec(
+            "convert",
+            json!({"anyOf": [
+                kind(&["m", "meters", "in", "inches", "yd", "yards"]),
+                kind(&["deg", "grad", "rad"]),
+                kind(&["C", "grad celsius", "K", "kelvin"]),
+            ]}),
+        )];
+        let held = |request: &str| {
+            let bound = bind(&specs, &[], request, None);
+            let branches = bound[0].parameters["anyOf"].as_array().unwrap().clone();
+            assert!(!branches.iter().any(|b| b.to_string().contains(UNIT)));
+            branches
+                .iter()
+                .map(|b| {
+                    let p = &b["properties"];
+                    (p["from"]["enum"].clone(), p["to"]["enum"].clone())
+                })
+                .collect::<Vec<_>>()
+        };
+        // The unit after the number is `from`, whichever is said first; the "in" that
+        // joins two units is not the one asked for, the "in" at the end is.
+        assert_eq!(
+            held("how many meters is 12 yards?"),
+            [(json!(["yards"]), json!(["meters"]))]
+        );
+        assert_eq!(
+            held("12 yards in meters please"),
+            [(json!(["yards"]), json!(["meters"]))]
+        );
+        assert_eq!(
+            held("and meters in 4 yd?"),
+            [(json!(["yd"]), json!(["meters"]))]
+        );
+        assert_eq!(held("put 2 m in in"), [(json!(["m"]), json!(["in"]))]);
+        // Written against the number, in another language, of several words.
+        assert_eq!(
+            held("wie viel Kelvin sind 30 Grad Celsius?"),
+            [(json!(["grad celsius"]), json!(["kelvin"]))]
+        );
+        assert_eq!(
+            held("90grad sind wie viel rad"),
+            [(json!(["grad"]), json!(["rad"]))]
+        );
+        // Asked of no other unit: any other of the kind.
+        assert_eq!(
+            held("say 3 inches another way"),
+            [(
+                json!(["inches"]),
+                json!(["m", "meters", "in", "yd", "yards"])
+            )]
+        );
+        // No unit after a number: as declared, less the marks.
+        assert_eq!(held("convert meters to yards").len(), 3);
+        assert_eq!(
+            held("how far is it")[0].0,
+            json!(["m", "meters", "in", "inches", "yd", "yards"])
+        );
     }
 
     #[test]

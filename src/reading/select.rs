@@ -502,16 +502,19 @@ fn live_values(live: &ToolSpec, declared: Option<&ToolSpec>) -> Vec<String> {
 
 /// Per tool of `live` (the candidates as the robot can take them now; `declared`, the
 /// tools as declared), whether it takes a name `part` writes whole in the shape of a ROS
-/// name (`bound::written_names`) among its live values. A request that names a
-/// parameter or a topic asks for a tool that can be given it.
+/// name (`bound::written_names`) among its live values, or a quantity in one of the
+/// units it converts (`bound::writes_a_unit`: "5 Meilen"). A request that names a
+/// parameter or a topic, or gives an amount in a unit, asks for a tool that can be
+/// given it.
 pub(crate) fn takes_written(part: &str, live: &[ToolSpec], declared: &[ToolSpec]) -> Vec<bool> {
     let written = written_bare(part);
     live.iter()
         .map(|spec| {
-            !written.is_empty()
+            let named = !written.is_empty()
                 && live_values(spec, declared.iter().find(|d| d.name == spec.name))
                     .iter()
-                    .any(|v| written.iter().any(|w| w == bare(v)))
+                    .any(|v| written.iter().any(|w| w == bare(v)));
+            named || super::bound::writes_a_unit(&spec.parameters, part)
         })
         .collect()
 }
@@ -886,6 +889,35 @@ mod tests {
         // The same tool twice (a read, then a read after a wait): the later one.
         assert_eq!(grounding(&[0.0, 0.5f64.ln(), 0.0]), Some(2));
         assert_eq!(grounding(&[]), None);
+    }
+
+    #[test]
+    fn an_amount_in_a_unit_holds_the_pick_to_the_tool_that_converts_it() {
+        let declared = vec![
+            spec(
+                "stats",
+                "Statistics of numbers.",
+                json!({"values": {"type": "array"}}),
+            ),
+            spec(
+                "convert",
+                "Convert between units.",
+                json!({"value": {"type": "number"}, "from": {"type": "string"}}),
+            ),
+        ];
+        let mut live = declared.clone();
+        live[1].parameters = json!({"type": "object", "properties": {
+            "value": {"type": "number"},
+            "from": {"type": "string", "enum": ["yd", "yards", "Ellen"], "x-unit": "from"}}});
+        assert_eq!(
+            takes_written("und wie viele sind 7 Ellen?", &live, &declared),
+            [false, true]
+        );
+        // A unit named without an amount is no amount to convert.
+        assert_eq!(
+            takes_written("are yards longer than a mile?", &live, &declared),
+            [false, false]
+        );
     }
 
     #[test]

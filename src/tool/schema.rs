@@ -10,6 +10,12 @@ use serde_json::{json, Value};
 /// ends with (`reading::bound`). The prompt never shows it.
 pub(crate) const QUOTE: &str = "x-quote";
 
+/// The mark of a string argument that is a unit, in a tool's live parameters: `"from"`,
+/// the unit of the number the call is given; `"to"`, the unit it is given in. The agent
+/// holds them to the units the request writes, the one written after a number being
+/// `from` (`reading::bound`). The prompt never shows it, nor does the grammar.
+pub(crate) const UNIT: &str = "x-unit";
+
 /// The names an object schema lists as `required` (none when it lists none).
 pub(crate) fn required(object: &Value) -> Vec<String> {
     object["required"]

@@ -7,6 +7,7 @@ use serde::Deserialize;
 use serde_json::{json, Value};
 
 use super::expr;
+use crate::tool::schema::UNIT;
 use crate::tool::{Effect, Package, Tool, ToolContext, ToolError};
 
 pub fn package() -> Package {
@@ -15,6 +16,24 @@ pub fn package() -> Package {
         .with(CalcStats)
         .with(CalcConvert)
         .with(CalcGeometry)
+}
+
+/// Significant digits a result is shown with in a summary (the result itself is whole).
+const SHOWN_DIGITS: i32 = 6;
+
+/// `x` as a summary shows it: `SHOWN_DIGITS` significant digits, no trailing zeros
+/// (0.9144000000000001 → "0.9144", 2.7777777777777777 → "2.77778").
+fn shown(x: f64) -> String {
+    if x == 0.0 || !x.is_finite() {
+        return x.to_string();
+    }
+    let decimals = (SHOWN_DIGITS - 1 - x.abs().log10().floor() as i32).clamp(0, 15) as usize;
+    let text = format!("{x:.decimals$}");
+    if text.contains('.') {
+        text.trim_end_matches('0').trim_end_matches('.').to_string()
+    } else {
+        text
+    }
 }
 
 pub(crate) struct CalcEval;
@@ -42,7 +61,8 @@ impl Tool for CalcEval {
             // Too long or too deep: the message says what to do.
             e => ToolError::InvalidArguments(e.to_string()),
         })?;
-        Ok(json!({"expression": args.expression, "result": value}))
+        let summary = format!("{} = {}", args.expression.trim(), shown(value));
+        Ok(json!({"summary": summary, "expression": args.expression, "result": value}))
     }
 }
 
@@ -134,106 +154,102 @@ pub(crate) struct ConvertArgs {
     pub to: String,
 }
 
-/// The units a conversion's grammar offers, as `unit` and the temperatures read them
-/// (the operator's own spelling among them, for the copy bias to find): a small model
-/// otherwise writes units of its own ("100" to "30" for a percentage; a robot's topic
-/// name, repeated).
-const UNITS: &[&str] = &[
-    "m",
-    "meter",
-    "meters",
-    "metre",
-    "metres",
-    "cm",
-    "mm",
-    "km",
-    "in",
-    "inch",
-    "inches",
-    "ft",
-    "foot",
-    "feet",
-    "mi",
-    "mile",
-    "miles",
-    "rad",
-    "radian",
-    "radians",
-    "deg",
-    "degree",
-    "degrees",
-    "m/s",
-    "km/h",
-    "mph",
-    "kn",
-    "knot",
-    "knots",
-    "s",
-    "sec",
-    "second",
-    "seconds",
-    "min",
-    "minute",
-    "minutes",
-    "h",
-    "hour",
-    "hours",
-    "kg",
-    "g",
-    "lb",
-    "lbs",
-    "pound",
-    "pounds",
-    "C",
-    "celsius",
-    "F",
-    "fahrenheit",
-    "K",
-    "kelvin",
-];
+/// A unit a conversion reads (`data/units.toml`): its kind, its offset and factor to
+/// the kind's base unit (base = (value + offset) * factor), and its spellings.
+#[derive(Deserialize)]
+struct Unit {
+    /// Written the same in every language; the first as the prompt shows it.
+    symbols: Vec<String>,
+    kind: String,
+    #[serde(default)]
+    offset: f64,
+    factor: f64,
+    /// The unit's names in each language (`en`, `es`, ...).
+    #[serde(flatten)]
+    names: std::collections::BTreeMap<String, Vec<String>>,
+}
 
-/// (kind, factor to the kind's base unit, offset) for linear units; temperatures are special.
-fn unit(u: &str) -> Option<(&'static str, f64)> {
-    Some(match u.trim().to_lowercase().as_str() {
-        "m" | "meter" | "meters" | "metre" | "metres" => ("length", 1.0),
-        "cm" => ("length", 0.01),
-        "mm" => ("length", 0.001),
-        "km" => ("length", 1000.0),
-        "in" | "inch" | "inches" => ("length", 0.0254),
-        "ft" | "foot" | "feet" => ("length", 0.3048),
-        "mi" | "mile" | "miles" => ("length", 1609.344),
-        "rad" | "radian" | "radians" => ("angle", 1.0),
-        "deg" | "degree" | "degrees" => ("angle", std::f64::consts::PI / 180.0),
-        "m/s" | "mps" => ("speed", 1.0),
-        "km/h" | "kph" | "kmh" => ("speed", 1.0 / 3.6),
-        "mph" => ("speed", 0.44704),
-        "kn" | "knot" | "knots" => ("speed", 1852.0 / 3600.0),
-        "s" | "sec" | "second" | "seconds" => ("time", 1.0),
-        "min" | "minute" | "minutes" => ("time", 60.0),
-        "h" | "hour" | "hours" => ("time", 3600.0),
-        "kg" => ("mass", 1.0),
-        "g" => ("mass", 0.001),
-        "lb" | "lbs" | "pound" | "pounds" => ("mass", 0.453_592_37),
-        _ => return None,
+impl Unit {
+    fn spellings(&self) -> impl Iterator<Item = &str> {
+        self.symbols
+            .iter()
+            .chain(self.names.values().flatten())
+            .map(String::as_str)
+    }
+}
+
+#[derive(Deserialize)]
+struct Units {
+    unit: Vec<Unit>,
+}
+
+/// The units of `data/units.toml`, parsed once (a test parses it, so a bad edit fails
+/// there first).
+fn table() -> &'static [Unit] {
+    static TABLE: std::sync::OnceLock<Vec<Unit>> = std::sync::OnceLock::new();
+    TABLE.get_or_init(|| {
+        let units: Units = toml::from_str(include_str!("../../data/units.toml"))
+            .unwrap_or_else(|e| panic!("data/units.toml: {e}"));
+        units.unit
     })
 }
 
-fn to_kelvin(v: f64, u: &str) -> Option<f64> {
-    match u.trim().to_lowercase().as_str() {
-        "c" | "celsius" => Some(v + 273.15),
-        "f" | "fahrenheit" => Some((v - 32.0) * 5.0 / 9.0 + 273.15),
-        "k" | "kelvin" => Some(v),
-        _ => None,
-    }
+/// Whether `u` is one of a unit's spellings, folded and without surrounding space.
+fn spelled(u: &Unit, written: &str) -> bool {
+    let written = crate::lexicon::fold(written.trim());
+    u.spellings().any(|s| crate::lexicon::fold(s) == written)
 }
 
-fn from_kelvin(k: f64, u: &str) -> Option<f64> {
-    match u.trim().to_lowercase().as_str() {
-        "c" | "celsius" => Some(k - 273.15),
-        "f" | "fahrenheit" => Some((k - 273.15) * 9.0 / 5.0 + 32.0),
-        "k" | "kelvin" => Some(k),
-        _ => None,
+fn unit(written: &str) -> Option<&'static Unit> {
+    table().iter().find(|u| spelled(u, written))
+}
+
+/// The kinds of quantity, in the table's order.
+fn kinds() -> Vec<&'static str> {
+    let mut kinds: Vec<&str> = Vec::new();
+    for u in table() {
+        if !kinds.contains(&u.kind.as_str()) {
+            kinds.push(&u.kind);
+        }
     }
+    kinds
+}
+
+/// Every spelling of a unit of `kind`, each once, as the data writes it: the grammar
+/// offers them (the operator's own spelling among them, for the copy bias to find). A
+/// small model otherwise writes units of its own ("100" to "30" for a percentage; a
+/// robot's topic name, repeated).
+fn spellings(kind: &str) -> Vec<&'static str> {
+    let mut out: Vec<&str> = Vec::new();
+    for s in table()
+        .iter()
+        .filter(|u| u.kind == kind)
+        .flat_map(Unit::spellings)
+    {
+        if !out
+            .iter()
+            .any(|o| crate::lexicon::fold(o) == crate::lexicon::fold(s))
+        {
+            out.push(s);
+        }
+    }
+    out
+}
+
+/// `value` in `from` written in `to`, when both are units of one kind.
+fn convert(value: f64, from: &str, to: &str) -> Result<f64, ToolError> {
+    let (Some(a), Some(b)) = (unit(from), unit(to)) else {
+        return Err(ToolError::InvalidArguments(format!(
+            "unknown unit {from:?} or {to:?}; use e.g. m, ft, deg, rad, m/s, km/h, C, F"
+        )));
+    };
+    if a.kind != b.kind {
+        return Err(ToolError::InvalidArguments(format!(
+            "cannot convert {} ({from}) to {} ({to})",
+            a.kind, b.kind
+        )));
+    }
+    Ok((value + a.offset) * a.factor / b.factor - b.offset)
 }
 
 impl Tool for CalcConvert {
@@ -245,47 +261,46 @@ impl Tool for CalcConvert {
         "Convert a value between units of length (m, cm, km, in, ft, mi), angle (deg, rad), speed (m/s, km/h, mph, kn), temperature (C, F, K), time (s, min, h) or mass (kg, g, lb).".into()
     }
 
-    /// `from` and `to` held to the units it converts (`UNITS`); the prompt still shows
-    /// them as text, which also takes the units' longer names.
+    /// One branch a kind of quantity, `from` and `to` held to that kind's spellings
+    /// (`spellings`): a call converts between units of one kind by construction. `from`
+    /// is marked the unit of the value and `to` the unit it goes to (`UNIT`), so the
+    /// request's own "3 feet" gives `from` (`reading::bound`). The prompt still shows
+    /// them as text.
     fn live_parameters(&self) -> Option<Value> {
-        let unit = |what: &str| json!({"type": "string", "enum": UNITS, "description": what});
-        Some(json!({
-            "type": "object",
-            "properties": {
-                "value": {"type": "number"},
-                "from": unit("Unit of `value`."),
-                "to": unit("Unit to convert to (same kind as `from`)."),
-            },
-            "required": ["value", "from", "to"],
-            "additionalProperties": false,
-        }))
+        let branches: Vec<Value> = kinds()
+            .into_iter()
+            .map(|kind| {
+                let units = spellings(kind);
+                let unit = |what: &str, role: &str| {
+                    json!({"type": "string", "enum": units, "description": what, UNIT: role})
+                };
+                json!({
+                    "type": "object",
+                    "properties": {
+                        "value": {"type": "number"},
+                        "from": unit("Unit of `value`.", "from"),
+                        "to": unit("Unit to convert to (same kind as `from`).", "to"),
+                    },
+                    "required": ["value", "from", "to"],
+                    "additionalProperties": false,
+                })
+            })
+            .collect();
+        Some(json!({ "anyOf": branches }))
     }
 
     async fn call(&self, a: ConvertArgs, _: &ToolContext) -> Result<Value, ToolError> {
-        let result = if let (Some(k), true) = (
-            to_kelvin(a.value, &a.from),
-            from_kelvin(0.0, &a.to).is_some(),
-        ) {
-            from_kelvin(k, &a.to)
-        } else {
-            match (unit(&a.from), unit(&a.to)) {
-                (Some((k1, f1)), Some((k2, f2))) if k1 == k2 => Some(a.value * f1 / f2),
-                (Some((k1, _)), Some((k2, _))) => {
-                    return Err(ToolError::InvalidArguments(format!(
-                        "cannot convert {k1} ({}) to {k2} ({})",
-                        a.from, a.to
-                    )))
-                }
-                _ => None,
-            }
-        };
-        let result = result.ok_or_else(|| {
-            ToolError::InvalidArguments(format!(
-                "unknown unit {:?} or {:?}; use e.g. m, ft, deg, rad, m/s, km/h, C, F",
-                a.from, a.to
-            ))
-        })?;
-        Ok(json!({"value": a.value, "from": a.from, "to": a.to, "result": result}))
+        let result = convert(a.value, &a.from, &a.to)?;
+        let summary = format!(
+            "{} {} = {} {}",
+            shown(a.value),
+            a.from.trim(),
+            shown(result),
+            a.to.trim()
+        );
+        Ok(
+            json!({"summary": summary, "value": a.value, "from": a.from, "to": a.to, "result": result}),
+        )
     }
 }
 
@@ -345,13 +360,69 @@ mod tests {
     }
 
     #[test]
-    fn the_grammar_offers_only_units_it_converts() {
-        for u in UNITS {
-            assert!(unit(u).is_some() || to_kelvin(0.0, u).is_some(), "{u}");
-        }
+    fn the_grammar_offers_only_units_it_converts_one_kind_a_call() {
         let live = CalcConvert.live_parameters().unwrap();
-        assert_eq!(live["properties"]["from"]["enum"], json!(UNITS));
-        assert_eq!(live["properties"]["to"]["enum"], json!(UNITS));
+        let branches = live["anyOf"].as_array().unwrap();
+        assert_eq!(branches.len(), kinds().len());
+        for b in branches {
+            let from: Vec<&str> = b["properties"]["from"]["enum"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .map(|u| u.as_str().unwrap())
+                .collect();
+            assert_eq!(
+                b["properties"]["to"]["enum"],
+                b["properties"]["from"]["enum"]
+            );
+            let kind = &unit(from[0]).unwrap().kind;
+            for u in from {
+                assert_eq!(&unit(u).unwrap().kind, kind, "{u}");
+            }
+        }
+        // Every symbol the prompt names is read.
+        for u in [
+            "m", "cm", "km", "in", "ft", "mi", "deg", "rad", "m/s", "km/h", "mph",
+        ] {
+            assert!(unit(u).is_some(), "{u}");
+        }
+        for u in ["kn", "C", "F", "K", "s", "min", "h", "kg", "g", "lb"] {
+            assert!(unit(u).is_some(), "{u}");
+        }
+    }
+
+    #[test]
+    fn units_are_read_in_each_language_and_converted_both_ways() {
+        let close = |a: f64, b: f64| (a - b).abs() < 1e-9 * b.abs().max(1.0);
+        assert!(close(
+            convert(180.0, "Grad", "radianes").unwrap(),
+            std::f64::consts::PI
+        ));
+        assert!(close(convert(1.0, "quilômetros", "m").unwrap(), 1000.0));
+        assert!(close(
+            convert(36.0, "km/h", "mètres par seconde").unwrap(),
+            10.0
+        ));
+        assert!(close(convert(1.0, "nœud", "km/h").unwrap(), 1.852));
+        assert!(close(
+            convert(-40.0, "°F", "grados celsius").unwrap(),
+            -40.0
+        ));
+        assert!(close(convert(0.0, "K", "C").unwrap(), -273.15));
+        assert!(close(convert(2.0, "Stunden", "min").unwrap(), 120.0));
+        let out = run(
+            CalcConvert,
+            json!({"value": 3, "from": "feet", "to": "meters"}),
+        )
+        .unwrap();
+        assert_eq!(out["summary"], "3 feet = 0.9144 meters");
+        assert_eq!(shown(2.0 / 3.0 * 100.0), "66.6667");
+        assert_eq!(shown(1_609_344.0), "1609344");
+        assert_eq!(shown(-0.000_123_456_7), "-0.000123457");
+        for (v, a, b) in [(5.0, "ft", "cm"), (21.5, "C", "F"), (3.0, "lb", "gramm")] {
+            let there = convert(v, a, b).unwrap();
+            assert!(close(convert(there, b, a).unwrap(), v), "{a} {b}");
+        }
     }
 
     fn run<T: Tool>(t: T, args: Value) -> Result<Value, ToolError> {
