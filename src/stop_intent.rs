@@ -8,7 +8,8 @@
 //! "hey", "por favor", "bitte"), it opens with one of its language's stop phrases and says
 //! little more: up to ten more words for a plain stop ("stop it right there"; the stop
 //! said again does not count), up to two for a phrase that also means something else
-//! ("wait", "para", "hold on"). A plain stop also stops when it closes a short sentence
+//! ("wait", "para", "hold on"); a phrase that says wait is no stop when an amount follows
+//! it ("wait 3 seconds" asks for a wait). A plain stop also stops when it closes a short sentence
 //! that does not negate it and is no question ("I said stop", "turtle, halt", not "why
 //! did it stop"). A question stops only when
 //! it asks politely ("can you stop?"), never "why did it stop?" or "brake status?".
@@ -83,6 +84,8 @@ fn word_matches(p: &str, word: &str) -> bool {
 struct Table {
     stop: Vec<Phrase>,
     alone: Vec<Phrase>,
+    /// Phrases that say wait: as `alone`, but an amount after one makes it a wait.
+    wait: Vec<Phrase>,
     never: Vec<Phrase>,
     question: Vec<String>,
     filler: Vec<String>,
@@ -99,6 +102,7 @@ fn table() -> &'static Table {
         // Longest first, so "hold on" is tried before a one-word phrase it begins with.
         t.stop.sort_by_key(|p| std::cmp::Reverse(p.0.len()));
         t.alone.sort_by_key(|p| std::cmp::Reverse(p.0.len()));
+        t.wait.sort_by_key(|p| std::cmp::Reverse(p.0.len()));
         t.never.sort_by_key(|p| std::cmp::Reverse(p.0.len()));
         t
     })
@@ -112,6 +116,7 @@ fn read_table(text: &str, t: &mut Table) {
         None,
         Stop,
         Alone,
+        Wait,
         Never,
         Question,
         Filler,
@@ -124,6 +129,7 @@ fn read_table(text: &str, t: &mut Table) {
         match line {
             "[stop]" => section = Section::Stop,
             "[alone]" => section = Section::Alone,
+            "[wait]" => section = Section::Wait,
             "[never]" => section = Section::Never,
             "[question]" => section = Section::Question,
             "[filler]" => section = Section::Filler,
@@ -132,6 +138,7 @@ fn read_table(text: &str, t: &mut Table) {
                 match section {
                     Section::Stop => t.stop.push(Phrase(words)),
                     Section::Alone => t.alone.push(Phrase(words)),
+                    Section::Wait => t.wait.push(Phrase(words)),
                     Section::Never => t.never.push(Phrase(words)),
                     Section::Question => t.question.extend(words),
                     Section::Filler => t.filler.extend(words),
@@ -206,6 +213,14 @@ fn sentence_stops(text: &str, question: bool) -> bool {
     if let Some(n) = t.alone.iter().find_map(|p| p.opens(words, is_filler)) {
         return after(n) <= MAX_AFTER_ALONE;
     }
+    if let Some(n) = t.wait.iter().find_map(|p| p.opens(words, is_filler)) {
+        // Followed by an amount, a wait is asked for ("wait 3 seconds", "espera 5
+        // segundos"), which an e-stop would have to be reset after.
+        let amount = words.get(n).is_some_and(|w| {
+            w.parse::<f64>().is_ok() || crate::lexicon::number_word(w).is_some()
+        });
+        return !amount && after(n) <= MAX_AFTER_ALONE;
+    }
     closes_with_stop(t, words, &is_filler)
 }
 
@@ -236,7 +251,10 @@ mod tests {
             let mut t = Table::default();
             read_table(text, &mut t);
             assert!(
-                !t.stop.is_empty() && !t.alone.is_empty() && !t.filler.is_empty(),
+                !t.stop.is_empty()
+                    && !t.alone.is_empty()
+                    && !t.wait.is_empty()
+                    && !t.filler.is_empty(),
                 "{code}"
             );
             let mut in_section = false;
@@ -295,6 +313,11 @@ mod tests {
             "para mover el robot hacia adelante hay que publicar"
         ));
         assert!(!asks_to_stop("hold on to the cup with the gripper"));
+        // An amount after one is its other sense: a wait, not a stop.
+        for s in ["wait 10 seconds", "warte zwei Sekunden", "aspetta 4 secondi"] {
+            assert!(!asks_to_stop(s), "{s}");
+        }
+        assert!(asks_to_stop("wait, wait"));
     }
 
     #[test]

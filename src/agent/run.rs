@@ -425,10 +425,10 @@ impl Run<'_> {
         let mut candidates: Vec<&str> = names.iter().map(String::as_str).collect();
         candidates.extend(self.grounds.iter().map(|(t, _)| t.as_str()));
         let mut priors = self.agent.prior(part, &candidates, robot_names);
-        // An amount the part gives in a unit (`bound::writes_a_unit`) is for the tool
-        // that converts it, after its call as before it (`select::hold_to_written` on
-        // the first step): a conversion asked in Portuguese was followed by junk
-        // arithmetic over its result, which the words met better.
+        // Once the tool that converts an amount the part asks to convert has answered
+        // (`bound::asks_a_conversion`), it holds the lead it had on the first step
+        // (`select::hold_to_written`): a conversion asked in Portuguese was followed by
+        // junk arithmetic over its result, which the words met better.
         let registry = self.agent.exec.registry();
         let converts: Vec<bool> = candidates
             .iter()
@@ -436,10 +436,17 @@ impl Run<'_> {
                 registry
                     .get(c)
                     .and_then(|t| t.live_spec())
-                    .is_some_and(|s| crate::reading::bound::writes_a_unit(&s.parameters, part))
+                    .is_some_and(|s| crate::reading::bound::asks_a_conversion(&s.parameters, part))
             })
             .collect();
-        crate::reading::select::hold_to_written(&mut priors, &candidates, &converts, ANSWER_TOOL);
+        if converts[names.len()..].iter().any(|c| *c) {
+            crate::reading::select::hold_to_written(
+                &mut priors,
+                &candidates,
+                &converts,
+                ANSWER_TOOL,
+            );
+        }
         let (offered, done) = priors.split_at(names.len());
         let further = crate::reading::select::beyond(offered, done);
         let part_acts = {

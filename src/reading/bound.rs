@@ -192,17 +192,35 @@ fn unit_spellings(schema: &Value) -> Vec<String> {
         .collect()
 }
 
-/// Whether `request` writes, right after a number, a unit that a `from` argument of
-/// `schema` (marked `UNIT`) names: "5 Meilen" asks for the tool that converts miles.
-pub(crate) fn writes_a_unit(schema: &Value, request: &str) -> bool {
+/// Whether `request` asks to convert an amount in one unit of `schema`'s (a `from`
+/// argument marked `UNIT`) into another of its kind: it writes the one right after a
+/// number and the other apart ("how many meters are 5 Meilen?"). An amount in a unit
+/// alone is no such request: it says how far to drive or turn as often.
+pub(crate) fn asks_a_conversion(schema: &Value, request: &str) -> bool {
     let spellings = unit_spellings(schema);
     if spellings.is_empty() {
         return false;
     }
     let tokens = unit_tokens(request);
-    units_written(&tokens, &spellings)
+    let written = units_written(&tokens, &spellings);
+    let branches: Vec<&Value> = match schema.get("anyOf").and_then(Value::as_array) {
+        Some(b) => b.iter().collect(),
+        None => vec![schema],
+    };
+    branches
         .iter()
-        .any(|w| w.at > 0 && unit_number(&tokens[w.at - 1]))
+        .filter_map(|b| b["properties"].as_object())
+        .flat_map(|props| props.values())
+        .filter(|p| p.get(UNIT).and_then(Value::as_str) == Some("from"))
+        .filter_map(|p| p["enum"].as_array())
+        .any(|kind| {
+            let kind: Vec<String> = kind
+                .iter()
+                .filter_map(|s| Some(s.as_str()?.to_string()))
+                .collect();
+            let (from, to) = units_asked(&kind, &tokens, &written);
+            !from.is_empty() && !to.is_empty()
+        })
 }
 
 /// `hold_units` in one object, given the units the request writes: `None` when it has
@@ -229,9 +247,33 @@ fn hold_branch_units(
         .iter()
         .filter_map(|s| Some(s.as_str()?.to_string()))
         .collect();
+    let (from, mut to) = units_asked(&spellings, tokens, written);
+    if from.is_empty() {
+        return Some(false);
+    }
+    if to.is_empty() {
+        to = spellings
+            .into_iter()
+            .filter(|s| !from.contains(s))
+            .collect();
+    }
+    props[&from_key]["enum"] = json!(from);
+    if let Some(k) = to_key.filter(|_| !to.is_empty()) {
+        props[&k]["enum"] = json!(to);
+    }
+    Some(true)
+}
+
+/// Of the units `written` in `tokens`, those of `spellings` (one kind's) that the
+/// request converts from (written right after a number) and to (the others, but a
+/// unit word between another unit and a number or a unit, which joins them: the "in"
+/// of "3 feet in meters", "meters in 3 feet").
+fn units_asked(
+    spellings: &[String],
+    tokens: &[String],
+    written: &[WrittenUnit],
+) -> (Vec<String>, Vec<String>) {
     let after_number = |w: &WrittenUnit| w.at > 0 && unit_number(&tokens[w.at - 1]);
-    // A unit word between another unit and a number or a unit joins them (the "in" of
-    // "3 feet in meters", "meters in 3 feet"): it is not the unit asked for.
     let joins = |i: usize| {
         let w = &written[i];
         let after_unit = i > 0 && written[i - 1].at + written[i - 1].len == w.at;
@@ -254,21 +296,8 @@ fn hold_branch_units(
             to.push(w.spelling.clone());
         }
     }
-    if from.is_empty() {
-        return Some(false);
-    }
     to.retain(|s| !from.contains(s));
-    if to.is_empty() {
-        to = spellings
-            .into_iter()
-            .filter(|s| !from.contains(s))
-            .collect();
-    }
-    props[&from_key]["enum"] = json!(from);
-    if let Some(k) = to_key.filter(|_| !to.is_empty()) {
-        props[&k]["enum"] = json!(to);
-    }
-    Some(true)
+    (from, to)
 }
 
 /// A unit a request writes: at which token, in how many, and the schema's spelling.

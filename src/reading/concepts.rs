@@ -22,7 +22,7 @@ use std::sync::OnceLock;
 
 use serde::Deserialize;
 
-use crate::lexicon::folded_words;
+use crate::lexicon::{folded_words, number_word};
 
 /// Something a request may ask the robot to do. Named in the word files in lowercase
 /// (`[acts.move]`).
@@ -112,6 +112,7 @@ struct WordFile {
     #[serde(default)]
     acts: BTreeMap<Act, Section>,
     stop_at_start: Option<Section>,
+    wait_at_start: Option<Section>,
     negation: Option<Section>,
     question: Option<Section>,
     conjunction: Option<Section>,
@@ -137,6 +138,9 @@ struct Words {
     /// also "for", "halte" a German filler, "pare" Portuguese for "stop" and Spanish for
     /// "seem").
     stop_at_start: BTreeSet<String>,
+    /// Words that say wait: a stop at a clause's start as `stop_at_start`, unless an
+    /// amount follows ("wait 3 seconds" asks for a wait).
+    wait_at_start: BTreeSet<String>,
     /// Words that make a clause a negation.
     negations: BTreeSet<String>,
     /// Words that open a question about the world (not a request).
@@ -169,6 +173,7 @@ impl Words {
         }
         for (into, section) in [
             (&mut self.stop_at_start, file.stop_at_start),
+            (&mut self.wait_at_start, file.wait_at_start),
             (&mut self.negations, file.negation),
             (&mut self.question_words, file.question),
             (&mut self.conjunctions, file.conjunction),
@@ -233,6 +238,14 @@ pub(crate) fn word_matches(word: &str, prefix: &str) -> bool {
     }
 }
 
+/// Whether `first`, opening a clause, asks the robot to stop (`stop_at_start`), or says
+/// wait with no amount (`next`) after it (`wait_at_start`).
+fn stops_at_start(table: &Words, first: &str, next: Option<&String>) -> bool {
+    let amount = |w: &&String| w.parse::<f64>().is_ok() || number_word(w).is_some();
+    table.stop_at_start.contains(first)
+        || (table.wait_at_start.contains(first) && !next.is_some_and(|n| amount(&n)))
+}
+
 /// The acts `words` (folded) name.
 pub(crate) fn acts_of(words: &[String]) -> Vec<Act> {
     let table = table();
@@ -246,10 +259,7 @@ pub(crate) fn acts_of(words: &[String]) -> Vec<Act> {
         })
         .map(|(a, _)| *a)
         .collect();
-    if words
-        .first()
-        .is_some_and(|w| table.stop_at_start.contains(w.as_str()))
-    {
+    if words.first().is_some_and(|w| stops_at_start(table, w, words.get(1))) {
         acts.push(Act::Stop);
     }
     acts.sort();
@@ -336,7 +346,7 @@ fn push_clause(
         .any(|w| table.question_words.contains(w.as_str()) || table.tell.contains(w.as_str()))
         && !words
             .first()
-            .is_some_and(|w| table.stop_at_start.contains(w.as_str()));
+            .is_some_and(|w| stops_at_start(table, w, words.get(1)));
     let inherited = carried.filter(|_| !contrast);
     let mood = if negated || inherited == Some(Mood::Forbidden) {
         Mood::Forbidden
@@ -467,8 +477,13 @@ mod tests {
                 .into_iter()
                 .map(|(a, s)| (format!("acts.{a:?}"), s.words))
                 .collect();
+            // A language may have no stop word too ambiguous to count but at a
+            // clause's start.
+            if let Some(section) = file.stop_at_start {
+                sections.push(("stop_at_start".to_string(), section.words));
+            }
             for (name, section) in [
-                ("stop_at_start", file.stop_at_start),
+                ("wait_at_start", file.wait_at_start),
                 ("negation", file.negation),
                 ("question", file.question),
                 ("conjunction", file.conjunction),
@@ -594,6 +609,10 @@ mod tests {
             asks_to_stop("para la tortuga") && asks_to_stop("arrête") && asks_to_stop("Stopp!")
         );
         assert!(!asks_to_stop("avanza 2 metros para probar"));
+        // A wait with an amount is a wait; without one, a stop.
+        assert!(!operator_stops("wait 20 seconds, then take a picture"));
+        assert!(!operator_stops("aspetta 2 secondi"));
+        assert!(operator_stops("wait, the cable is caught") && operator_stops("warte!"));
         assert!(asked("¿dónde se encuentra el robot ahora?").is_empty());
     }
 }

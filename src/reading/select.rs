@@ -502,10 +502,10 @@ fn live_values(live: &ToolSpec, declared: Option<&ToolSpec>) -> Vec<String> {
 
 /// Per tool of `live` (the candidates as the robot can take them now; `declared`, the
 /// tools as declared), whether it takes a name `part` writes whole in the shape of a ROS
-/// name (`bound::written_names`) among its live values, or a quantity in one of the
-/// units it converts (`bound::writes_a_unit`: "5 Meilen"). A request that names a
-/// parameter or a topic, or gives an amount in a unit, asks for a tool that can be
-/// given it.
+/// name (`bound::written_names`) among its live values, or asks it to convert an
+/// amount between two of its units (`bound::asks_a_conversion`: "wie viele Meter sind 5
+/// Meilen?"). A request that names a parameter or a topic, or an amount to convert,
+/// asks for a tool that can be given it.
 pub(crate) fn takes_written(part: &str, live: &[ToolSpec], declared: &[ToolSpec]) -> Vec<bool> {
     let written = written_bare(part);
     live.iter()
@@ -514,7 +514,7 @@ pub(crate) fn takes_written(part: &str, live: &[ToolSpec], declared: &[ToolSpec]
                 && live_values(spec, declared.iter().find(|d| d.name == spec.name))
                     .iter()
                     .any(|v| written.iter().any(|w| w == bare(v)));
-            named || super::bound::writes_a_unit(&spec.parameters, part)
+            named || super::bound::asks_a_conversion(&spec.parameters, part)
         })
         .collect()
 }
@@ -892,7 +892,7 @@ mod tests {
     }
 
     #[test]
-    fn an_amount_in_a_unit_holds_the_pick_to_the_tool_that_converts_it() {
+    fn an_amount_to_convert_holds_the_pick_to_the_tool_that_converts_it() {
         let declared = vec![
             spec(
                 "stats",
@@ -910,14 +910,14 @@ mod tests {
             "value": {"type": "number"},
             "from": {"type": "string", "enum": ["yd", "yards", "Ellen"], "x-unit": "from"}}});
         assert_eq!(
-            takes_written("und wie viele sind 7 Ellen?", &live, &declared),
+            takes_written("und wie viele Yards sind 7 Ellen?", &live, &declared),
             [false, true]
         );
-        // A unit named without an amount is no amount to convert.
-        assert_eq!(
-            takes_written("are yards longer than a mile?", &live, &declared),
-            [false, false]
-        );
+        // A unit named without an amount is no amount to convert, nor is an amount in
+        // one unit alone (how far to go).
+        for request in ["are yards longer than ells?", "geh 7 Ellen vor"] {
+            assert_eq!(takes_written(request, &live, &declared), [false, false]);
+        }
     }
 
     #[test]
