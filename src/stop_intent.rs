@@ -216,9 +216,9 @@ fn sentence_stops(text: &str, question: bool) -> bool {
     if let Some(n) = t.wait.iter().find_map(|p| p.opens(words, is_filler)) {
         // Followed by an amount, a wait is asked for ("wait 3 seconds", "espera 5
         // segundos"), which an e-stop would have to be reset after.
-        let amount = words.get(n).is_some_and(|w| {
-            w.parse::<f64>().is_ok() || crate::lexicon::number_word(w).is_some()
-        });
+        let amount = words
+            .get(n)
+            .is_some_and(|w| w.parse::<f64>().is_ok() || crate::lexicon::number_word(w).is_some());
         return !amount && after(n) <= MAX_AFTER_ALONE;
     }
     closes_with_stop(t, words, &is_filler)
@@ -314,7 +314,11 @@ mod tests {
         ));
         assert!(!asks_to_stop("hold on to the cup with the gripper"));
         // An amount after one is its other sense: a wait, not a stop.
-        for s in ["wait 10 seconds", "warte zwei Sekunden", "aspetta 4 secondi"] {
+        for s in [
+            "wait 10 seconds",
+            "warte zwei Sekunden",
+            "aspetta 4 secondi",
+        ] {
             assert!(!asks_to_stop(s), "{s}");
         }
         assert!(asks_to_stop("wait, wait"));

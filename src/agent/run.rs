@@ -424,29 +424,7 @@ impl Run<'_> {
         let part = &self.parts[self.part];
         let mut candidates: Vec<&str> = names.iter().map(String::as_str).collect();
         candidates.extend(self.grounds.iter().map(|(t, _)| t.as_str()));
-        let mut priors = self.agent.prior(part, &candidates, robot_names);
-        // Once the tool that converts an amount the part asks to convert has answered
-        // (`bound::asks_a_conversion`), it holds the lead it had on the first step
-        // (`select::hold_to_written`): a conversion asked in Portuguese was followed by
-        // junk arithmetic over its result, which the words met better.
-        let registry = self.agent.exec.registry();
-        let converts: Vec<bool> = candidates
-            .iter()
-            .map(|c| {
-                registry
-                    .get(c)
-                    .and_then(|t| t.live_spec())
-                    .is_some_and(|s| crate::reading::bound::asks_a_conversion(&s.parameters, part))
-            })
-            .collect();
-        if converts[names.len()..].iter().any(|c| *c) {
-            crate::reading::select::hold_to_written(
-                &mut priors,
-                &candidates,
-                &converts,
-                ANSWER_TOOL,
-            );
-        }
+        let priors = self.agent.prior(part, &candidates, robot_names);
         let (offered, done) = priors.split_at(names.len());
         let further = crate::reading::select::beyond(offered, done);
         let part_acts = {
@@ -455,6 +433,7 @@ impl Run<'_> {
                 .iter()
                 .any(|a| !matches!(a, Act::Stop | Act::Fence))
         };
+        let registry = self.agent.exec.registry();
         let acts = |n: &str| {
             registry
                 .get(n)

@@ -324,12 +324,22 @@ impl Agent {
         let specs = self.retrievable();
         let names = self.with_parameters(&specs, &self.robot_names());
         let sims = self.similarities(query, &specs, &names);
+        // A tool asked to convert an amount the request gives is offered whatever its
+        // words' score (`converts`): an Italian "how many kilometers are 10 miles" met
+        // the statistics and the rates before it.
+        let candidates: Vec<&str> = specs.iter().map(|s| s.name.as_str()).collect();
+        let mut always = self.config.always_on.clone();
+        for (name, converts) in candidates.iter().zip(self.converts(query, &candidates)) {
+            if converts && !always.iter().any(|a| a == name) {
+                always.push(name.to_string());
+            }
+        }
         let chosen = select::select(
             query,
             &specs,
             &names,
             sims.as_deref(),
-            &self.config.always_on,
+            &always,
             self.config.tool_budget_tokens,
             |s| self.tokens(&Envelope::describe_tool(s)),
         );
@@ -347,14 +357,41 @@ impl Agent {
         let specs = self.retrievable();
         let names = &self.with_parameters(&specs, names);
         let sims = self.similarities(part, &specs, names);
-        select::prior(
+        let mut prior = select::prior(
             part,
             &specs,
             names,
             sims.as_deref(),
             candidates,
             ANSWER_TOOL,
-        )
+        );
+        // An amount to convert is for the tool that converts it, on the first step and
+        // after its call alike (`Run::settled` reads the same prior): a conversion asked
+        // in Portuguese was followed by arithmetic over its result.
+        let converts = self.converts(part, candidates);
+        select::hold_to_conversion(&mut prior, candidates, &converts, ANSWER_TOOL);
+        prior
+    }
+
+    /// Per candidate, whether `part` asks it to convert an amount it gives between two
+    /// of its units (`bound::asks_a_conversion`, on the tool's live schema). None does
+    /// when the part gives no number, or asks for an act ("move forward 50 centimeters,
+    /// not meters").
+    fn converts(&self, part: &str, candidates: &[&str]) -> Vec<bool> {
+        use crate::reading::concepts::{asked_acts, clauses};
+        if crate::lexicon::numbers(part).is_empty() || !asked_acts(&clauses(part)).is_empty() {
+            return vec![false; candidates.len()];
+        }
+        let registry = self.exec.registry();
+        candidates
+            .iter()
+            .map(|c| {
+                registry
+                    .get(c)
+                    .and_then(|t| t.live_spec())
+                    .is_some_and(|s| crate::reading::bound::asks_a_conversion(&s.parameters, part))
+            })
+            .collect()
     }
 
     /// Each of `specs`' similarity to `text` by meaning, with the sentence encoder

@@ -1187,6 +1187,18 @@ mod tests {
                 json!(["m", "meters", "in", "yd", "yards"])
             )]
         );
+        // Asked to convert: an amount in one unit and another of its kind; an amount in
+        // one unit alone says how far to go.
+        let schema = &specs[0].parameters;
+        assert!(asks_a_conversion(schema, "how many meters is 12 yards?"));
+        assert!(asks_a_conversion(schema, "30 Grad Celsius in Kelvin"));
+        for request in [
+            "drive 12 yards",
+            "convert meters to yards",
+            "12 yards and 3 m",
+        ] {
+            assert!(!asks_a_conversion(schema, request), "{request}");
+        }
         // No unit after a number: as declared, less the marks.
         assert_eq!(held("convert meters to yards").len(), 3);
         assert_eq!(

@@ -259,7 +259,10 @@ pub(crate) fn acts_of(words: &[String]) -> Vec<Act> {
         })
         .map(|(a, _)| *a)
         .collect();
-    if words.first().is_some_and(|w| stops_at_start(table, w, words.get(1))) {
+    if words
+        .first()
+        .is_some_and(|w| stops_at_start(table, w, words.get(1)))
+    {
         acts.push(Act::Stop);
     }
     acts.sort();
