@@ -9,7 +9,7 @@
 //! little more: up to ten more words for a plain stop ("stop it right there"; the stop
 //! said again does not count), up to two for a phrase that also means something else
 //! ("wait", "para", "hold on"); a phrase that says wait is no stop when an amount follows
-//! it ("wait 3 seconds" asks for a wait). A plain stop also stops when it closes a short sentence
+//! it ("wait 40 seconds" asks for a wait). A plain stop also stops when it closes a short sentence
 //! that does not negate it and is no question ("I said stop", "turtle, halt", not "why
 //! did it stop"). A question stops only when
 //! it asks politely ("can you stop?"), never "why did it stop?" or "brake status?".
@@ -214,7 +214,7 @@ fn sentence_stops(text: &str, question: bool) -> bool {
         return after(n) <= MAX_AFTER_ALONE;
     }
     if let Some(n) = t.wait.iter().find_map(|p| p.opens(words, is_filler)) {
-        // Followed by an amount, a wait is asked for ("wait 3 seconds", "espera 5
+        // Followed by an amount, a wait is asked for ("wait 40 seconds", "espera 5
         // segundos"), which an e-stop would have to be reset after.
         let amount = words
             .get(n)

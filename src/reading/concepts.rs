@@ -139,7 +139,7 @@ struct Words {
     /// "seem").
     stop_at_start: BTreeSet<String>,
     /// Words that say wait: a stop at a clause's start as `stop_at_start`, unless an
-    /// amount follows ("wait 3 seconds" asks for a wait).
+    /// amount follows ("wait 40 seconds" asks for a wait).
     wait_at_start: BTreeSet<String>,
     /// Words that make a clause a negation.
     negations: BTreeSet<String>,
