@@ -194,6 +194,12 @@ pub(crate) fn number_word(w: &str) -> Option<f64> {
     NUMBER_WORDS.iter().find(|(x, _)| *x == w).map(|&(_, v)| v)
 }
 
+/// Whether one word is a number: digits (a decimal point or comma, a sign) or a number
+/// word ("3", "1,5", "-40", "drei").
+pub(crate) fn is_number(w: &str) -> bool {
+    w.replace(',', ".").parse::<f64>().is_ok() || number_word(w).is_some()
+}
+
 /// Every number `text` spells, in order: digits (with a sign, digit groups, decimals
 /// and exponents; a negative number also counts as its magnitude, since "-3" is often
 /// said of a 3) and number words.

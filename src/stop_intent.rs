@@ -216,9 +216,7 @@ fn sentence_stops(text: &str, question: bool) -> bool {
     if let Some(n) = t.wait.iter().find_map(|p| p.opens(words, is_filler)) {
         // Followed by an amount, a wait is asked for ("wait 40 seconds", "espera 5
         // segundos"), which an e-stop would have to be reset after.
-        let amount = words
-            .get(n)
-            .is_some_and(|w| w.parse::<f64>().is_ok() || crate::lexicon::number_word(w).is_some());
+        let amount = words.get(n).is_some_and(|w| crate::lexicon::is_number(w));
         return !amount && after(n) <= MAX_AFTER_ALONE;
     }
     closes_with_stop(t, words, &is_filler)

@@ -22,7 +22,7 @@ use std::collections::{BTreeMap, BTreeSet};
 
 use serde_json::{json, Value};
 
-use crate::lexicon::{folded_words, number_word};
+use crate::lexicon::{folded_words, is_number};
 use crate::tool::schema::{QUOTE, UNIT};
 use crate::tool::ToolSpec;
 
@@ -156,7 +156,7 @@ const UNIT_WORDS: usize = 4;
 /// reverses the two at times (10 km/h asked in m/s went m/s → km/h). A request with no
 /// unit after a number leaves them as they are; the marks go either way.
 fn hold_units(schema: &mut Value, request: &str) {
-    let spellings = unit_spellings(schema);
+    let spellings = unit_kinds(schema).concat();
     if spellings.is_empty() {
         return;
     }
@@ -176,33 +176,9 @@ fn hold_units(schema: &mut Value, request: &str) {
     }
 }
 
-/// Every unit a schema's `from` arguments (marked `UNIT`) name, in all its branches.
-fn unit_spellings(schema: &Value) -> Vec<String> {
-    let branches: Vec<&Value> = match schema.get("anyOf").and_then(Value::as_array) {
-        Some(b) => b.iter().collect(),
-        None => vec![schema],
-    };
-    branches
-        .iter()
-        .filter_map(|b| b["properties"].as_object())
-        .flat_map(|props| props.values())
-        .filter(|p| p.get(UNIT).and_then(Value::as_str) == Some("from"))
-        .flat_map(|p| p["enum"].as_array().into_iter().flatten())
-        .filter_map(|s| Some(s.as_str()?.to_string()))
-        .collect()
-}
-
-/// Whether `request` asks to convert an amount in one unit of `schema`'s (a `from`
-/// argument marked `UNIT`) into another of its kind: it writes the one right after a
-/// number and the other apart ("how many meters are 5 Meilen?"). An amount in a unit
-/// alone is no such request: it says how far to drive or turn as often.
-pub(crate) fn asks_a_conversion(schema: &Value, request: &str) -> bool {
-    let spellings = unit_spellings(schema);
-    if spellings.is_empty() {
-        return false;
-    }
-    let tokens = unit_tokens(request);
-    let written = units_written(&tokens, &spellings);
+/// The units each `from` argument (marked `UNIT`) of `schema` takes, a list a branch:
+/// one kind of quantity each.
+fn unit_kinds(schema: &Value) -> Vec<Vec<String>> {
     let branches: Vec<&Value> = match schema.get("anyOf").and_then(Value::as_array) {
         Some(b) => b.iter().collect(),
         None => vec![schema],
@@ -213,14 +189,29 @@ pub(crate) fn asks_a_conversion(schema: &Value, request: &str) -> bool {
         .flat_map(|props| props.values())
         .filter(|p| p.get(UNIT).and_then(Value::as_str) == Some("from"))
         .filter_map(|p| p["enum"].as_array())
-        .any(|kind| {
-            let kind: Vec<String> = kind
-                .iter()
+        .map(|kind| {
+            kind.iter()
                 .filter_map(|s| Some(s.as_str()?.to_string()))
-                .collect();
-            let (from, to) = units_asked(&kind, &tokens, &written);
-            !from.is_empty() && !to.is_empty()
+                .collect()
         })
+        .collect()
+}
+
+/// Whether `request` asks to convert an amount in one unit of `schema`'s (a `from`
+/// argument marked `UNIT`) into another of its kind: it writes the one right after a
+/// number and the other apart ("how many meters are 5 Meilen?"). An amount in a unit
+/// alone is no such request: it says how far to drive or turn as often.
+pub(crate) fn asks_a_conversion(schema: &Value, request: &str) -> bool {
+    let kinds = unit_kinds(schema);
+    if kinds.is_empty() {
+        return false;
+    }
+    let tokens = unit_tokens(request);
+    let written = units_written(&tokens, &kinds.concat());
+    kinds.iter().any(|kind| {
+        let (from, to) = units_asked(kind, &tokens, &written);
+        !from.is_empty() && !to.is_empty()
+    })
 }
 
 /// `hold_units` in one object, given the units the request writes: `None` when it has
@@ -273,12 +264,12 @@ fn units_asked(
     tokens: &[String],
     written: &[WrittenUnit],
 ) -> (Vec<String>, Vec<String>) {
-    let after_number = |w: &WrittenUnit| w.at > 0 && unit_number(&tokens[w.at - 1]);
+    let after_number = |w: &WrittenUnit| w.at > 0 && is_number(&tokens[w.at - 1]);
     let joins = |i: usize| {
         let w = &written[i];
         let after_unit = i > 0 && written[i - 1].at + written[i - 1].len == w.at;
         let next = w.at + w.len;
-        let before = tokens.get(next).is_some_and(|t| unit_number(t))
+        let before = tokens.get(next).is_some_and(|t| is_number(t))
             || written.get(i + 1).is_some_and(|n| n.at == next);
         after_unit && before
     };
@@ -339,11 +330,6 @@ fn units_written(tokens: &[String], spellings: &[String]) -> Vec<WrittenUnit> {
     out
 }
 
-/// Whether a unit token is a number ("3", "1,5", "-40", "drei").
-fn unit_number(t: &str) -> bool {
-    t.replace(',', ".").parse::<f64>().is_ok() || number_word(t).is_some()
-}
-
 /// `text` folded and cut into the tokens units are read from: words, numbers, and
 /// symbols with a slash or a degree sign ("km/h", "°c"); a number written against its
 /// unit is two ("10km" → 10, km).
@@ -375,10 +361,9 @@ fn unit_tokens(text: &str) -> Vec<String> {
 /// "theta=90", "width: 3", "x tres").
 pub(crate) fn given_fields(request: &str) -> BTreeSet<String> {
     let words = folded_words(request);
-    let number = |w: &str| w.parse::<f64>().is_ok() || number_word(w).is_some();
     words
         .windows(2)
-        .filter(|p| number(&p[1]) && !number(&p[0]))
+        .filter(|p| is_number(&p[1]) && !is_number(&p[0]))
         .map(|p| p[0].clone())
         .collect()
 }

@@ -22,7 +22,7 @@ use std::sync::OnceLock;
 
 use serde::Deserialize;
 
-use crate::lexicon::{folded_words, number_word};
+use crate::lexicon::{folded_words, is_number};
 
 /// Something a request may ask the robot to do. Named in the word files in lowercase
 /// (`[acts.move]`).
@@ -241,9 +241,8 @@ pub(crate) fn word_matches(word: &str, prefix: &str) -> bool {
 /// Whether `first`, opening a clause, asks the robot to stop (`stop_at_start`), or says
 /// wait with no amount (`next`) after it (`wait_at_start`).
 fn stops_at_start(table: &Words, first: &str, next: Option<&String>) -> bool {
-    let amount = |w: &&String| w.parse::<f64>().is_ok() || number_word(w).is_some();
     table.stop_at_start.contains(first)
-        || (table.wait_at_start.contains(first) && !next.is_some_and(|n| amount(&n)))
+        || (table.wait_at_start.contains(first) && !next.is_some_and(|n| is_number(n)))
 }
 
 /// The acts `words` (folded) name.

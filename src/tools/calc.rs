@@ -252,6 +252,30 @@ fn convert(value: f64, from: &str, to: &str) -> Result<f64, ToolError> {
     Ok((value + a.offset) * a.factor / b.factor - b.offset)
 }
 
+/// `calc_convert`'s live schema: one branch a kind (`CalcConvert::live_parameters`).
+fn live_units() -> Value {
+    let branches: Vec<Value> = kinds()
+        .into_iter()
+        .map(|kind| {
+            let units = spellings(kind);
+            let unit = |what: &str, role: &str| {
+                json!({"type": "string", "enum": units, "description": what, UNIT: role})
+            };
+            json!({
+                "type": "object",
+                "properties": {
+                    "value": {"type": "number"},
+                    "from": unit("Unit of `value`.", "from"),
+                    "to": unit("Unit to convert to (same kind as `from`).", "to"),
+                },
+                "required": ["value", "from", "to"],
+                "additionalProperties": false,
+            })
+        })
+        .collect();
+    json!({ "anyOf": branches })
+}
+
 impl Tool for CalcConvert {
     type Args = ConvertArgs;
     const NAME: &'static str = "calc_convert";
@@ -265,28 +289,11 @@ impl Tool for CalcConvert {
     /// (`spellings`): a call converts between units of one kind by construction. `from`
     /// is marked the unit of the value and `to` the unit it goes to (`UNIT`), so the
     /// request's own "3 feet" gives `from` (`reading::bound`). The prompt still shows
-    /// them as text.
+    /// them as text. Built once: the units never change, and the agent reads the live
+    /// schema on every step.
     fn live_parameters(&self) -> Option<Value> {
-        let branches: Vec<Value> = kinds()
-            .into_iter()
-            .map(|kind| {
-                let units = spellings(kind);
-                let unit = |what: &str, role: &str| {
-                    json!({"type": "string", "enum": units, "description": what, UNIT: role})
-                };
-                json!({
-                    "type": "object",
-                    "properties": {
-                        "value": {"type": "number"},
-                        "from": unit("Unit of `value`.", "from"),
-                        "to": unit("Unit to convert to (same kind as `from`).", "to"),
-                    },
-                    "required": ["value", "from", "to"],
-                    "additionalProperties": false,
-                })
-            })
-            .collect();
-        Some(json!({ "anyOf": branches }))
+        static LIVE: std::sync::OnceLock<Value> = std::sync::OnceLock::new();
+        Some(LIVE.get_or_init(live_units).clone())
     }
 
     async fn call(&self, a: ConvertArgs, _: &ToolContext) -> Result<Value, ToolError> {
