@@ -10,7 +10,12 @@
 # HTTPS, and with llguidance, so it enforces Lark grammars: llama.cpp's build would clone
 # llguidance from GitHub, so the crate's source from crates.io (the version ferrosa's own
 # Cargo.lock pins, already in cargo's registry after `cargo build`) is put where that
-# clone would go. Needs python3 with pip, cmake, a C++ compiler and cargo (.ci/setup).
+# clone would go. On x86-64 it is built without AMX, as ferrosa's own llama.cpp is
+# (.cargo/config.toml): with GGML_NATIVE on a CPU that has AMX, ggml's AMX kernel dies on
+# the first decode of the default model (SIGILL or SIGSEGV in tinygemm_kernel_amx, measured
+# here), and the speed reference must use the instruction set ferrosa uses. A build made
+# with other flags is rebuilt. Needs python3 with pip, cmake, a C++ compiler and cargo
+# (.ci/setup).
 set -euo pipefail
 target=${1:?usage: scripts/build-llama-cpp.sh llama-bench|llama-server}
 case "$target" in
@@ -22,6 +27,12 @@ version=0.3.36
 dir=target/llama-bench
 src="$dir/llama_cpp_python-$version/vendor/llama.cpp"
 bin="$src/build/bin/$target"
+flags=""
+[ "$(uname -m)" = x86_64 ] && flags="-mno-amx-tile -mno-amx-int8 -mno-amx-bf16"
+stamp="$src/build/ferrosa-flags"
+if [ -d "$src/build" ] && [ "$(cat "$stamp" 2>/dev/null)" != "flags: $flags" ]; then
+    rm -rf "$src/build"
+fi
 if [ ! -x "$bin" ]; then
     mkdir -p "$dir"
     if [ ! -f "$dir/llama_cpp_python-$version.tar.gz" ]; then
@@ -42,7 +53,9 @@ if [ ! -x "$bin" ]; then
     [ -d "$src/build/llguidance/source" ] || cp -r "$llg_src" "$src/build/llguidance/source"
     cmake -S "$src" -B "$src/build" -DCMAKE_BUILD_TYPE=Release -DLLAMA_CURL=OFF \
         -DLLAMA_BUILD_TESTS=OFF -DLLAMA_USE_PREBUILT_UI=OFF -DLLAMA_BUILD_UI=OFF \
-        -DLLAMA_OPENSSL=OFF -DLLAMA_LLGUIDANCE=ON >"$dir/cmake.log"
+        -DLLAMA_OPENSSL=OFF -DLLAMA_LLGUIDANCE=ON \
+        -DCMAKE_C_FLAGS="$flags" -DCMAKE_CXX_FLAGS="$flags" >"$dir/cmake.log"
+    echo "flags: $flags" >"$stamp"
     cmake --build "$src/build" -j"$(nproc)" --target "$target" >"$dir/build-$target.log" 2>&1 || {
         tail -30 "$dir/build-$target.log" >&2
         exit 1
