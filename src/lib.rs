@@ -70,3 +70,4 @@ pub mod tool;
 pub mod tools;
 pub mod turn;
 pub mod ui;
+pub mod units;

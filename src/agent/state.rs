@@ -370,7 +370,42 @@ impl Agent {
         // in Portuguese was followed by arithmetic over its result.
         let converts = self.converts(part, candidates);
         select::hold_to_conversion(&mut prior, candidates, &converts, ANSWER_TOOL);
+        let acting = self.acts_on_amounts(part, candidates);
+        select::hold_to_conversion(&mut prior, candidates, &acting, ANSWER_TOOL);
         prior
+    }
+
+    /// Per candidate, whether it converts no units, when `part` asks for an act and a
+    /// candidate that converts none takes an amount the part writes in its argument's
+    /// own unit (`amount::takes`); all false otherwise. "Drive 2 feet at 1.8 km/h" is a
+    /// drive whose amounts the grammar converts (`reading::amount`): the converter its
+    /// unit words point at had been called after the drive, and its result answered.
+    fn acts_on_amounts(&self, part: &str, candidates: &[&str]) -> Vec<bool> {
+        use crate::reading::concepts::{asked_acts, clauses};
+        let none = vec![false; candidates.len()];
+        let amounts = crate::units::amounts(part);
+        if amounts.is_empty() || asked_acts(&clauses(part)).is_empty() {
+            return none;
+        }
+        let registry = self.exec.registry();
+        let read: Vec<(bool, bool)> = candidates
+            .iter()
+            .map(|c| {
+                let spec = registry
+                    .get(c)
+                    .map(|t| t.live_spec().unwrap_or_else(|| t.spec().clone()));
+                spec.map_or((false, false), |s| {
+                    (
+                        crate::reading::bound::converts_units(&s.parameters),
+                        crate::reading::amount::takes(&s.parameters, &amounts),
+                    )
+                })
+            })
+            .collect();
+        if !read.iter().any(|&(converts, takes)| takes && !converts) {
+            return none;
+        }
+        read.iter().map(|&(converts, _)| !converts).collect()
     }
 
     /// Per candidate, whether `part` asks it to convert an amount it gives between two

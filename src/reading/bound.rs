@@ -25,6 +25,7 @@ use serde_json::{json, Value};
 use crate::lexicon::{folded_words, is_number};
 use crate::tool::schema::{QUOTE, UNIT};
 use crate::tool::ToolSpec;
+use crate::units::{unit_tokens, units_written, WrittenUnit};
 
 /// `specs` with each name argument held to the `names` (key, name) of its key that
 /// `request`'s words point at (`pointed`) and the names `request` writes
@@ -63,6 +64,7 @@ pub fn bind(
         .cloned()
         .collect();
     let (names, met) = pointing(&names, &[request], &written, near);
+    let amounts = crate::units::amounts(request);
     let held = Held {
         names: &names,
         every: &every,
@@ -79,6 +81,7 @@ pub fn bind(
             require_given(&mut spec.parameters, &given, 0);
             quote(&mut spec.parameters, request);
             hold_units(&mut spec.parameters, request);
+            let _ = super::amount::hold(&mut spec.parameters, &amounts);
             cap_free(&mut spec.parameters, request);
             spec
         })
@@ -146,9 +149,6 @@ fn quote(schema: &mut Value, request: &str) {
     }
 }
 
-/// Most words a unit's name is written in ("kilómetros por hora", "chilometri all'ora").
-const UNIT_WORDS: usize = 4;
-
 /// The unit arguments of `schema` (marked `UNIT`) held to the units `request` writes:
 /// `from` to the unit written right after a number ("3 feet", "10km/h", "20 Grad
 /// Celsius"), `to` to the other units of that kind it writes. Of a schema with a branch
@@ -195,6 +195,11 @@ fn unit_kinds(schema: &Value) -> Vec<Vec<String>> {
                 .collect()
         })
         .collect()
+}
+
+/// Whether `schema` converts between units: it has a `from` unit argument (`UNIT`).
+pub(crate) fn converts_units(schema: &Value) -> bool {
+    !unit_kinds(schema).is_empty()
 }
 
 /// Whether `request` asks to convert an amount in one unit of `schema`'s (a `from`
@@ -289,72 +294,6 @@ fn units_asked(
     }
     to.retain(|s| !from.contains(s));
     (from, to)
-}
-
-/// A unit a request writes: at which token, in how many, and the schema's spelling.
-struct WrittenUnit {
-    at: usize,
-    len: usize,
-    spelling: String,
-}
-
-/// The units of `spellings` that `tokens` write, in order, the longest name at each
-/// place ("grad celsius" before "grad").
-fn units_written(tokens: &[String], spellings: &[String]) -> Vec<WrittenUnit> {
-    let spelt: Vec<(Vec<String>, &String)> =
-        spellings.iter().map(|s| (unit_tokens(s), s)).collect();
-    let mut out = Vec::new();
-    let mut i = 0;
-    while i < tokens.len() {
-        let found = (1..=UNIT_WORDS.min(tokens.len() - i))
-            .rev()
-            .find_map(|len| {
-                let here = &tokens[i..i + len];
-                spelt
-                    .iter()
-                    .find(|(t, _)| t.as_slice() == here)
-                    .map(|(_, s)| (len, (*s).clone()))
-            });
-        match found {
-            Some((len, spelling)) => {
-                out.push(WrittenUnit {
-                    at: i,
-                    len,
-                    spelling,
-                });
-                i += len;
-            }
-            None => i += 1,
-        }
-    }
-    out
-}
-
-/// `text` folded and cut into the tokens units are read from: words, numbers, and
-/// symbols with a slash or a degree sign ("km/h", "°c"); a number written against its
-/// unit is two ("10km" → 10, km).
-fn unit_tokens(text: &str) -> Vec<String> {
-    let kept = |c: char| c.is_alphanumeric() || matches!(c, '/' | '°' | '.' | ',' | '-');
-    let mut out = Vec::new();
-    for raw in crate::lexicon::fold(text).split(|c: char| !kept(c)) {
-        let t = raw
-            .trim_end_matches(['.', ',', '-', '/'])
-            .trim_start_matches(['.', ',', '/']);
-        let t = match t.strip_prefix('-') {
-            Some(rest) if !rest.starts_with(|c: char| c.is_ascii_digit()) => rest,
-            _ => t,
-        };
-        let numeric = |c: char| c.is_ascii_digit() || matches!(c, '.' | ',' | '-');
-        match t.find(|c: char| !numeric(c)) {
-            Some(cut) if cut > 0 && t[..cut].contains(|c: char| c.is_ascii_digit()) => {
-                out.push(t[..cut].to_string());
-                out.push(t[cut..].to_string());
-            }
-            _ if !t.is_empty() => out.push(t.to_string()),
-            _ => {}
-        }
-    }
-    out
 }
 
 /// The fields `request` gives a value: a word followed by a number ("at x 2 y 3",

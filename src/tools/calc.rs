@@ -9,6 +9,7 @@ use serde_json::{json, Value};
 use super::expr;
 use crate::tool::schema::UNIT;
 use crate::tool::{Effect, Package, Tool, ToolContext, ToolError};
+use crate::units::{kinds, spellings, unit};
 
 pub fn package() -> Package {
     Package::new("calc")
@@ -154,102 +155,20 @@ pub(crate) struct ConvertArgs {
     pub to: String,
 }
 
-/// A unit a conversion reads (`data/units.toml`): its kind, its offset and factor to
-/// the kind's base unit (base = (value + offset) * factor), and its spellings.
-#[derive(Deserialize)]
-struct Unit {
-    /// Written the same in every language; the first as the prompt shows it.
-    symbols: Vec<String>,
-    kind: String,
-    #[serde(default)]
-    offset: f64,
-    factor: f64,
-    /// The unit's names in each language (`en`, `es`, ...).
-    #[serde(flatten)]
-    names: std::collections::BTreeMap<String, Vec<String>>,
-}
-
-impl Unit {
-    fn spellings(&self) -> impl Iterator<Item = &str> {
-        self.symbols
-            .iter()
-            .chain(self.names.values().flatten())
-            .map(String::as_str)
-    }
-}
-
-#[derive(Deserialize)]
-struct Units {
-    unit: Vec<Unit>,
-}
-
-/// The units of `data/units.toml`, parsed once (a test parses it, so a bad edit fails
-/// there first).
-fn table() -> &'static [Unit] {
-    static TABLE: std::sync::OnceLock<Vec<Unit>> = std::sync::OnceLock::new();
-    TABLE.get_or_init(|| {
-        let units: Units = toml::from_str(include_str!("../../data/units.toml"))
-            .unwrap_or_else(|e| panic!("data/units.toml: {e}"));
-        units.unit
-    })
-}
-
-/// Whether `u` is one of a unit's spellings, folded and without surrounding space.
-fn spelled(u: &Unit, written: &str) -> bool {
-    let written = crate::lexicon::fold(written.trim());
-    u.spellings().any(|s| crate::lexicon::fold(s) == written)
-}
-
-fn unit(written: &str) -> Option<&'static Unit> {
-    table().iter().find(|u| spelled(u, written))
-}
-
-/// The kinds of quantity, in the table's order.
-fn kinds() -> Vec<&'static str> {
-    let mut kinds: Vec<&str> = Vec::new();
-    for u in table() {
-        if !kinds.contains(&u.kind.as_str()) {
-            kinds.push(&u.kind);
-        }
-    }
-    kinds
-}
-
-/// Every spelling of a unit of `kind`, each once, as the data writes it: the grammar
-/// offers them (the operator's own spelling among them, for the copy bias to find). A
-/// small model otherwise writes units of its own ("100" to "30" for a percentage; a
-/// robot's topic name, repeated).
-fn spellings(kind: &str) -> Vec<&'static str> {
-    let mut out: Vec<&str> = Vec::new();
-    for s in table()
-        .iter()
-        .filter(|u| u.kind == kind)
-        .flat_map(Unit::spellings)
-    {
-        if !out
-            .iter()
-            .any(|o| crate::lexicon::fold(o) == crate::lexicon::fold(s))
-        {
-            out.push(s);
-        }
-    }
-    out
-}
-
-/// `value` in `from` written in `to`, when both are units of one kind.
+/// `value` in `from` written in `to`, when both are units of one kind
+/// (`data/units.toml`).
 fn convert(value: f64, from: &str, to: &str) -> Result<f64, ToolError> {
     let (Some(a), Some(b)) = (unit(from), unit(to)) else {
         return Err(ToolError::InvalidArguments(format!(
             "unknown unit {from:?} or {to:?}; use e.g. m, ft, deg, rad, m/s, km/h, C, F"
         )));
     };
-    if a.kind != b.kind {
-        return Err(ToolError::InvalidArguments(format!(
+    crate::units::between(value, a, b).ok_or_else(|| {
+        ToolError::InvalidArguments(format!(
             "cannot convert {} ({from}) to {} ({to})",
             a.kind, b.kind
-        )));
-    }
-    Ok((value + a.offset) * a.factor / b.factor - b.offset)
+        ))
+    })
 }
 
 /// `calc_convert`'s live schema: one branch a kind (`CalcConvert::live_parameters`).
