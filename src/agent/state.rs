@@ -370,42 +370,60 @@ impl Agent {
         // in Portuguese was followed by arithmetic over its result.
         let converts = self.converts(part, candidates);
         select::hold_to_conversion(&mut prior, candidates, &converts, ANSWER_TOOL);
-        let acting = self.acts_on_amounts(part, candidates);
+        let (acting, takers) = self.acts_on_amounts(part, candidates);
         select::hold_to_conversion(&mut prior, candidates, &acting, ANSWER_TOOL);
+        select::hold_to_amounts(&mut prior, candidates, &takers, ANSWER_TOOL);
         prior
     }
 
-    /// Per candidate, whether it converts no units, when `part` asks for an act and a
-    /// candidate that converts none takes an amount the part writes in its argument's
-    /// own unit (`amount::takes`); all false otherwise. "Drive 2 feet at 1.8 km/h" is a
-    /// drive whose amounts the grammar converts (`reading::amount`): the converter its
-    /// unit words point at had been called after the drive, and its result answered.
-    fn acts_on_amounts(&self, part: &str, candidates: &[&str]) -> Vec<bool> {
+    /// What the amounts `part` writes say of the candidates, when it asks to convert
+    /// none and a candidate that converts no units takes one in its argument's own unit
+    /// (`amount::takes`); all false otherwise. First, per candidate, whether it converts
+    /// no units, when the part also asks for an act: "drive 2 feet at 1.8 km/h" is a
+    /// drive whose amounts the grammar converts (`reading::amount`), and the converter
+    /// its unit words point at had been called after the drive, its result answered.
+    /// Second, whether it takes one: "reverse 20 inches" is for a tool that takes a
+    /// length, and had echoed a topic 20 times.
+    fn acts_on_amounts(&self, part: &str, candidates: &[&str]) -> (Vec<bool>, Vec<bool>) {
         use crate::reading::concepts::{asked_acts, clauses};
-        let none = vec![false; candidates.len()];
+        let none = || (vec![false; candidates.len()], vec![false; candidates.len()]);
         let amounts = crate::units::amounts(part);
-        if amounts.is_empty() || asked_acts(&clauses(part)).is_empty() {
-            return none;
+        if amounts.is_empty() {
+            return none();
         }
         let registry = self.exec.registry();
-        let read: Vec<(bool, bool)> = candidates
+        let specs: Vec<Option<ToolSpec>> = candidates
             .iter()
             .map(|c| {
-                let spec = registry
+                registry
                     .get(c)
-                    .map(|t| t.live_spec().unwrap_or_else(|| t.spec().clone()));
-                spec.map_or((false, false), |s| {
-                    (
-                        crate::reading::bound::converts_units(&s.parameters),
-                        crate::reading::amount::takes(&s.parameters, &amounts),
-                    )
+                    .map(|t| t.live_spec().unwrap_or_else(|| t.spec().clone()))
+            })
+            .collect();
+        let asks_conversion = specs
+            .iter()
+            .flatten()
+            .any(|s| crate::reading::bound::asks_a_conversion(&s.parameters, part));
+        let read: Vec<(bool, bool)> = specs
+            .iter()
+            .map(|s| {
+                s.as_ref().map_or((false, false), |s| {
+                    let converts = crate::reading::bound::converts_units(&s.parameters);
+                    let takes = !converts && crate::reading::amount::takes(&s.parameters, &amounts);
+                    (converts, takes)
                 })
             })
             .collect();
-        if !read.iter().any(|&(converts, takes)| takes && !converts) {
-            return none;
+        if asks_conversion || !read.iter().any(|&(_, takes)| takes) {
+            return none();
         }
-        read.iter().map(|&(converts, _)| !converts).collect()
+        let acts = !asked_acts(&clauses(part)).is_empty();
+        let acting = read
+            .iter()
+            .map(|&(converts, _)| acts && !converts)
+            .collect();
+        let takers = read.iter().map(|&(_, takes)| takes).collect();
+        (acting, takers)
     }
 
     /// Per candidate, whether `part` asks it to convert an amount it gives between two

@@ -376,8 +376,43 @@ fn push_clause(
         });
         return Some(Mood::Forbidden);
     }
+    let mut acts = acts;
+    if mood == Mood::Asked && !question_mark {
+        for act in motion_by_amount(&words) {
+            if !acts.contains(&act) {
+                acts.push(act);
+            }
+        }
+    }
     out.push(Clause { words, acts, mood });
     (mood != Mood::Asked).then_some(mood)
+}
+
+/// The motions a clause asks for by a direction and an amount alone, with no verb of
+/// motion: a linear direction (REP 103's x, `Direction::Forward`, `Backward`) and a
+/// length ("reverse 20 inches", "back 30 cm") is a move; a turning direction and an
+/// angle ("45 degrees to the right") is a turn. Either alone is none: "back" and "left"
+/// say other things too.
+fn motion_by_amount(words: &[String]) -> Vec<Act> {
+    let table = &table().directions;
+    let says = |ds: [Direction; 2]| {
+        words.iter().any(|w| {
+            ds.iter()
+                .any(|d| table.get(d).is_some_and(|set| set.contains(w)))
+        })
+    };
+    let kinds: Vec<&str> = crate::units::amounts(&words.join(" "))
+        .iter()
+        .map(|a| a.unit.kind.as_str())
+        .collect();
+    let mut acts = Vec::new();
+    if kinds.contains(&"length") && says([Direction::Forward, Direction::Backward]) {
+        acts.push(Act::Move);
+    }
+    if kinds.contains(&"angle") && says([Direction::Left, Direction::Right]) {
+        acts.push(Act::Turn);
+    }
+    acts
 }
 
 /// How a folded word joins what follows to what came before: `Some(true)` when it
@@ -565,6 +600,18 @@ mod tests {
         assert_eq!(asked("stop the turtle now"), [Act::Stop]);
         assert!(asks_to_stop("STOP!") && asks_to_stop("halt") && !asks_to_stop("don't stop"));
         assert!(!asks_to_stop("why did it stop?"));
+    }
+
+    #[test]
+    fn a_direction_with_an_amount_of_its_motion_asks_for_it() {
+        assert_eq!(asked("back it up 25 cm"), [Act::Move]);
+        assert_eq!(asked("40 Zentimeter zurück"), [Act::Move]);
+        assert_eq!(asked("ten degrees to the left please"), [Act::Turn]);
+        // Either alone, or asked about, or of the other motion, is no act.
+        assert!(asked("what is left of the 3 meters?").is_empty());
+        assert!(asked("the dock is 2 meters back").is_empty());
+        assert!(asked("is it 30 cm back?").is_empty());
+        assert!(asked("5 degrees ahead").is_empty());
     }
 
     #[test]

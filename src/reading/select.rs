@@ -560,6 +560,24 @@ pub(crate) fn hold_to_conversion(
     cut_others(prior, candidates, converts, fallback, CONVERTS_ASKED_SHARE);
 }
 
+/// The share a tool's prior is cut to when the request writes an amount in a unit
+/// (`units::amounts`), asks to convert none, and another candidate takes it in an
+/// argument's own unit (`amount::takes`): "reverse 20 inches" is for a tool that takes
+/// a length. Milder than a conversion asked: a tool that takes a message of numbers
+/// with no unit declared (a topic's publish) may be the one meant.
+const TAKES_AMOUNT_SHARE: f64 = 0.3;
+
+/// Cut the priors of the candidates that take none of the request's amounts when
+/// another does (`takes`, in the candidates' order; `TAKES_AMOUNT_SHARE`).
+pub(crate) fn hold_to_amounts(
+    prior: &mut [f64],
+    candidates: &[&str],
+    takes: &[bool],
+    fallback: &str,
+) {
+    cut_others(prior, candidates, takes, fallback, TAKES_AMOUNT_SHARE);
+}
+
 /// Cut to `share` the priors of the candidates `holds` leaves out when it keeps any; the
 /// answer and the stop tool keep theirs.
 fn cut_others(prior: &mut [f64], candidates: &[&str], holds: &[bool], fallback: &str, share: f64) {
