@@ -224,17 +224,18 @@ impl Guard for Grounded {
         "grounded"
     }
 
-    /// A tool that computes from numbers the operator gives (`takes_given_numbers`) is
-    /// not offered while nothing said or returned spells one: a small model calls it on
-    /// a greeting with numbers of its own ("1, 2, 3, … 32"), and its result is about
-    /// nothing anyone asked.
+    /// A tool that computes from numbers the operator gives (`takes_given_numbers`, or
+    /// an expression: `ToolSpec::computes`) is not offered while nothing said or
+    /// returned spells one: a small model calls it on a greeting with numbers of its own
+    /// ("1, 2, 3, … 32"), and its result is about nothing anyone asked; asked a joint's
+    /// angle in degrees, it wrote an expression of letters.
     fn narrow(&self, offered: &[ToolSpec]) -> Option<Vec<String>> {
         if self.numbers {
             return None;
         }
         let kept: Vec<String> = offered
             .iter()
-            .filter(|s| !takes_given_numbers(&s.parameters))
+            .filter(|s| !s.computes && !takes_given_numbers(&s.parameters))
             .map(|s| s.name.clone())
             .collect();
         (kept.len() < offered.len()).then_some(kept)

@@ -89,6 +89,7 @@ const WORDS: [&[&str]; 6] = [
         "mi",
         "me",
         "hacia",
+        "a",
         "muestra",
         "muestrame",
         "dime",
@@ -160,7 +161,7 @@ const WORDS: [&[&str]; 6] = [
         "il", "lo", "la", "i", "gli", "le", "un", "una", "di", "del", "della", "dei", "delle",
         "che", "dove", "qual", "quale", "quali", "e", "sono", "per", "con", "mostra", "mostrami",
         "dimmi", "dammi", "quanti", "quante", "come", "ora", "adesso", "al", "alla", "nel", "su",
-        "chi", "si",
+        "chi", "si", "a",
     ],
     // Portuguese
     &[
@@ -451,6 +452,9 @@ mod tests {
             ("position du robot ?", Some(French)),
             ("qual è lo stato della batteria?", Some(Italian)),
             ("mostre os tópicos do robô", Some(Portuguese)),
+            // "a" is a preposition of four of them, an article of English.
+            ("sigue a la izquierda 20 metros", Some(Spanish)),
+            ("va a destra per 3 metri", Some(Italian)),
             // Names and numbers alone say nothing.
             ("/turtle1/pose 2.0", None),
             ("battery?", None),

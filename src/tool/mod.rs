@@ -130,6 +130,10 @@ pub trait Tool: Send + Sync + 'static {
     /// robot's pose, a note): it reads the robot, but what it records must be true, so
     /// it is not made once an act of the request came to nothing (`ToolSpec::records`).
     const RECORDS: bool = false;
+    /// Whether it computes from numbers the operator or a result gives, in an argument
+    /// its schema cannot show as a number (an arithmetic expression): it is not offered
+    /// while nothing said or returned spells one (`ToolSpec::computes`).
+    const COMPUTES: bool = false;
     /// The contract the model reads: one or two sentences with ranges, side effects and
     /// time bounds.
     fn description(&self) -> String;

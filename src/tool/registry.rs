@@ -77,6 +77,7 @@ pub(crate) fn erase<T: Tool>(tool: T) -> Arc<dyn DynTool> {
         .unwrap_or_else(|e| panic!("tool {} has an invalid schema: {e}", T::NAME));
     spec.sequence = T::SEQUENCE.iter().map(|s| s.to_string()).collect();
     spec.records = T::RECORDS;
+    spec.computes = T::COMPUTES;
     Arc::new(Typed { tool, spec })
 }
 

@@ -44,6 +44,10 @@ pub struct ToolSpec {
     /// that never arrived is not remembered as the place it was for.
     #[serde(skip)]
     pub records: bool,
+    /// Whether it computes from numbers given in a text argument (`Tool::COMPUTES`):
+    /// not offered while nothing said or returned spells a number (`agent::guard`).
+    #[serde(skip)]
+    pub computes: bool,
 }
 
 impl ToolSpec {
@@ -82,6 +86,7 @@ impl ToolSpec {
             alone: false,
             sequence: Vec::new(),
             records: false,
+            computes: false,
         })
     }
 

@@ -49,6 +49,7 @@ impl Tool for CalcEval {
     type Args = EvalArgs;
     const NAME: &'static str = "calc_eval";
     const EFFECT: Effect = Effect::Observes;
+    const COMPUTES: bool = true;
 
     fn description(&self) -> String {
         "Evaluate an arithmetic expression: + - * / % ^, parentheses, sqrt, abs, sin, cos, tan, asin, acos, atan, atan2, exp, ln, log10, deg, rad, min, max, pi. Angles in radians.".into()
