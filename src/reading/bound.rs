@@ -761,6 +761,7 @@ mod tests {
             examples: Vec::new(),
             sequence: Vec::new(),
             records: false,
+            computes: false,
         }
     }
 
