@@ -11,9 +11,11 @@
 //! and met again at the ROS boundary (`ros::boundary`).
 //!
 //! - basics: `chat` (the conversation types), `lexicon` (words and numbers, read one way
-//!   everywhere), `stop_intent` (whether the operator asks to stop, in six languages,
-//!   without a model), `json` (the one incremental reader of JSON text), `clock`, `dirs`
-//!   (the directories ferrosa keeps files in), `metrics` (peak RSS, CPU model)
+//!   everywhere), `units` (units of measure: their data, conversion, the amounts a
+//!   text writes and the unit an argument declares), `stop_intent` (whether the
+//!   operator asks to stop, in six languages, without a model), `json` (the one
+//!   incremental reader of JSON text), `clock`, `dirs` (the directories ferrosa keeps
+//!   files in), `metrics` (peak RSS, CPU model)
 //! - `store`: what the robot keeps across sessions (one SQLite file): taught places,
 //!   stated facts, a log of past requests
 //! - safety: `estop` (the emergency stop, one latch every part shares), `fence` (names

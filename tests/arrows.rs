@@ -17,6 +17,7 @@ const ALLOWED: &[(&str, &[&str])] = &[
     ("lexicon", &[]),
     ("stop_intent", &["lexicon"]),
     ("json", &["lexicon"]),
+    ("units", &["lexicon"]),
     ("estop", &[]),
     ("fence", &[]),
     ("limits", &[]),
@@ -29,7 +30,10 @@ const ALLOWED: &[(&str, &[&str])] = &[
     ("models", &["backend", "metrics", "dirs"]),
     ("embed", &["models"]),
     ("tool", &["chat", "lexicon", "estop", "fence", "limits"]),
-    ("reading", &["tool", "lexicon", "stop_intent", "embed"]),
+    (
+        "reading",
+        &["tool", "lexicon", "units", "stop_intent", "embed"],
+    ),
     ("decode", &["backend", "tool", "chat", "lexicon", "json"]),
     ("remote", &["decode", "backend", "tool", "chat", "json"]),
     (
@@ -46,7 +50,7 @@ const ALLOWED: &[(&str, &[&str])] = &[
     (
         "tools",
         &[
-            "tool", "ros", "lexicon", "clock", "chat", "estop", "fence", "limits", "store",
+            "tool", "ros", "lexicon", "units", "clock", "chat", "estop", "fence", "limits", "store",
         ],
     ),
     (
@@ -60,6 +64,7 @@ const ALLOWED: &[(&str, &[&str])] = &[
             "tool",
             "chat",
             "lexicon",
+            "units",
             "clock",
             "estop",
             "fence",

@@ -7,9 +7,11 @@
 //!
 //! A small model copies the number it reads: asked for 50 centimeters, it drove 50
 //! meters' worth (5 m, the tool's bound); asked for 1.5 radians, it turned 1.5 degrees.
-//! Of a part that says "wait 2 seconds and drive 1 meter" it waited 1 s. Once the value
-//! must be one the request's amounts give in the argument's unit, the number copied is
-//! right whatever unit it was said in, and an amount of another kind is not taken.
+//! Once the value must be one the request's amounts give in the argument's unit, the
+//! number copied is right whatever unit it was said in, and an amount of another kind
+//! is not taken. An argument the request already gives in its own unit is left to the
+//! copy bias, as before: llguidance's number grammar offers one spelling of a value
+//! ("2" or "2.0"), and a model writes either.
 //!
 //! Both signs are offered where a sign keeps the unit's meaning (the request's "back",
 //! "right" or "clockwise" are the model's to read), and only values within the
@@ -32,13 +34,25 @@ const DIGITS: i32 = 6;
 /// unit's kind, converted (see the module's header). Objects within it are held too, and
 /// each branch of a choice of them. Whether any argument was held.
 pub(crate) fn hold(schema: &mut Value, amounts: &[Amount]) -> bool {
+    walk(schema, amounts, false)
+}
+
+/// Whether an argument of `schema` takes one of `amounts` in its own unit, whether or
+/// not `hold` would need to convert it.
+pub(crate) fn takes(schema: &Value, amounts: &[Amount]) -> bool {
+    walk(&mut schema.clone(), amounts, true)
+}
+
+/// `hold` through `schema`'s branches and objects; `any_unit`: an amount already in the
+/// argument's unit counts too.
+fn walk(schema: &mut Value, amounts: &[Amount], any_unit: bool) -> bool {
     if amounts.is_empty() {
         return false;
     }
     let mut held = false;
     if let Some(branches) = schema.get_mut("anyOf").and_then(Value::as_array_mut) {
         for b in branches {
-            held |= hold(b, amounts);
+            held |= walk(b, amounts, any_unit);
         }
     }
     let Some(props) = schema.get_mut("properties").and_then(Value::as_object_mut) else {
@@ -46,27 +60,28 @@ pub(crate) fn hold(schema: &mut Value, amounts: &[Amount]) -> bool {
     };
     for (name, prop) in props.iter_mut() {
         held |= if is_open(prop, &["number", "integer"]) {
-            hold_one(name, prop, amounts)
+            hold_one(name, prop, amounts, any_unit)
         } else {
-            hold(prop, amounts)
+            walk(prop, amounts, any_unit)
         };
     }
     held
 }
 
-/// Whether an argument of `schema` takes one of `amounts` in its own unit (`hold`).
-pub(crate) fn takes(schema: &Value, amounts: &[Amount]) -> bool {
-    hold(&mut schema.clone(), amounts)
-}
-
 /// One number argument held to `amounts` of its declared unit's kind, within its
 /// bounds (the nearest whole number for an integer); left as it is when it declares no
-/// unit or none of them fits.
-fn hold_one(name: &str, prop: &mut Value, amounts: &[Amount]) -> bool {
+/// unit or none of them fits, and, unless `any_unit`, when one of them is in its unit
+/// already: the copy bias writes that number as the model spells it ("2" or "2.0"),
+/// which llguidance's number grammar cannot offer both of.
+fn hold_one(name: &str, prop: &mut Value, amounts: &[Amount], any_unit: bool) -> bool {
     let description = prop["description"].as_str().unwrap_or_default();
     let Some(unit) = declared(description, name) else {
         return false;
     };
+    let own = |a: &Amount| a.unit.kind == unit.kind && a.unit.symbols == unit.symbols;
+    if !any_unit && amounts.iter().any(own) {
+        return false;
+    }
     let Some(obj) = prop.as_object_mut() else {
         return false;
     };
@@ -127,8 +142,8 @@ fn within(prop: &Map<String, Value>, v: f64) -> bool {
         && at("exclusiveMaximum").is_none_or(|m| v < m)
 }
 
-/// `v` as the grammar writes it: a whole number without a decimal point ("2", not
-/// "2.0"), which is how a model writes one.
+/// `v` as the grammar writes it: a whole number without a decimal point ("120", not
+/// "120.0"), which is how a model writes one.
 fn number(v: f64) -> Value {
     if v.fract() == 0.0 && v.abs() < 1e15 {
         json!(v as i64)
@@ -157,6 +172,15 @@ mod tests {
         })
     }
 
+    /// The values an argument is held to, or none.
+    fn values(p: &Value) -> Option<Vec<f64>> {
+        p.get("enum")?
+            .as_array()?
+            .iter()
+            .map(Value::as_f64)
+            .collect()
+    }
+
     fn held(request: &str) -> Value {
         let mut s = drive();
         hold(&mut s, &amounts(request));
@@ -166,25 +190,28 @@ mod tests {
     #[test]
     fn an_amount_is_offered_in_the_arguments_own_unit() {
         let p = held("roll 30 centimetres at 1.8 km/h");
-        assert_eq!(p["span"]["enum"], json!([0.3, -0.3]));
+        assert_eq!(values(&p["span"]), Some(vec![0.3, -0.3]));
         assert!(p["span"].get("minimum").is_none());
-        assert_eq!(p["pace"]["enum"], json!([0.5]));
-        assert!(p["spin_deg"].get("enum").is_none());
-        assert!(p["count"].get("enum").is_none());
+        assert_eq!(values(&p["pace"]), Some(vec![0.5]));
+        assert_eq!(values(&p["spin_deg"]), None);
+        assert_eq!(values(&p["count"]), None);
 
         let p = held("tourne de 1 radian puis avance de 2 mètres");
-        assert_eq!(p["span"]["enum"], json!([2, -2]));
+        // Meters given in meters: the copy bias writes them as before.
+        assert_eq!(values(&p["span"]), None);
+        assert!(takes(&drive(), &amounts("roll 2 meters")));
         // A whole number of degrees: the nearest.
+        assert_eq!(values(&p["spin_deg"]), Some(vec![57.0, -57.0]));
         assert_eq!(p["spin_deg"]["enum"], json!([57, -57]));
     }
 
     #[test]
     fn an_amount_beyond_the_bounds_or_of_no_declared_kind_leaves_the_argument_free() {
         let p = held("roll 20 feet");
-        assert!(p["span"].get("enum").is_none());
+        assert_eq!(values(&p["span"]), None);
         assert_eq!(p["span"]["maximum"], 4.0);
         let p = held("roll 3 and wait 10 s");
-        assert!(p["span"].get("enum").is_none());
+        assert_eq!(values(&p["span"]), None);
         assert_eq!(held("roll 3"), drive()["properties"]);
     }
 }
