@@ -369,10 +369,29 @@ impl Agent {
         // after its call alike (`Run::settled` reads the same prior): a conversion asked
         // in Portuguese was followed by arithmetic over its result.
         let converts = self.converts(part, candidates);
-        select::hold_to_conversion(&mut prior, candidates, &converts, ANSWER_TOOL);
+        select::hold_to(
+            &mut prior,
+            candidates,
+            &converts,
+            ANSWER_TOOL,
+            select::CONVERTS_ASKED_SHARE,
+        );
         let (acting, takers) = self.acts_on_amounts(part, candidates);
-        select::hold_to_conversion(&mut prior, candidates, &acting, ANSWER_TOOL);
-        select::hold_to_amounts(&mut prior, candidates, &takers, ANSWER_TOOL);
+        // An act that takes the amounts: the converter is cut as a conversion cuts others.
+        select::hold_to(
+            &mut prior,
+            candidates,
+            &acting,
+            ANSWER_TOOL,
+            select::CONVERTS_ASKED_SHARE,
+        );
+        select::hold_to(
+            &mut prior,
+            candidates,
+            &takers,
+            ANSWER_TOOL,
+            select::TAKES_AMOUNT_SHARE,
+        );
         prior
     }
 
@@ -561,7 +580,13 @@ impl Agent {
             }
             Some((part, candidates, takes)) if self.config.pick == Pick::Weighed => {
                 let mut prior = self.prior(part, candidates, names);
-                select::hold_to_written(&mut prior, candidates, takes, ANSWER_TOOL);
+                select::hold_to(
+                    &mut prior,
+                    candidates,
+                    takes,
+                    ANSWER_TOOL,
+                    select::DROPS_WRITTEN_SHARE,
+                );
                 p = p.with(Weighed {
                     prior,
                     weight: select::PRIOR_WEIGHT,

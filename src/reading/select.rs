@@ -467,7 +467,7 @@ const FALLBACK_SHARE: f64 = 0.3;
 /// The share a tool's prior is cut to when the request writes a name of the robot's
 /// whole ("background_r", "/turtle1/pose") that another candidate takes as an argument
 /// now and this one cannot: the tool would drop what the operator named.
-const DROPS_WRITTEN_SHARE: f64 = 0.5;
+pub(crate) const DROPS_WRITTEN_SHARE: f64 = 0.5;
 
 /// The robot's names a tool takes now and does not declare: the string values
 /// (`enum`, `const`) of its live schema (`Tool::live_parameters`: the topics, nodes,
@@ -529,58 +529,33 @@ fn bare(name: &str) -> &str {
     name.trim_start_matches('/')
 }
 
-/// Cut the priors of the candidates that cannot take a name the request writes when
-/// another can (`takes`, from `takes_written`, in the candidates' order); the answer
-/// and the stop tool, which take no names, keep theirs.
-pub(crate) fn hold_to_written(
-    prior: &mut [f64],
-    candidates: &[&str],
-    takes: &[bool],
-    fallback: &str,
-) {
-    cut_others(prior, candidates, takes, fallback, DROPS_WRITTEN_SHARE);
-}
-
 /// The share a tool's prior is cut to when the request asks to convert an amount
 /// between two units (`bound::asks_a_conversion`: the one after a number, another of
 /// its kind apart) and another candidate converts them: a Spanish "how many kilometers
 /// are 3 miles" went to statistics over the 3, which the model liked by far. Strong, as
 /// such a request is seldom anything else; not the floor, so a model sure of another
 /// tool still writes it.
-const CONVERTS_ASKED_SHARE: f64 = 0.05;
-
-/// Cut the priors of the candidates that cannot convert the amount the request asks to
-/// convert when another can (`converts`, in the candidates' order; `CONVERTS_ASKED_SHARE`).
-pub(crate) fn hold_to_conversion(
-    prior: &mut [f64],
-    candidates: &[&str],
-    converts: &[bool],
-    fallback: &str,
-) {
-    cut_others(prior, candidates, converts, fallback, CONVERTS_ASKED_SHARE);
-}
+pub(crate) const CONVERTS_ASKED_SHARE: f64 = 0.05;
 
 /// The share a tool's prior is cut to when the request writes an amount in a unit
 /// (`units::amounts`), asks to convert none, and another candidate takes it in an
 /// argument's own unit (`amount::takes`): "reverse 20 inches" is for a tool that takes
 /// a length. Milder than a conversion asked: a tool that takes a message of numbers
 /// with no unit declared (a topic's publish) may be the one meant.
-const TAKES_AMOUNT_SHARE: f64 = 0.3;
+pub(crate) const TAKES_AMOUNT_SHARE: f64 = 0.3;
 
-/// Cut the priors of the candidates that take none of the request's amounts when
-/// another does (`takes`, in the candidates' order; `TAKES_AMOUNT_SHARE`).
-pub(crate) fn hold_to_amounts(
+/// Cut to `share` the priors of the candidates `holds` leaves out when it keeps any
+/// (in the candidates' order: those that take a name the request writes,
+/// `DROPS_WRITTEN_SHARE`; that convert an amount it asks to convert,
+/// `CONVERTS_ASKED_SHARE`; that take its amounts, `TAKES_AMOUNT_SHARE`); the answer and
+/// the stop tool keep theirs.
+pub(crate) fn hold_to(
     prior: &mut [f64],
     candidates: &[&str],
-    takes: &[bool],
+    holds: &[bool],
     fallback: &str,
+    share: f64,
 ) {
-    cut_others(prior, candidates, takes, fallback, TAKES_AMOUNT_SHARE);
-}
-
-/// Cut to `share` the priors of the candidates `holds` leaves out when it keeps any; the
-/// answer and the stop tool keep theirs.
-fn cut_others(prior: &mut [f64], candidates: &[&str], holds: &[bool], fallback: &str, share: f64) {
     if holds.len() != prior.len() || !holds.iter().any(|t| *t) {
         return;
     }
@@ -935,12 +910,24 @@ mod tests {
     fn an_amount_to_convert_holds_the_pick_to_the_converter_but_not_the_answer() {
         let names = ["stats", "convert", "robot_stop", "reply"];
         let mut prior = vec![0.0, -0.5, -1.0, -1.2];
-        hold_to_conversion(&mut prior, &names, &[false, true, false, false], "reply");
+        hold_to(
+            &mut prior,
+            &names,
+            &[false, true, false, false],
+            "reply",
+            CONVERTS_ASKED_SHARE,
+        );
         assert!(prior[1] > prior[0] + 2.0, "{prior:?}");
         assert_eq!(&prior[1..], [-0.5, -1.0, -1.2]);
         // Nothing converts: nothing is cut.
         let mut same = vec![0.0, -0.5, -1.0, -1.2];
-        hold_to_conversion(&mut same, &names, &[false; 4], "reply");
+        hold_to(
+            &mut same,
+            &names,
+            &[false; 4],
+            "reply",
+            CONVERTS_ASKED_SHARE,
+        );
         assert_eq!(same, [0.0, -0.5, -1.0, -1.2]);
     }
 
@@ -969,7 +956,7 @@ mod tests {
         assert_eq!(takes, [false, true, false]);
         let names = ["ros_param_list", "ros_param_get", "reply"];
         let mut prior = vec![0.0, -0.1, -1.2];
-        hold_to_written(&mut prior, &names, &takes, "reply");
+        hold_to(&mut prior, &names, &takes, "reply", DROPS_WRITTEN_SHARE);
         assert!(prior[1] > prior[0], "{prior:?}");
         // The answer keeps its share; so does every tool when no name is written, or
         // when the written one is no value the robot has.
