@@ -224,14 +224,45 @@ pub(crate) fn amounts(text: &str) -> Vec<Amount> {
     let tokens = unit_tokens(text);
     units_written(&tokens, every_spelling())
         .into_iter()
-        .filter(|w| after_number(&tokens, w))
         .filter_map(|w| {
             Some(Amount {
-                value: number_value(&tokens[w.at - 1])?,
+                value: value_before(&tokens, &w)?,
                 unit: unit(&w.spelling)?,
             })
         })
         .collect()
+}
+
+/// The value written right before `w`: a number, or before an angle's unit a multiple
+/// of π, as angles in radians are said ("pi radians", "2 pi rad", "pi/2 rad").
+fn value_before(tokens: &[String], w: &WrittenUnit) -> Option<f64> {
+    let at = w.at.checked_sub(1)?;
+    if unit(&w.spelling)?.kind == "angle" {
+        if let Some(pi) = pi_multiple(&tokens[..at], &tokens[at]) {
+            return Some(pi);
+        }
+    }
+    after_number(tokens, w)
+        .then(|| number_value(&tokens[at]))
+        .flatten()
+}
+
+/// `token` as a multiple of π: "pi" or "π", divided ("pi/2") or times the number
+/// before it ("2 pi"); `before` is what precedes it.
+fn pi_multiple(before: &[String], token: &str) -> Option<f64> {
+    let rest = token
+        .strip_prefix("pi")
+        .or_else(|| token.strip_prefix('π'))?;
+    let divisor = match rest.strip_prefix('/') {
+        Some(d) => d
+            .parse::<f64>()
+            .ok()
+            .filter(|d| d.is_finite() && *d != 0.0)?,
+        None if rest.is_empty() => 1.0,
+        None => return None,
+    };
+    let times = before.last().and_then(|t| number_value(t)).unwrap_or(1.0);
+    Some(times * std::f64::consts::PI / divisor)
 }
 
 /// Whether `folded`, a spelling of `u`, reads as the unit wherever it is written: a
@@ -299,6 +330,17 @@ mod tests {
         assert!(read("take 3 of them in a minute").is_empty());
         assert!(read("set it to 4").is_empty());
         assert!(read("put one in the tray").is_empty());
+    }
+
+    #[test]
+    fn an_angle_is_read_as_a_multiple_of_pi() {
+        let read = |t: &str| -> Vec<f64> { amounts(t).into_iter().map(|a| a.value).collect() };
+        let pi = std::f64::consts::PI;
+        assert_eq!(read("spin round by pi rad"), [pi]);
+        assert_eq!(read("gira de 2 π radianes"), [2.0 * pi]);
+        assert_eq!(read("tilt pi/4 radians, then 3 cm"), [pi / 4.0, 3.0]);
+        assert!(read("a raspberry pi meter").is_empty());
+        assert!(read("pi/0 rad").is_empty());
     }
 
     #[test]
