@@ -225,19 +225,21 @@ pub(crate) fn amounts(text: &str) -> Vec<Amount> {
     units_written(&tokens, every_spelling())
         .into_iter()
         .filter_map(|w| {
+            let unit = unit(&w.spelling)?;
             Some(Amount {
-                value: value_before(&tokens, &w)?,
-                unit: unit(&w.spelling)?,
+                value: value_before(&tokens, &w, unit)?,
+                unit,
             })
         })
         .collect()
 }
 
-/// The value written right before `w`: a number, or before an angle's unit a multiple
-/// of π, as angles in radians are said ("pi radians", "2 pi rad", "pi/2 rad").
-fn value_before(tokens: &[String], w: &WrittenUnit) -> Option<f64> {
+/// The value written right before `w`, a spelling of `unit`: a number, or before an
+/// angle's unit a multiple of π, as angles in radians are said ("pi radians", "2 pi
+/// rad", "pi/2 rad").
+fn value_before(tokens: &[String], w: &WrittenUnit, unit: &Unit) -> Option<f64> {
     let at = w.at.checked_sub(1)?;
-    if unit(&w.spelling)?.kind == "angle" {
+    if unit.kind == "angle" {
         if let Some(pi) = pi_multiple(&tokens[..at], &tokens[at]) {
             return Some(pi);
         }
