@@ -1770,7 +1770,20 @@ fn while_moving(
     }
     let at = graph.sent().len();
     during(&estop, &graph);
-    (worker.join().unwrap(), at)
+    let mut run = worker.join().unwrap();
+    // The brake returns at once and publishes on the ROS runtime: its zero may land after
+    // the run has ended. What was sent is read again once a zero follows `at` (or 5 s on).
+    let braked = |sent: &[Sent]| {
+        sent.iter()
+            .skip(at)
+            .any(|x| matches!(x, Sent::Publish { message, .. } if !nonzero(message)))
+    };
+    let ended = Instant::now();
+    while !braked(&graph.sent()) && ended.elapsed() < Duration::from_secs(5) {
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    run.sent = graph.sent();
+    (run, at)
 }
 
 #[test]
@@ -1788,7 +1801,20 @@ fn the_e_stop_and_time_limits_stop_what_runs() {
         ("e-stop during a move", Box::new(|e, _| e.trigger("test"))),
         (
             "e-stop from a ROS node during a move",
-            Box::new(|_, g| g.inject("/ferrosa/estop", json!({"data": true}))),
+            // Once the e-stop topic's follower (its own thread) watches: a message sent
+            // before is nobody's, and under the model tests' load the move's first
+            // command had come first ("no brake after the e-stop: []").
+            Box::new(|_, g| {
+                let started = Instant::now();
+                while !g.watched("/ferrosa/estop") {
+                    assert!(
+                        started.elapsed() < Duration::from_secs(60),
+                        "nobody follows the e-stop topic"
+                    );
+                    std::thread::sleep(Duration::from_millis(5));
+                }
+                g.inject("/ferrosa/estop", json!({"data": true}))
+            }),
         ),
     ];
     // The model would drive on after the stop, then reply with junk: the run ends at

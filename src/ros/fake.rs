@@ -116,6 +116,12 @@ impl FakeGraph {
         }
     }
 
+    /// Whether someone watches `topic` (a watcher started on its own thread may not yet).
+    pub fn watched(&self, topic: &str) -> bool {
+        let watchers = self.watchers.lock().expect("fake graph lock");
+        watchers.iter().any(|(t, _)| t == topic)
+    }
+
     pub fn sent(&self) -> Vec<Sent> {
         self.sent.lock().expect("fake graph lock").clone()
     }

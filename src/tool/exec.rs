@@ -92,6 +92,7 @@ impl Executor {
         on_progress: &mut dyn FnMut(usize, Value),
     ) -> Vec<Outcome> {
         let (progress, mut reports) = tokio::sync::mpsc::unbounded_channel();
+        let engaged_before = self.policy.estop().is_engaged();
         let handles: Vec<_> = calls
             .iter()
             .zip(decisions)
@@ -165,10 +166,26 @@ impl Executor {
                 })
                 .collect::<Vec<_>>()
         });
+        // A call that saw the press itself (its next command refused) may end before the
+        // abort does: it was stopped by the e-stop all the same, and says so.
+        let pressed = !engaged_before && self.policy.estop().is_engaged();
         results
             .into_iter()
             .zip(decisions)
-            .map(|(r, d)| self.outcome(r, d.clone()))
+            .zip(calls)
+            .map(|((r, d), call)| {
+                let stops = self
+                    .registry
+                    .get(&call.name)
+                    .is_some_and(|t| t.effect() == Effect::Stops);
+                let r = match r {
+                    Ok((Err(ToolError::Failed(e)), _)) if pressed && !stops => {
+                        Err(format!("{ESTOP_PRESSED}; the call had ended with: {e}"))
+                    }
+                    r => r,
+                };
+                self.outcome(r, d.clone())
+            })
             .collect()
     }
 
