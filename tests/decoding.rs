@@ -888,9 +888,10 @@ fn greedy_turn(
     .unwrap()
 }
 
-/// The real model, 50 requests, required mode: every turn is a schema-valid call. The
-/// same requests decoded freely are parsed the same way and their validity printed (run
-/// with `--nocapture` to see both rates).
+/// The real model, 50 requests, required mode: every turn is a schema-valid call. (How
+/// often free decoding of the same kind of request parses is a figure for
+/// `ferrosa eval --decoding both`, not for this test: it asserts nothing and doubled the
+/// test's time.)
 #[test]
 #[ignore = "needs the model weights: cargo test --release -- --include-ignored"]
 fn real_model_makes_only_valid_calls_when_constrained() {
@@ -904,49 +905,35 @@ fn real_model_makes_only_valid_calls_when_constrained() {
         Role::System,
         "You are the control assistant of a small mobile robot. Use the tools to act.",
     );
-    let mut valid = [0usize; 2];
-    let mut forced = 0;
-    let mut emitted = 0;
-    for (i, decoding) in [Decoding::Constrained, Decoding::Free]
-        .into_iter()
-        .enumerate()
-    {
-        let mut session = Session::new();
-        for q in &requests {
-            let messages = [system.clone(), ChatMessage::new(Role::User, *q)];
-            let req = TurnRequest {
-                messages: &messages,
-                specs: &specs,
-                allowed: None,
-                envelope: Envelope::Smollm2,
-                choice: ToolChoice::Required,
-                parallel: true,
-                decoding,
-                // Free decoding rambles (prose, code); 64 tokens is room for any call it
-                // could make to these tools and keeps the test short.
-                max_tokens: if decoding == Decoding::Free { 64 } else { 160 },
-            };
-            let r = greedy_turn(model.as_mut(), &mut session, &grammars, &req);
-            let ok = matches!(&r.turn, Ok(t) if !t.calls.is_empty());
-            if decoding == Decoding::Constrained {
-                assert!(
-                    ok,
-                    "{q:?} gave no valid call: {:?} {:?} {}",
-                    r.turn, r.finish, r.text
-                );
-                forced += r.stats.forced_tokens;
-                emitted += r.stats.generated_tokens;
-            }
-            valid[i] += usize::from(ok);
-        }
+    let (mut forced, mut emitted) = (0, 0);
+    let mut session = Session::new();
+    for q in &requests {
+        let messages = [system.clone(), ChatMessage::new(Role::User, *q)];
+        let req = TurnRequest {
+            messages: &messages,
+            specs: &specs,
+            allowed: None,
+            envelope: Envelope::Smollm2,
+            choice: ToolChoice::Required,
+            parallel: true,
+            decoding: Decoding::Constrained,
+            max_tokens: 160,
+        };
+        let r = greedy_turn(model.as_mut(), &mut session, &grammars, &req);
+        assert!(
+            matches!(&r.turn, Ok(t) if !t.calls.is_empty()),
+            "{q:?} gave no valid call: {:?} {:?} {}",
+            r.turn,
+            r.finish,
+            r.text
+        );
+        forced += r.stats.forced_tokens;
+        emitted += r.stats.generated_tokens;
     }
     eprintln!(
-        "valid calls on 50 requests: constrained {}/50, free {}/50; forced tokens {forced} of {emitted} emitted ({:.0}%)",
-        valid[0],
-        valid[1],
+        "valid calls on 50 requests: 50/50 constrained; forced tokens {forced} of {emitted} emitted ({:.0}%)",
         100.0 * forced as f64 / emitted.max(1) as f64
     );
-    assert_eq!(valid[0], 50);
 }
 
 /// A list whose calls end in a value the grammar completes itself (an enum): deciding

@@ -150,9 +150,9 @@ fn the_remote_engine_against_llama_server() {
 
     // BFCL slices through the CLI, in each grammar form (the form named in the report),
     // and prose-or-call turns (`--answer-mode prose`) under JSON schemas.
-    let report = bfcl_through(&server.url, &[], 5, 10);
+    let report = bfcl_through(&server.url, &[], 3, 6);
     assert!(report.contains("Lark grammar"), "{report}");
-    let report = bfcl_through(&server.url, &["--grammar", "json-schema"], 5, 10);
+    let report = bfcl_through(&server.url, &["--grammar", "json-schema"], 3, 6);
     assert!(report.contains("JSON schema"), "{report}");
     bfcl_through(
         &server.url,
