@@ -1614,15 +1614,16 @@ fn the_gate_reads_negation_questions_and_other_languages() {
     suite("gate", cases);
 }
 
+/// Whether `sent` holds a zero (a brake's publish).
+fn brakes(sent: &[Sent]) -> bool {
+    sent.iter()
+        .any(|x| matches!(x, Sent::Publish { message, .. } if !nonzero(message)))
+}
+
 /// Whether a zero velocity went out (the brake runs on the ROS runtime: waits up to 2 s).
 fn braked(st: &Stack) -> bool {
     let t = Instant::now();
-    let brake = || {
-        st.graph
-            .sent()
-            .iter()
-            .any(|x| matches!(x, Sent::Publish { message, .. } if !nonzero(message)))
-    };
+    let brake = || brakes(&st.graph.sent());
     while !brake() && t.elapsed() < Duration::from_secs(2) {
         std::thread::sleep(Duration::from_millis(5));
     }
@@ -1773,13 +1774,8 @@ fn while_moving(
     let mut run = worker.join().unwrap();
     // The brake returns at once and publishes on the ROS runtime: its zero may land after
     // the run has ended. What was sent is read again once a zero follows `at` (or 5 s on).
-    let braked = |sent: &[Sent]| {
-        sent.iter()
-            .skip(at)
-            .any(|x| matches!(x, Sent::Publish { message, .. } if !nonzero(message)))
-    };
     let ended = Instant::now();
-    while !braked(&graph.sent()) && ended.elapsed() < Duration::from_secs(5) {
+    while !brakes(&graph.sent()[at..]) && ended.elapsed() < Duration::from_secs(5) {
         std::thread::sleep(Duration::from_millis(10));
     }
     run.sent = graph.sent();
@@ -1838,10 +1834,7 @@ fn the_e_stop_and_time_limits_stop_what_runs() {
             .any(|x| matches!(x, Sent::Publish { message, .. } if nonzero(message)))
         {
             Err(run.fail(format!("motion went out after the e-stop: {after:?}")))
-        } else if !after
-            .iter()
-            .any(|x| matches!(x, Sent::Publish { message, .. } if !nonzero(message)))
-        {
+        } else if !brakes(after) {
             Err(run.fail(format!("no brake after the e-stop: {after:?}")))
         } else {
             run.blocked("turtle_move").and(run.ended_at_the_estop())

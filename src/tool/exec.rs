@@ -105,14 +105,18 @@ impl Executor {
         drop(progress);
         // A press of the e-stop (or the operator's cancel) during the run aborts every
         // running call but a stop.
-        let aborts: Vec<_> = handles
+        let abortable: Vec<bool> = calls
             .iter()
-            .zip(calls)
-            .filter(|(_, c)| {
+            .map(|c| {
                 self.registry
                     .get(&c.name)
                     .is_none_or(|t| t.effect() != Effect::Stops)
             })
+            .collect();
+        let aborts: Vec<_> = handles
+            .iter()
+            .zip(&abortable)
+            .filter(|(_, a)| **a)
             .map(|(h, _)| h.abort_handle())
             .collect();
         let estop = self.policy.estop().clone();
@@ -172,14 +176,10 @@ impl Executor {
         results
             .into_iter()
             .zip(decisions)
-            .zip(calls)
-            .map(|((r, d), call)| {
-                let stops = self
-                    .registry
-                    .get(&call.name)
-                    .is_some_and(|t| t.effect() == Effect::Stops);
+            .zip(abortable)
+            .map(|((r, d), abortable)| {
                 let r = match r {
-                    Ok((Err(ToolError::Failed(e)), _)) if pressed && !stops => {
+                    Ok((Err(ToolError::Failed(e)), _)) if pressed && abortable => {
                         Err(format!("{ESTOP_PRESSED}; the call had ended with: {e}"))
                     }
                     r => r,
