@@ -54,7 +54,11 @@ impl Chat {
         let mut child = Command::new("timeout")
             .arg("170")
             .arg(env!("CARGO_BIN_EXE_ferrosa"))
+            // No prompt cache: the chat then evaluates nothing ahead of the first line, so
+            // no call here waits on the model (a `/call` and a stop never need it), however
+            // busy the cores are with another test's model.
             .args(["chat", "--robot", "sim", "--yes", "--threads", "2"])
+            .args(["--prompt-cache", "off"])
             .env("FERROSA_MODELS_DIR", crate::util::models_dir())
             .stdin(Stdio::piped())
             .stdout(Stdio::piped())
@@ -149,9 +153,8 @@ impl Chat {
     /// Run one call and return its report.
     fn call(&mut self, name: &str, args: Value) -> Value {
         self.send(&format!("/call {name} {args}"));
-        // The first waits for the chat to evaluate its prompt when the prompt cache is
-        // cold (about 27 s on 2 cores).
-        self.report(Duration::from_secs(90))
+        // The first also waits for the chat to load the model and start.
+        self.report(Duration::from_secs(60))
     }
 
     /// Ctrl-C: SIGINT to `timeout`, which passes it on.

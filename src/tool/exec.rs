@@ -105,14 +105,7 @@ impl Executor {
         drop(progress);
         // A press of the e-stop (or the operator's cancel) during the run aborts every
         // running call but a stop.
-        let abortable: Vec<bool> = calls
-            .iter()
-            .map(|c| {
-                self.registry
-                    .get(&c.name)
-                    .is_none_or(|t| t.effect() != Effect::Stops)
-            })
-            .collect();
+        let abortable = self.abortable(calls);
         let aborts: Vec<_> = handles
             .iter()
             .zip(&abortable)
@@ -159,32 +152,26 @@ impl Executor {
             joined
                 .into_iter()
                 .zip(&last)
-                .map(|(j, said)| {
-                    j.map_err(|e| match (why, said) {
-                        (Some(why), Some(said)) if e.is_cancelled() => {
-                            format!("{why}; it had last reported: {said}")
-                        }
-                        (Some(why), None) if e.is_cancelled() => why.to_string(),
-                        _ => e.to_string(),
-                    })
-                })
+                .map(|(j, said)| j.map_err(|e| join_error(&e, why, said.as_deref())))
                 .collect::<Vec<_>>()
         });
-        // A call that saw the press itself (its next command refused) may end before the
-        // abort does: it was stopped by the e-stop all the same, and says so.
         let pressed = !engaged_before && self.policy.estop().is_engaged();
         results
             .into_iter()
             .zip(decisions)
             .zip(abortable)
-            .map(|((r, d), abortable)| {
-                let r = match r {
-                    Ok((Err(ToolError::Failed(e)), _)) if pressed && abortable => {
-                        Err(format!("{ESTOP_PRESSED}; the call had ended with: {e}"))
-                    }
-                    r => r,
-                };
-                self.outcome(r, d.clone())
+            .map(|((r, d), abortable)| self.outcome(stopped_if(r, pressed && abortable), d.clone()))
+            .collect()
+    }
+
+    /// Which calls a press of the e-stop (or a cancel) aborts: every one but a stop.
+    fn abortable(&self, calls: &[ToolCall]) -> Vec<bool> {
+        calls
+            .iter()
+            .map(|c| {
+                self.registry
+                    .get(&c.name)
+                    .is_none_or(|t| t.effect() != Effect::Stops)
             })
             .collect()
     }
@@ -234,11 +221,7 @@ impl Executor {
         })
     }
 
-    fn outcome(
-        &self,
-        r: Result<(Result<Value, ToolError>, Duration), String>,
-        decision: Decision,
-    ) -> Outcome {
+    fn outcome(&self, r: Joined, decision: Decision) -> Outcome {
         let (result, took) = match r {
             Ok(x) => x,
             Err(why) if why.contains("e-stop") || why.contains("cancelled") => (
@@ -278,6 +261,30 @@ impl Executor {
                 decision,
             },
         }
+    }
+}
+
+/// A call's ending that came through the join in words: an abort says why it came
+/// (`why`) and what the call had last reported; a panic says what the task said.
+fn join_error(e: &tokio::task::JoinError, why: Option<&str>, said: Option<&str>) -> String {
+    match (why, said) {
+        (Some(why), Some(said)) if e.is_cancelled() => {
+            format!("{why}; it had last reported: {said}")
+        }
+        (Some(why), None) if e.is_cancelled() => why.to_string(),
+        _ => e.to_string(),
+    }
+}
+
+/// A call that saw the press itself (its next command refused) may end before the
+/// abort does: when `pressed`, its failure was the e-stop's all the same, and says so.
+type Joined = Result<(Result<Value, ToolError>, Duration), String>;
+fn stopped_if(r: Joined, pressed: bool) -> Joined {
+    match r {
+        Ok((Err(ToolError::Failed(e)), _)) if pressed => {
+            Err(format!("{ESTOP_PRESSED}; the call had ended with: {e}"))
+        }
+        r => r,
     }
 }
 
