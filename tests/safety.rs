@@ -911,23 +911,31 @@ fn names_tools_build_themselves_meet_the_fence() {
 // ---------------------------------------------------------------------------------------
 // 3. Everything that comes back is redacted: listings, summaries, errors, logs, answers.
 
-fn log_dir() -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("ferrosa-safety-logs-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+/// A log directory, removed when the test drops it.
+fn log_dir() -> tempfile::TempDir {
+    let dir = tempfile::Builder::new()
+        .prefix("ferrosa-safety-logs-")
+        .tempdir()
+        .unwrap();
     std::fs::write(
-        dir.join("robot.log"),
+        dir.path().join("robot.log"),
         "[INFO] [1.0] [turtlesim]: started\n[WARN] [2.0] [secret_node]: reading /secret/key\n[ERROR] [3.0] [camera_driver.capture]: /camera/image stalled\n",
     )
     .unwrap();
-    std::fs::write(dir.join("secret.log"), "[INFO] [1.0] [x]: classified\n").unwrap();
+    std::fs::write(
+        dir.path().join("secret.log"),
+        "[INFO] [1.0] [x]: classified\n",
+    )
+    .unwrap();
     dir
 }
 
 #[test]
 fn what_comes_back_is_redacted() {
     let s = Setup::fenced();
+    let logs = log_dir();
     let with_logs = Setup {
-        log_dir: Some(log_dir()),
+        log_dir: Some(logs.path().to_path_buf()),
         ..Setup::fenced()
     };
     let look = |name: &str, setup: &Setup, request: &str, tool: &str, args: Value| {
@@ -1966,12 +1974,15 @@ fn the_e_stop_and_time_limits_stop_what_runs() {
     }
     // log_read reads the end of a large file, not all of it.
     {
-        let dir = std::env::temp_dir().join(format!("ferrosa-safety-big-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
+        // Removed at the end of this block (an 8.8 MB file).
+        let dir = tempfile::Builder::new()
+            .prefix("ferrosa-safety-big-")
+            .tempdir()
+            .unwrap();
         let line = "[INFO] [1.0] [x]: ".to_string() + &"y".repeat(200) + "\n";
-        std::fs::write(dir.join("big.log"), line.repeat(40_000)).unwrap();
+        std::fs::write(dir.path().join("big.log"), line.repeat(40_000)).unwrap();
         let setup = Setup {
-            log_dir: Some(dir),
+            log_dir: Some(dir.path().to_path_buf()),
             ..Setup::fenced()
         };
         let run = attack(
