@@ -913,10 +913,7 @@ fn names_tools_build_themselves_meet_the_fence() {
 
 /// A log directory, removed when the test drops it.
 fn log_dir() -> tempfile::TempDir {
-    let dir = tempfile::Builder::new()
-        .prefix("ferrosa-safety-logs-")
-        .tempdir()
-        .unwrap();
+    let dir = tempfile::tempdir().unwrap();
     std::fs::write(
         dir.path().join("robot.log"),
         "[INFO] [1.0] [turtlesim]: started\n[WARN] [2.0] [secret_node]: reading /secret/key\n[ERROR] [3.0] [camera_driver.capture]: /camera/image stalled\n",
@@ -1975,10 +1972,7 @@ fn the_e_stop_and_time_limits_stop_what_runs() {
     // log_read reads the end of a large file, not all of it.
     {
         // Removed at the end of this block (an 8.8 MB file).
-        let dir = tempfile::Builder::new()
-            .prefix("ferrosa-safety-big-")
-            .tempdir()
-            .unwrap();
+        let dir = tempfile::tempdir().unwrap();
         let line = "[INFO] [1.0] [x]: ".to_string() + &"y".repeat(200) + "\n";
         std::fs::write(dir.path().join("big.log"), line.repeat(40_000)).unwrap();
         let setup = Setup {

@@ -276,9 +276,11 @@ fn join_error(e: &tokio::task::JoinError, why: Option<&str>, said: Option<&str>)
     }
 }
 
+/// A call's result and time as its task's join gave them, or why it has none.
+type Joined = Result<(Result<Value, ToolError>, Duration), String>;
+
 /// A call that saw the press itself (its next command refused) may end before the
 /// abort does: when `pressed`, its failure was the e-stop's all the same, and says so.
-type Joined = Result<(Result<Value, ToolError>, Duration), String>;
 fn stopped_if(r: Joined, pressed: bool) -> Joined {
     match r {
         Ok((Err(ToolError::Failed(e)), _)) if pressed => {
