@@ -267,6 +267,25 @@ fn pi_multiple(before: &[String], token: &str) -> Option<f64> {
     Some(times * std::f64::consts::PI / divisor)
 }
 
+/// The symbol `spelling`'s unit is shown by (its first: "deg" for "degrés"), or
+/// `spelling` itself when it spells no unit.
+pub(crate) fn symbol(spelling: &str) -> String {
+    unit(spelling).map_or_else(|| spelling.to_string(), |u| u.symbols[0].clone())
+}
+
+/// Whether two spellings are of one unit ("degree", "degrés" and "deg").
+pub(crate) fn same_unit(a: &str, b: &str) -> bool {
+    unit(a)
+        .zip(unit(b))
+        .is_some_and(|(a, b)| std::ptr::eq(a, b))
+}
+
+/// Whether `spelling` is a unit's that reads as the unit wherever it is written
+/// (`unmistakable`).
+pub(crate) fn unmistakable_spelling(spelling: &str) -> bool {
+    unit(spelling).is_some_and(|u| unmistakable(u, &fold(spelling)))
+}
+
 /// Whether `folded`, a spelling of `u`, reads as the unit wherever it is written: a
 /// name that is no everyday word, or a symbol with more than letters ("m/s", "°c").
 /// Symbols of letters alone ("in", "s") and everyday words ("second") are the unit only

@@ -224,9 +224,9 @@ impl Guard for Grounded {
         "grounded"
     }
 
-    /// A tool that computes from numbers the operator gives (`takes_given_numbers`, or
-    /// an expression: `ToolSpec::computes`) is not offered while nothing said or
-    /// returned spells one: a small model calls it on a greeting with numbers of its own
+    /// A tool that computes from numbers the operator gives
+    /// (`ToolSpec::waits_for_numbers`) is not offered while nothing said or returned
+    /// spells one: a small model calls it on a greeting with numbers of its own
     /// ("1, 2, 3, … 32"), and its result is about nothing anyone asked; asked a joint's
     /// angle in degrees, it wrote an expression of letters.
     fn narrow(&self, offered: &[ToolSpec]) -> Option<Vec<String>> {
@@ -235,7 +235,7 @@ impl Guard for Grounded {
         }
         let kept: Vec<String> = offered
             .iter()
-            .filter(|s| !s.computes && !takes_given_numbers(&s.parameters))
+            .filter(|s| !s.waits_for_numbers())
             .map(|s| s.name.clone())
             .collect();
         (kept.len() < offered.len()).then_some(kept)
@@ -257,34 +257,6 @@ impl Guard for Grounded {
         self.grounding.add(shown);
         self.numbers |= !crate::lexicon::numbers(shown).is_empty();
     }
-}
-
-/// Whether a tool's arguments (`schema`) need numbers only the operator can give: a
-/// required list of numbers, or a required number with no default, no choices and no
-/// range to pick within (the data a computation runs on, not an amount of an act, which
-/// a tool bounds).
-fn takes_given_numbers(schema: &Value) -> bool {
-    let numeric = |p: &Value| {
-        let is = |t: &str| match p.get("type") {
-            Some(Value::String(s)) => s == t,
-            Some(Value::Array(a)) => a.iter().any(|x| x == t),
-            _ => false,
-        };
-        is("number") || is("integer")
-    };
-    let Some(required) = schema.get("required").and_then(Value::as_array) else {
-        return false;
-    };
-    required.iter().filter_map(Value::as_str).any(|name| {
-        let Some(p) = schema.get("properties").and_then(|ps| ps.get(name)) else {
-            return false;
-        };
-        if p.get("default").is_some() || p.get("enum").is_some() || p.get("const").is_some() {
-            return false;
-        }
-        let ranged = p.get("minimum").is_some() && p.get("maximum").is_some();
-        (numeric(p) && !ranged) || p.get("items").is_some_and(numeric)
-    })
 }
 
 /// The sign of a motion's amount, from the request's direction words (`concepts::signs`,
@@ -679,20 +651,6 @@ fn branch_of<'a>(schema: &'a Value, key: &str, target: &str) -> Option<&'a Value
         .find(|b| b["properties"][key]["const"].as_str() == Some(target))
 }
 
-/// Whether a schema takes a value of one of `types` anywhere within it.
-fn takes(schema: &Value, types: &[&str]) -> bool {
-    match schema {
-        Value::Object(o) => {
-            o.get("type")
-                .and_then(Value::as_str)
-                .is_some_and(|t| types.contains(&t))
-                || o.values().any(|v| takes(v, types))
-        }
-        Value::Array(items) => items.iter().any(|v| takes(v, types)),
-        _ => false,
-    }
-}
-
 /// Whether two ROS names are one, written with or without the leading slash.
 fn same_name(a: &str, b: &str) -> bool {
     a.trim_start_matches('/') == b.trim_start_matches('/')
@@ -755,8 +713,9 @@ impl Guard for AskedFor {
             let invents = || {
                 let branch = branch_of(&bound.parameters, &key, &target);
                 let numbers = !self.intent.says_numbers()
-                    && branch.is_some_and(|b| takes(b, &["number", "integer"]));
-                (numbers || branch.is_some_and(|b| takes(b, &["boolean"])))
+                    && branch
+                        .is_some_and(|b| crate::tool::schema::takes(b, &["number", "integer"]));
+                (numbers || branch.is_some_and(|b| crate::tool::schema::takes(b, &["boolean"])))
                     && !self.by_words(&call, declared)
             };
             self.asks(&call, declared, false) && !invents()

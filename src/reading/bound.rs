@@ -153,8 +153,10 @@ fn quote(schema: &mut Value, request: &str) {
 /// `from` to the unit written right after a number ("3 feet", "10km/h", "20 Grad
 /// Celsius"), `to` to the other units of that kind it writes. Of a schema with a branch
 /// a kind of quantity, only the kind written after a number stays. A small model
-/// reverses the two at times (10 km/h asked in m/s went m/s → km/h). A request with no
-/// unit after a number leaves them as they are; the marks go either way.
+/// reverses the two at times (10 km/h asked in m/s went m/s → km/h). A request that
+/// writes units of a kind after no number asks for a returned amount in them: `to` is
+/// held to those, `from` to the others of the kind. A request with no unit leaves them
+/// as they are; the marks go either way.
 fn hold_units(schema: &mut Value, request: &str) {
     let spellings = unit_kinds(schema).concat();
     if spellings.is_empty() {
@@ -243,21 +245,47 @@ fn hold_branch_units(
         .iter()
         .filter_map(|s| Some(s.as_str()?.to_string()))
         .collect();
-    let (from, mut to) = units_asked(&spellings, tokens, written);
+    let (mut from, mut to) = units_asked(&spellings, tokens, written);
+    // One unit written with no number before it, and none after one: the amount is one
+    // a tool returns ("the elbow's angle, in degrees"), and it is asked in that unit.
+    // Only a unit no everyday word spells counts so ("in", "s" or "second" may be no
+    // unit); of two ("convert meters to yards") either may be the one it is in.
     if from.is_empty() {
-        return Some(false);
-    }
-    if to.is_empty() {
-        to = spellings
-            .into_iter()
-            .filter(|s| !from.contains(s))
-            .collect();
+        let one = to.iter().all(|t| crate::units::same_unit(t, &to[0]));
+        to.retain(|s| crate::units::unmistakable_spelling(s));
+        if to.is_empty() || !one {
+            return Some(false);
+        }
+        // Each unit once, by the symbol the tool's prompt shows ("degrés" is `deg`).
+        let symbols = |units: Vec<String>| {
+            let mut out: Vec<String> = Vec::new();
+            for u in units.iter().map(|u| crate::units::symbol(u)) {
+                if !out.contains(&u) {
+                    out.push(u);
+                }
+            }
+            out
+        };
+        from = symbols(others(&spellings, &to));
+        to = symbols(to);
+    } else if to.is_empty() {
+        to = others(&spellings, &from);
     }
     props[&from_key]["enum"] = json!(from);
     if let Some(k) = to_key.filter(|_| !to.is_empty()) {
         props[&k]["enum"] = json!(to);
     }
     Some(true)
+}
+
+/// The spellings of `spellings` of no unit `of` spells (a conversion goes between two
+/// units, not between two spellings of one).
+fn others(spellings: &[String], of: &[String]) -> Vec<String> {
+    spellings
+        .iter()
+        .filter(|s| !of.iter().any(|o| o == *s || crate::units::same_unit(o, s)))
+        .cloned()
+        .collect()
 }
 
 /// Of the units `written` in `tokens`, those of `spellings` (one kind's) that the
@@ -762,6 +790,7 @@ mod tests {
             sequence: Vec::new(),
             records: false,
             computes: false,
+            lists: None,
         }
     }
 
@@ -1064,7 +1093,7 @@ mod tests {
             "convert",
             json!({"anyOf": [
                 kind(&["m", "meters", "in", "inches", "yd", "yards"]),
-                kind(&["deg", "grad", "rad"]),
+                kind(&["deg", "grad", "rad", "degrees"]),
                 kind(&["C", "grad celsius", "K", "kelvin"]),
             ]}),
         )];
@@ -1104,13 +1133,17 @@ mod tests {
             held("90grad sind wie viel rad"),
             [(json!(["grad"]), json!(["rad"]))]
         );
+        // No number: a returned amount asked in the unit written, from any other; a
+        // unit an everyday word spells is not read so.
+        assert_eq!(
+            held("what is the elbow at, in degrees?"),
+            [(json!(["rad"]), json!(["deg"]))]
+        );
+        assert_eq!(held("put the arm in the box").len(), 3);
         // Asked of no other unit: any other of the kind.
         assert_eq!(
             held("say 3 inches another way"),
-            [(
-                json!(["inches"]),
-                json!(["m", "meters", "in", "yd", "yards"])
-            )]
+            [(json!(["inches"]), json!(["m", "meters", "yd", "yards"]))]
         );
         // Asked to convert: an amount in one unit and another of its kind; an amount in
         // one unit alone says how far to go.

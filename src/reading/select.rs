@@ -571,11 +571,16 @@ pub(crate) fn hold_to(
 /// `concepts::kinds_in_plural`), writes none of that kind, and the tool takes exactly one
 /// (a required argument of that kind): it would answer about one topic where the
 /// operator asked about the topics. A tool that takes a node, or none, is not cut.
+/// When the request writes no name at all and a tool lists that kind in full
+/// (`ToolSpec::lists`), every other tool is cut so too and the listing is raised to the
+/// best score: "show all the topics of the robot" asks for the topics, not for the
+/// robot's status, which a small model liked for the word "robot".
 const ONE_OF_MANY_SHARE: f64 = 0.5;
 
 /// Cut (`ONE_OF_MANY_SHARE`) the scores (in `specs`' order) of the tools that take one
-/// name of a kind `query` asks about in the plural without writing one of it. A name
-/// written whole that the robot lacks may be of any kind, so it keeps every tool.
+/// name of a kind `query` asks about in the plural without writing one of it, and point
+/// at the tool that lists that kind (see `ONE_OF_MANY_SHARE`). A name written whole that
+/// the robot lacks may be of any kind, so it keeps every tool.
 fn cut_one_of_many(
     query: &str,
     specs: &[ToolSpec],
@@ -597,11 +602,16 @@ fn cut_one_of_many(
             kinds.is_empty() || kinds.contains(&kind)
         })
     };
+    let lists = |spec: &ToolSpec| spec.lists.as_deref().is_some_and(|k| plural.contains(&k));
+    let listing = written.is_empty() && specs.iter().any(lists);
+    let best = scored.iter().copied().fold(0.0, f64::max);
     for (spec, score) in specs.iter().zip(scored.iter_mut()) {
         let required = crate::tool::schema::required(&spec.parameters);
-        if name_kinds(spec)
-            .any(|k| plural.contains(&k) && required.iter().any(|r| r == k) && !writes(k))
-        {
+        let one_of_many = name_kinds(spec)
+            .any(|k| plural.contains(&k) && required.iter().any(|r| r == k) && !writes(k));
+        if listing && lists(spec) {
+            *score = best;
+        } else if one_of_many || listing {
             *score *= ONE_OF_MANY_SHARE;
         }
     }
@@ -670,10 +680,14 @@ pub fn prior(
     }
     let score_of = |name: &str| at(name).map_or(0.0, |i| scored[i]);
     let meaning_of = |name: &str| at(name).map_or(0.0, |i| by_meaning[i]);
+    // A tool that computes from numbers and is held back until one is said or returned
+    // (`ToolSpec::waits_for_numbers`) sets no bar: the request that meets it best
+    // ("the elbow's angle in degrees") needs its number read first.
     let top = specs
         .iter()
         .zip(&scored)
         .filter(|(s, _)| s.name != fallback && s.name != STOP_TOOL)
+        .filter(|(s, _)| !s.waits_for_numbers() || candidates.contains(&s.name.as_str()))
         .map(|(_, sc)| *sc)
         .fold(0.0, f64::max);
     candidates
@@ -857,6 +871,75 @@ mod tests {
         // A request no tool meets: the answer is all the prior allows.
         let p = prior("hello", &s, &[], None, &["ros_node_list", "reply"], "reply");
         assert_eq!(p, [PRIOR_FLOOR.ln(), 0.0]);
+    }
+
+    #[test]
+    fn a_kind_asked_of_in_the_plural_points_at_its_listing() {
+        let mut listing = spec("ros_service_list", "List the services.", json!({}));
+        listing.lists = Some("service".into());
+        let s = vec![
+            listing,
+            spec(
+                "robot_health",
+                "The robot's health and its nodes.",
+                json!({}),
+            ),
+            spec("reply", "Give the final answer.", json!({})),
+        ];
+        let cands = ["ros_service_list", "robot_health", "reply"];
+        // The encoder and the words lean to the health report ("robot").
+        let sims = [0.40, 0.55, 0.1];
+        let p = prior(
+            "which services does the robot have?",
+            &s,
+            &[],
+            Some(&sims),
+            &cands,
+            "reply",
+        );
+        assert_eq!(p[0], 0.0, "{p:?}");
+        assert!(p[1] <= ONE_OF_MANY_SHARE.ln(), "{p:?}");
+        // A name written: the plural may be about it, nothing is pointed at.
+        let p = prior(
+            "which services does /gripper_driver have?",
+            &s,
+            &[],
+            Some(&sims),
+            &cands,
+            "reply",
+        );
+        assert!(p[1] > ONE_OF_MANY_SHARE.ln(), "{p:?}");
+    }
+
+    #[test]
+    fn a_tool_waiting_for_a_number_sets_no_bar_for_the_step_that_reads_one() {
+        let mut convert = spec(
+            "unit_convert",
+            "Convert a value in degrees or radians.",
+            json!({"value": {"type": "number"}}),
+        );
+        convert.parameters["required"] = json!(["value"]);
+        assert!(convert.waits_for_numbers());
+        let s = vec![
+            convert,
+            spec("joint_read", "Read the joint angles.", json!({})),
+            spec("reply", "Give the final answer.", json!({})),
+        ];
+        let sims = [0.9, 0.4, 0.1];
+        let request = "how far is the knee bent, in degrees?";
+        let p = prior(
+            request,
+            &s,
+            &[],
+            Some(&sims),
+            &["joint_read", "reply"],
+            "reply",
+        );
+        assert_eq!(p[0], 0.0, "{p:?}");
+        // Offered, it is the bar again.
+        let cands = ["unit_convert", "joint_read", "reply"];
+        let p = prior(request, &s, &[], Some(&sims), &cands, "reply");
+        assert!(p[1] < 0.0 && p[0] == 0.0, "{p:?}");
     }
 
     #[test]

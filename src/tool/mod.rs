@@ -134,6 +134,8 @@ pub trait Tool: Send + Sync + 'static {
     /// its schema cannot show as a number (an arithmetic expression): it is not offered
     /// while nothing said or returned spells one (`ToolSpec::computes`).
     const COMPUTES: bool = false;
+    /// The kind of the robot's names a call lists, all of them (`ToolSpec::lists`).
+    const LISTS: Option<&'static str> = None;
     /// The contract the model reads: one or two sentences with ranges, side effects and
     /// time bounds.
     fn description(&self) -> String;

@@ -78,6 +78,7 @@ pub(crate) fn erase<T: Tool>(tool: T) -> Arc<dyn DynTool> {
     spec.sequence = T::SEQUENCE.iter().map(|s| s.to_string()).collect();
     spec.records = T::RECORDS;
     spec.computes = T::COMPUTES;
+    spec.lists = T::LISTS.map(str::to_string);
     Arc::new(Typed { tool, spec })
 }
 

@@ -39,6 +39,20 @@ pub(crate) fn is_open(prop: &Value, types: &[&str]) -> bool {
         && prop.get("const").is_none()
 }
 
+/// Whether a schema takes a value of one of `types` anywhere within it.
+pub(crate) fn takes(schema: &Value, types: &[&str]) -> bool {
+    match schema {
+        Value::Object(o) => {
+            o.get("type")
+                .and_then(Value::as_str)
+                .is_some_and(|t| types.contains(&t))
+                || o.values().any(|v| takes(v, types))
+        }
+        Value::Array(items) => items.iter().any(|v| takes(v, types)),
+        _ => false,
+    }
+}
+
 /// The cleaned schema of `T`'s JSON form.
 pub(crate) fn schema_for<T: schemars::JsonSchema>() -> Value {
     let settings = SchemaSettings::draft2020_12().with(|s| {

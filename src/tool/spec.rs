@@ -48,6 +48,11 @@ pub struct ToolSpec {
     /// not offered while nothing said or returned spells a number (`agent::guard`).
     #[serde(skip)]
     pub computes: bool,
+    /// The kind of the robot's names a call lists in full (`Tool::LISTS`: `node`,
+    /// `topic`, `service`, `action`): a request about several of that kind that writes
+    /// none asks for this tool (`reading::select`).
+    #[serde(skip)]
+    pub lists: Option<String>,
 }
 
 impl ToolSpec {
@@ -87,7 +92,16 @@ impl ToolSpec {
             sequence: Vec::new(),
             records: false,
             computes: false,
+            lists: None,
         })
+    }
+
+    /// Whether it waits for numbers the operator or a result gives: it computes from an
+    /// expression (`computes`), or its arguments need numbers only the operator can
+    /// give (`takes_given_numbers`). `agent::guard` does not offer it until one is said
+    /// or returned.
+    pub(crate) fn waits_for_numbers(&self) -> bool {
+        self.computes || takes_given_numbers(&self.parameters)
     }
 
     /// This tool, called alone (see `alone`).
@@ -281,6 +295,34 @@ fn close_objects(schema: &mut Value) {
         Value::Array(items) => items.iter_mut().for_each(close_objects),
         _ => {}
     }
+}
+
+/// Whether a tool's arguments (`schema`) need numbers only the operator can give: a
+/// required list of numbers, or a required number with no default, no choices and no
+/// range to pick within (the data a computation runs on, not an amount of an act, which
+/// a tool bounds).
+fn takes_given_numbers(schema: &Value) -> bool {
+    let numeric = |p: &Value| {
+        let is = |t: &str| match p.get("type") {
+            Some(Value::String(s)) => s == t,
+            Some(Value::Array(a)) => a.iter().any(|x| x == t),
+            _ => false,
+        };
+        is("number") || is("integer")
+    };
+    let Some(required) = schema.get("required").and_then(Value::as_array) else {
+        return false;
+    };
+    required.iter().filter_map(Value::as_str).any(|name| {
+        let Some(p) = schema.get("properties").and_then(|ps| ps.get(name)) else {
+            return false;
+        };
+        if p.get("default").is_some() || p.get("enum").is_some() || p.get("const").is_some() {
+            return false;
+        }
+        let ranged = p.get("minimum").is_some() && p.get("maximum").is_some();
+        (numeric(p) && !ranged) || p.get("items").is_some_and(numeric)
+    })
 }
 
 #[cfg(test)]

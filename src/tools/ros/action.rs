@@ -70,6 +70,7 @@ impl Tool for ActionList {
     type Args = ListArgs;
     const NAME: &'static str = "ros_action_list";
     const EFFECT: Effect = Effect::Observes;
+    const LISTS: Option<&'static str> = Some("action");
     fn description(&self) -> String {
         "List ROS actions (long-running goals such as rotating to a heading) with their types and servers.".into()
     }

@@ -18,6 +18,7 @@ impl Tool for NodeList {
     type Args = ListArgs;
     const NAME: &'static str = "ros_node_list";
     const EFFECT: Effect = Effect::Observes;
+    const LISTS: Option<&'static str> = Some("node");
     fn description(&self) -> String {
         "List the running ROS nodes (names and count).".into()
     }
@@ -97,6 +98,7 @@ impl Tool for TopicList {
     type Args = ListArgs;
     const NAME: &'static str = "ros_topic_list";
     const EFFECT: Effect = Effect::Observes;
+    const LISTS: Option<&'static str> = Some("topic");
     fn description(&self) -> String {
         "List ROS topics with their message types.".into()
     }
@@ -149,6 +151,7 @@ impl Tool for ServiceList {
     type Args = ListArgs;
     const NAME: &'static str = "ros_service_list";
     const EFFECT: Effect = Effect::Observes;
+    const LISTS: Option<&'static str> = Some("service");
     fn description(&self) -> String {
         "List ROS services with their types.".into()
     }
