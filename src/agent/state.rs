@@ -376,6 +376,28 @@ impl Agent {
             ANSWER_TOOL,
             select::CONVERTS_ASKED_SHARE,
         );
+        // Arithmetic asked ("6 mal 9", "2^10") is for the tool that evaluates an
+        // expression, as strongly, and that tool is the best: statistics over numbers
+        // of the model's own had answered it, and the evaluator's words meet few.
+        let evaluates: Vec<bool> = if crate::reading::arithmetic::asked(part) {
+            let registry = self.exec.registry();
+            candidates
+                .iter()
+                .map(|c| registry.get(c).is_some_and(|t| t.spec().computes))
+                .collect()
+        } else {
+            vec![false; candidates.len()]
+        };
+        select::hold_to(
+            &mut prior,
+            candidates,
+            &evaluates,
+            ANSWER_TOOL,
+            select::CONVERTS_ASKED_SHARE,
+        );
+        for (p, _) in prior.iter_mut().zip(&evaluates).filter(|(_, e)| **e) {
+            *p = p.max(0.0);
+        }
         let (acting, takers) = self.acts_on_amounts(part, candidates);
         // An act that takes the amounts: the converter is cut as a conversion cuts others.
         select::hold_to(

@@ -81,6 +81,9 @@ pub fn bind(
             require_given(&mut spec.parameters, &given, 0);
             quote(&mut spec.parameters, request);
             hold_units(&mut spec.parameters, request);
+            if spec.computes {
+                hold_arithmetic(&mut spec.parameters, request);
+            }
             let _ = super::amount::hold(&mut spec.parameters, &amounts);
             cap_free(&mut spec.parameters, request);
             spec
@@ -111,6 +114,27 @@ fn cap_free(schema: &mut Value, request: &str) {
         if !required.contains(name) && free(prop) {
             prop["maxLength"] = json!(most);
         }
+    }
+}
+
+/// A computing tool's expression (its one required argument of free text, `schema`)
+/// held to the expression `request` says in words (`arithmetic::said`: "what is 17
+/// times 23?" is `17 * 23`), when it says one: a small model wrote "17" and stopped.
+fn hold_arithmetic(schema: &mut Value, request: &str) {
+    let Some(expression) = super::arithmetic::said(request) else {
+        return;
+    };
+    let required = crate::tool::schema::required(schema);
+    let Some(props) = schema.get_mut("properties").and_then(Value::as_object_mut) else {
+        return;
+    };
+    let free: Vec<String> = props
+        .iter()
+        .filter(|(k, p)| required.contains(k) && crate::tool::schema::is_open(p, &["string"]))
+        .map(|(k, _)| k.clone())
+        .collect();
+    if let [key] = &free[..] {
+        props[key] = json!({"type": "string", "enum": [expression]});
     }
 }
 
@@ -1079,6 +1103,33 @@ mod tests {
         // Nothing given: nothing required beyond the declared.
         let bound = bind(&specs, &[], "spawn a turtle", None);
         assert_eq!(bound[0].parameters, specs[0].parameters);
+    }
+
+    #[test]
+    fn a_computing_tools_expression_is_the_one_said_in_words() {
+        let mut eval = spec(
+            "evaluate",
+            json!({"type": "object", "properties": {"expression": {"type": "string"}},
+              "required": ["expression"]}),
+        );
+        eval.computes = true;
+        let held = |request: &str| {
+            bind(&[eval.clone()], &[], request, None)[0]
+                .parameters
+                .clone()
+        };
+        assert_eq!(
+            held("und wie viel sind 14 mal 3?")["properties"]["expression"],
+            json!({"type": "string", "enum": ["14 * 3"]})
+        );
+        // Nothing said in words, or a tool that computes nothing: as declared.
+        assert_eq!(held("what is 14*3?"), eval.parameters);
+        let mut plain = eval.clone();
+        plain.computes = false;
+        assert_eq!(
+            bind(&[plain.clone()], &[], "14 times 3", None)[0].parameters,
+            plain.parameters
+        );
     }
 
     #[test]

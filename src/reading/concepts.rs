@@ -126,6 +126,10 @@ struct WordFile {
     /// Per kind of the robot's names (`node`, `topic`, ...), its plural words.
     #[serde(default)]
     many: BTreeMap<String, Section>,
+    /// Per arithmetic operator (`+`, `-`, `*`, `/`, `^`), the words that say it, each
+    /// one or a few words ("mal", "divided by").
+    #[serde(default)]
+    operator: BTreeMap<String, Section>,
 }
 
 /// The words of every language together.
@@ -164,6 +168,8 @@ struct Words {
     /// Whole words that say a kind of the robot's names in the plural ("topics",
     /// "servicios"), by kind.
     many: BTreeMap<String, BTreeSet<String>>,
+    /// Each operator's phrases (folded words) with its symbol (`arithmetic`).
+    operators: Vec<(Vec<String>, char)>,
 }
 
 impl Words {
@@ -190,6 +196,21 @@ impl Words {
         }
         for (kind, section) in file.many {
             self.many.entry(kind).or_default().extend(section.words);
+        }
+        for (symbol, section) in file.operator {
+            let Some(symbol) = symbol
+                .chars()
+                .next()
+                .filter(|_| symbol.chars().count() == 1)
+            else {
+                continue;
+            };
+            for phrase in section.words {
+                self.operators.push((
+                    phrase.split_whitespace().map(String::from).collect(),
+                    symbol,
+                ));
+            }
         }
     }
 }
@@ -461,6 +482,12 @@ pub(crate) fn kinds_in_plural(words: &[String]) -> Vec<&'static str> {
         .collect()
 }
 
+/// The words that say an arithmetic operator, each a phrase of folded words with the
+/// operator's symbol (`arithmetic`).
+pub(crate) fn operators() -> &'static [(Vec<String>, char)] {
+    &table().operators
+}
+
 /// Whether `word` (folded) points back at what an earlier part of the request named.
 pub(crate) fn refers_back(word: &str) -> bool {
     table().references.contains(word)
@@ -539,6 +566,18 @@ mod tests {
                     "{lang}: [many.{kind}] is no kind of the robot's names"
                 );
                 sections.push((format!("many.{kind}"), section.words));
+            }
+            for (symbol, section) in &file.operator {
+                assert!(
+                    ["+", "-", "*", "/", "^"].contains(&symbol.as_str()),
+                    "{lang}: [operator.{symbol:?}] is no operator the evaluator reads"
+                );
+                for w in &section.words {
+                    assert!(
+                        !w.trim().is_empty() && crate::lexicon::fold(w) == *w,
+                        "{lang}: [operator.{symbol:?}] {w:?} is not folded"
+                    );
+                }
             }
             for (name, words) in sections {
                 assert!(!words.is_empty(), "{lang}: [{name}] is empty");

@@ -17,10 +17,12 @@
 //! - `select`: which tools a request is offered, and the prior of its first tool choice
 //! - `bound`: name arguments held to the names the robot has and the operator wrote
 //! - `amount`: number arguments held to the request's amounts, in the argument's unit
+//! - `arithmetic`: an expression said in words ("12 times 7"), for a computing tool
 //! - `facts`: a result in one line, and whether an answer states it
 //! - `small_talk`: the reply to a request no tool was called for
 
 pub mod amount;
+pub(crate) mod arithmetic;
 pub mod bound;
 pub mod concepts;
 pub mod facts;
