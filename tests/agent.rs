@@ -231,7 +231,9 @@ fn a_tool_error_is_an_observation_the_model_recovers_from() {
         call("calc_eval", json!({"expression": "2 + 2"})),
     ];
     let mut a = agent(&script, vec![], Policy::default(), 8192);
-    let (r, _) = ask(&mut a, "2 plus 2?");
+    // Not said as arithmetic ("2 plus 2"), which would hold the expression to `2 + 2`
+    // (`reading::arithmetic`) and leave the scripted model no error to make.
+    let (r, _) = ask(&mut a, "2 and 2, added?");
     assert!(!r.steps[0].ok);
     assert!(r.steps[0].output["error"]
         .as_str()
@@ -324,7 +326,8 @@ fn a_repeated_call_leads_to_the_answer_instead_of_a_loop() {
         answer("I could not work it out."),
     ];
     let mut a = agent(&script, vec![], Policy::default(), 8192);
-    let (r, _) = ask(&mut a, "6 times 7");
+    // Not said as arithmetic ("6 times 7": see above).
+    let (r, _) = ask(&mut a, "6 and 7, multiplied");
     assert_eq!(r.steps.len(), 1, "the repeat was not run again");
     // Only the answer is left: it is what went wrong, without a model turn.
     assert!(

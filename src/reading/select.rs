@@ -875,7 +875,11 @@ mod tests {
 
     #[test]
     fn a_kind_asked_of_in_the_plural_points_at_its_listing() {
-        let mut listing = spec("ros_service_list", "List the services.", json!({}));
+        let mut listing = spec(
+            "ros_service_list",
+            "Every service the robot offers.",
+            json!({}),
+        );
         listing.lists = Some("service".into());
         let s = vec![
             listing,
