@@ -23,6 +23,7 @@ use std::collections::{BTreeMap, BTreeSet};
 use serde_json::{json, Value};
 
 use crate::lexicon::{folded_words, is_number};
+use crate::reading::concepts::with_name_words;
 use crate::tool::schema::{QUOTE, UNIT};
 use crate::tool::ToolSpec;
 use crate::units::{unit_tokens, units_written, WrittenUnit};
@@ -679,7 +680,12 @@ fn pointing(
     written: &[String],
     near: Option<&dyn Fn(&str) -> f64>,
 ) -> (Vec<(String, String)>, BTreeSet<String>) {
-    let said: BTreeSet<String> = sources.iter().flat_map(|s| folded_words(s)).collect();
+    // A word in another language counts as the English word of names it says
+    // ("pinza" as `gripper`).
+    let said: BTreeSet<String> = sources
+        .iter()
+        .flat_map(|s| with_name_words(&folded_words(s)))
+        .collect();
     let mut by_key: BTreeMap<&str, Vec<(&str, BTreeSet<String>)>> = BTreeMap::new();
     for (key, name) in names {
         let words = folded_words(name).into_iter().collect();
@@ -891,6 +897,24 @@ mod tests {
         assert!(bound[0].parameters["properties"]["count"]
             .get("enum")
             .is_none());
+    }
+
+    #[test]
+    fn words_in_another_language_point_at_the_english_names_they_say() {
+        let names: Vec<(String, String)> = ["/valve/open", "/valve/close", "/pump/start"]
+            .iter()
+            .map(|n| ("service".to_string(), n.to_string()))
+            .collect();
+        let at = |request: &str| -> Vec<String> {
+            pointed(&names, &[request], &[])
+                .into_iter()
+                .map(|(_, n)| n)
+                .collect()
+        };
+        assert_eq!(at("ferme la vanne, s'il te plaît"), ["/valve/close"]);
+        assert_eq!(at("apri la valvola"), ["/valve/open"]);
+        // "shut" is no word of the names: both valve services stay.
+        assert_eq!(at("shut the valve"), ["/valve/open", "/valve/close"]);
     }
 
     #[test]

@@ -130,6 +130,10 @@ struct WordFile {
     /// one or a few words ("mal", "divided by").
     #[serde(default)]
     operator: BTreeMap<String, Section>,
+    /// Per English word robots' ROS names are made of (`gripper`, `close`), the words
+    /// that say it in this language, as prefixes as `[acts.*]` are.
+    #[serde(default)]
+    name: BTreeMap<String, Section>,
 }
 
 /// The words of every language together.
@@ -170,6 +174,8 @@ struct Words {
     many: BTreeMap<String, BTreeSet<String>>,
     /// Each operator's phrases (folded words) with its symbol (`arithmetic`).
     operators: Vec<(Vec<String>, char)>,
+    /// Folded prefixes that say an English word of ROS names, with that word.
+    name_words: Vec<(String, String)>,
 }
 
 impl Words {
@@ -196,6 +202,10 @@ impl Words {
         }
         for (kind, section) in file.many {
             self.many.entry(kind).or_default().extend(section.words);
+        }
+        for (english, section) in file.name {
+            self.name_words
+                .extend(section.words.into_iter().map(|w| (w, english.clone())));
         }
         for (symbol, section) in file.operator {
             let Some(symbol) = symbol
@@ -257,6 +267,31 @@ pub(crate) fn word_matches(word: &str, prefix: &str) -> bool {
     } else {
         word.starts_with(prefix)
     }
+}
+
+/// The English words of ROS names that `word` (folded) says in another language
+/// (`[name.*]`: "cierra" says `close`, "Greifer" `gripper`), so a request in any of the
+/// six languages meets the names robots are given in English. Empty for a word that
+/// is itself English or no such word.
+pub(crate) fn says_in_names(word: &str) -> Vec<&'static str> {
+    let mut out: Vec<&'static str> = table()
+        .name_words
+        .iter()
+        .filter(|(prefix, english)| word != english && word_matches(word, prefix))
+        .map(|(_, english)| english.as_str())
+        .collect();
+    out.dedup();
+    out
+}
+
+/// `words` (folded) with the English name words each says (`says_in_names`) after it.
+pub(crate) fn with_name_words(words: &[String]) -> Vec<String> {
+    words
+        .iter()
+        .flat_map(|w| {
+            std::iter::once(w.clone()).chain(says_in_names(w).into_iter().map(String::from))
+        })
+        .collect()
 }
 
 /// Whether `first`, opening a clause, asks the robot to stop (`stop_at_start`), or says
@@ -567,6 +602,13 @@ mod tests {
                 );
                 sections.push((format!("many.{kind}"), section.words));
             }
+            for (english, section) in file.name {
+                assert!(
+                    english.chars().all(|c| c.is_ascii_lowercase()),
+                    "{lang}: [name.{english}] is no word of English names"
+                );
+                sections.push((format!("name.{english}"), section.words));
+            }
             for (symbol, section) in &file.operator {
                 assert!(
                     ["+", "-", "*", "/", "^"].contains(&symbol.as_str()),
@@ -625,6 +667,18 @@ mod tests {
             );
         }
         assert_eq!(table.acts.len(), 16);
+    }
+
+    #[test]
+    fn a_word_in_another_language_says_the_english_word_of_names() {
+        assert_eq!(says_in_names("chiudete"), ["close"]);
+        assert_eq!(says_in_names("greifer"), ["gripper"]);
+        assert_eq!(says_in_names("ouvrez"), ["open"]);
+        // An English word, or no word of names, says nothing more.
+        assert!(says_in_names("close").is_empty());
+        assert!(says_in_names("tavolo").is_empty());
+        let words = with_name_words(&folded_words("Öffne das Ventil"));
+        assert_eq!(words, ["offne", "open", "das", "ventil"]);
     }
 
     #[test]

@@ -126,6 +126,11 @@ fn leaves(v: &Value, path: &str, out: &mut Vec<String>) {
                 if more > 0 {
                     text.push_str(&format!(" and {more} more"));
                 }
+                // A list of words (names, poses, modes) says how many it holds, so a
+                // question of how many is answered by its count.
+                if items.len() > 1 && items.iter().all(Value::is_string) {
+                    text = format!("({}) {text}", items.len());
+                }
                 out.push(named(text));
             }
         }
@@ -393,6 +398,11 @@ mod tests {
         let own = with_summary(json!({"summary": "2 nodes: /a, /b", "count": 2}));
         assert_eq!(own["summary"], "2 nodes: /a, /b");
         assert_eq!(with_summary(json!([1, 2])), json!([1, 2]));
+        let list = with_summary(json!({"name": "stored_positions", "value": ["door", "desk"]}));
+        assert_eq!(
+            list["summary"],
+            "name stored_positions, value (2) door desk"
+        );
     }
 
     #[test]
@@ -405,7 +415,7 @@ mod tests {
             "topic /p, type turtlesim/msg/Pose, count 2, x 3.5, y 4.0"
         );
         let nested = json!({"pose": {"x": 1.0}, "names": ["a", "b"]});
-        assert_eq!(summarize(&nested).unwrap(), "pose.x 1.0, names a b");
+        assert_eq!(summarize(&nested).unwrap(), "pose.x 1.0, names (2) a b");
     }
 
     #[test]

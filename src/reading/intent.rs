@@ -21,7 +21,7 @@ use std::collections::BTreeSet;
 
 use serde_json::Value;
 
-use super::concepts::{acts_of, asked_acts, clauses, Act, Clause, Mood};
+use super::concepts::{acts_of, asked_acts, clauses, with_name_words, Act, Clause, Mood};
 use crate::lexicon::folded_words;
 use crate::tool::{ToolCall, ToolSpec};
 
@@ -159,12 +159,15 @@ impl Intent {
 
     /// Whether the request uses one of `words` in a clause that asks for something.
     pub(crate) fn says(&self, words: &[String]) -> bool {
-        let said: Vec<&String> = self.asking_words().collect();
+        // A word in another language says the English word of names it says
+        // ("cierra": `close`).
+        let asking: Vec<String> = self.asking_words().cloned().collect();
+        let said = with_name_words(&asking);
         words.iter().any(|w| {
             w.len() > 2
                 && said
                     .iter()
-                    .any(|s| *s == w || (w.len() > 4 && s.starts_with(w.as_str())))
+                    .any(|s| s == w || (w.len() > 4 && s.starts_with(w.as_str())))
         })
     }
 

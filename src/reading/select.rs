@@ -156,6 +156,8 @@ struct Word {
     text: String,
     acts: Vec<Act>,
     concepts: Vec<usize>,
+    /// The English words of ROS names it says (`concepts::says_in_names`).
+    english: Vec<&'static str>,
 }
 
 impl Word {
@@ -182,6 +184,7 @@ impl Word {
             .map(|(i, _)| i)
             .collect();
         Word {
+            english: super::concepts::says_in_names(&text),
             text,
             acts,
             concepts,
@@ -200,6 +203,9 @@ impl Word {
             || (!apart && a.bytes().zip(b.bytes()).take_while(|(x, y)| x == y).count() >= 5)
             || self.acts.iter().any(|x| other.acts.contains(x))
             || shared
+            || self.english.contains(&b)
+            || other.english.contains(&a)
+            || self.english.iter().any(|e| other.english.contains(e))
     }
 }
 
@@ -243,7 +249,13 @@ pub(crate) fn name_kinds(spec: &ToolSpec) -> impl Iterator<Item = &'static str> 
 }
 
 impl Document {
-    fn new(spec: &ToolSpec, names: &[(String, String)], written: &[String]) -> Document {
+    /// `spelled`: the robot's parameters the request says in words (`spelled_parameters`).
+    fn new(
+        spec: &ToolSpec,
+        names: &[(String, String)],
+        written: &[String],
+        spelled: &[&str],
+    ) -> Document {
         let props = spec.parameters["properties"].as_object();
         let mut text = spec.description.clone();
         for (key, p) in props.into_iter().flatten() {
@@ -257,12 +269,17 @@ impl Document {
         // Parameters are read by meaning only: as words, a setting's ("grip_force")
         // met a question about the state ("how hard does the gripper squeeze now?")
         // that no topic's name says in its words.
+        // Said whole in words, though ("how many named poses" for `named_poses`), a
+        // setting is as written.
         let kinds: Vec<&str> = name_kinds(spec).filter(|k| *k != PARAMETER).collect();
-        let (whole, graph): (Vec<&str>, Vec<&str>) = names
+        let (mut whole, graph): (Vec<&str>, Vec<&str>) = names
             .iter()
             .filter(|(kind, _)| kinds.contains(&kind.as_str()))
             .map(|(_, name)| name.as_str())
             .partition(|name| written.iter().any(|w| bare(w) == bare(name)));
+        if name_kinds(spec).any(|k| k == PARAMETER) {
+            whole.extend(spelled);
+        }
         Document {
             fields: [
                 (3.0, words_of(&spec.name)),
@@ -288,9 +305,10 @@ impl Document {
 /// robot's (kind, name) pairs.
 fn lexical(query: &str, specs: &[ToolSpec], names: &[(String, String)]) -> Vec<f64> {
     let written = super::bound::written_names(query);
+    let spelled = spelled_parameters(query, names);
     let docs: Vec<Document> = specs
         .iter()
-        .map(|s| Document::new(s, names, &written))
+        .map(|s| Document::new(s, names, &written, &spelled))
         .collect();
     // Words that ask to be told ("show", "describe") frame a request, and say nothing of
     // which tool: "show the services" met `ros_interface_show` by its name.
@@ -311,6 +329,29 @@ fn lexical(query: &str, specs: &[ToolSpec], names: &[(String, String)]) -> Vec<f
         }
     }
     out
+}
+
+/// The robot's parameters (`PARAMETER` in `names`) of two words or more that `query`
+/// says side by side in its words, each word whole or with an ending ("the named poses"
+/// for `named_poses`, "max joint velocity" for `max_joint_velocity`). A setting of one
+/// word is any word of a sentence, and one half said is not the setting.
+fn spelled_parameters<'a>(query: &str, names: &'a [(String, String)]) -> Vec<&'a str> {
+    let said = folded_words(query);
+    let meets = |name_word: &String, w: &String| {
+        w == name_word || (name_word.len() >= 4 && w.starts_with(name_word.as_str()))
+    };
+    names
+        .iter()
+        .filter(|(kind, _)| kind == PARAMETER)
+        .map(|(_, name)| name.as_str())
+        .filter(|name| {
+            let own = folded_words(name);
+            own.len() >= 2
+                && said
+                    .windows(own.len())
+                    .any(|w| w.iter().zip(&own).all(|(s, o)| meets(o, s)))
+        })
+        .collect()
 }
 
 /// How much a similarity gap weighs: a tool whose similarity is `TEMPERATURE` below the
@@ -617,6 +658,31 @@ fn cut_one_of_many(
     }
 }
 
+/// Raise to the best score (in `specs`' order) the tools that take a node's parameter
+/// when `query` says one of the robot's settings whole in words (`spelled_parameters`)
+/// and writes no name: "how many named poses can it reach?" asks for `named_poses`,
+/// though its meaning is nearer a topic with "pose" in its name. A tool whose own name
+/// names an act the request does not ask for (`ros_param_set` for a question) is left
+/// as it is.
+fn raise_spelled_setting(
+    query: &str,
+    specs: &[ToolSpec],
+    names: &[(String, String)],
+    scored: &mut [f64],
+) {
+    if !written_bare(query).is_empty() || spelled_parameters(query, names).is_empty() {
+        return;
+    }
+    let asked = super::concepts::asked_acts(&super::concepts::clauses(query));
+    let best = scored.iter().copied().fold(0.0, f64::max);
+    for (spec, score) in specs.iter().zip(scored.iter_mut()) {
+        let acts = acts_of(&super::intent::name_words(&spec.name));
+        if name_kinds(spec).any(|k| k == PARAMETER) && acts.iter().all(|a| asked.contains(a)) {
+            *score = best;
+        }
+    }
+}
+
 /// Which candidates (by their priors) the request points at more than at every tool
 /// whose call already answered it (`done`, their priors): what may follow a result
 /// (`Run::settled`).
@@ -664,6 +730,7 @@ pub fn prior(
     let by_meaning = scores(query, specs, names, sims);
     let mut scored = blend(by_meaning.clone(), query, specs, names, sims);
     cut_one_of_many(query, specs, names, &mut scored);
+    raise_spelled_setting(query, specs, names, &mut scored);
     let at = |name: &str| specs.iter().position(|s| s.name == name);
     if tracing::enabled!(target: "ferrosa::select", tracing::Level::DEBUG) {
         let each: Vec<(&str, Option<f64>, Option<f64>)> = candidates
@@ -811,10 +878,15 @@ mod tests {
         let place = spec("place_go", "Drive to a place.", json!({"name": string}));
         assert_eq!(name_kinds(&param).collect::<Vec<_>>(), ["node", PARAMETER]);
         assert!(name_kinds(&place).next().is_none());
-        // A parameter's words ("grip force") do not meet a question about the state:
-        // by words, the request meets neither tool.
+        // A parameter's words ("grip", "force") do not meet a question about the
+        // state that does not say the setting whole: by words, the request meets
+        // neither tool.
         let names = vec![(PARAMETER.to_string(), "grip_force".to_string())];
-        let scores = lexical("how much grip force now", &[param, place], &names);
+        let scores = lexical(
+            "how hard does it grip, with what force",
+            &[param, place],
+            &names,
+        );
         assert_eq!(scores, [0.0, 0.0]);
     }
 
@@ -871,6 +943,54 @@ mod tests {
         // A request no tool meets: the answer is all the prior allows.
         let p = prior("hello", &s, &[], None, &["ros_node_list", "reply"], "reply");
         assert_eq!(p, [PRIOR_FLOOR.ln(), 0.0]);
+    }
+
+    #[test]
+    fn a_setting_said_whole_in_words_is_as_written() {
+        let names: Vec<(String, String)> = ["stored_positions", "gain_p", "speed"]
+            .iter()
+            .map(|n| (PARAMETER.to_string(), n.to_string()))
+            .collect();
+        assert_eq!(
+            spelled_parameters("Which stored positions do you know?", &names),
+            ["stored_positions"]
+        );
+        // Half a setting, or a setting of one word, is any word of a sentence.
+        assert!(spelled_parameters("what is the gain now, and the speed?", &names).is_empty());
+        let getter = spec(
+            "ros_param_get",
+            "Read a node's setting.",
+            json!({"node": {"type": "string"}, "name": {"type": "string"}}),
+        );
+        let echo = spec(
+            "ros_topic_echo",
+            "Read the latest messages of a topic.",
+            json!({"topic": {"type": "string"}}),
+        );
+        let mut names = names;
+        names.push(("topic".into(), "/arm/positions".into()));
+        let setter = spec(
+            "ros_param_set",
+            "Change a node's setting.",
+            json!({"node": {"type": "string"}, "name": {"type": "string"}}),
+        );
+        let specs = [getter, echo, setter];
+        let q = "how many stored positions are there";
+        let s = lexical(q, &specs, &names);
+        assert!(s[0] > s[1], "{s:?}");
+        // Said whole, the setting raises the tool that reads it to the best, not the
+        // one that changes it, which the question does not ask for.
+        let mut scored = vec![0.2, 1.0, 0.1];
+        raise_spelled_setting(q, &specs, &names, &mut scored);
+        assert_eq!(scored, [1.0, 1.0, 0.1]);
+        let mut scored = vec![0.2, 1.0, 0.1];
+        raise_spelled_setting(
+            "read the stored positions on /arm/positions",
+            &specs,
+            &names,
+            &mut scored,
+        );
+        assert_eq!(scored, [0.2, 1.0, 0.1]);
     }
 
     #[test]
