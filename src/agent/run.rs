@@ -883,6 +883,8 @@ impl Run<'_> {
             })
             .collect();
         let mut bound = bound::bind(&live, robot_names, &self.parts[self.part], near);
+        // Nor is one that would name a thing of a kind the robot has none of.
+        bound.retain(|b| !bound::reaches_nothing(b, robot_names, &self.parts[self.part]));
         // A tool every call of which the guards would refuse is not written.
         bound.retain(|b| {
             self.offered

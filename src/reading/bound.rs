@@ -86,10 +86,115 @@ pub fn bind(
                 hold_arithmetic(&mut spec.parameters, request);
             }
             let _ = super::amount::hold(&mut spec.parameters, &amounts);
+            hold_number_list(&mut spec.parameters, request);
             cap_free(&mut spec.parameters, request);
             spec
         })
         .collect()
+}
+
+/// Fewest numbers written one after another that are a list ("0, -1.2, 1.5"): two may
+/// be a joint's index and its angle.
+const LIST_NUMBERS: usize = 3;
+
+/// The numbers `request` writes in digits, in order (number words left out: "the six
+/// joints to 0, 1, 2" lists three numbers, not four).
+fn digit_numbers(request: &str) -> Vec<f64> {
+    request
+        .split_whitespace()
+        .map(|w| w.trim_matches(|c: char| matches!(c, ',' | ';' | ':' | '(' | ')' | '[' | ']')))
+        .filter(|w| w.chars().any(|c| c.is_ascii_digit()))
+        .filter_map(|w| w.parse::<f64>().ok())
+        .filter(|v| v.is_finite())
+        .collect()
+}
+
+/// The one argument of `schema` (in each of its branches) that takes a list of numbers
+/// held to the list `request` writes, in its order, when it writes `LIST_NUMBERS` or
+/// more: "move the joints to 0, -1.2, 1.5, -1.9, -1.57 and 0" is that list of six
+/// targets, which the model had written as five numbers of its own. A schema with two
+/// such arguments (two points) is left to the model, as is a list the argument's bounds
+/// or item type do not allow.
+fn hold_number_list(schema: &mut Value, request: &str) {
+    let numbers = digit_numbers(request);
+    if numbers.len() >= LIST_NUMBERS {
+        hold_list_in(schema, &numbers);
+    }
+}
+
+fn hold_list_in(schema: &mut Value, numbers: &[f64]) {
+    if let Some(branches) = schema.get_mut("anyOf").and_then(Value::as_array_mut) {
+        for b in branches {
+            hold_list_in(b, numbers);
+        }
+        return;
+    }
+    if number_lists(schema) == 1 {
+        set_list(schema, numbers);
+    }
+}
+
+/// Whether `prop` is an open list of numbers.
+fn is_number_list(prop: &Value) -> bool {
+    crate::tool::schema::is_open(prop, &["array"])
+        && crate::tool::schema::is_open(&prop["items"], &["number", "integer"])
+}
+
+/// How many open lists of numbers `schema` takes (a branch counted at its most).
+fn number_lists(schema: &Value) -> usize {
+    if is_number_list(schema) {
+        return 1;
+    }
+    let within = schema["properties"]
+        .as_object()
+        .map_or(0, |p| p.values().map(number_lists).sum());
+    let branches = schema["anyOf"]
+        .as_array()
+        .map_or(0, |b| b.iter().map(number_lists).max().unwrap_or(0));
+    within + branches
+}
+
+fn set_list(schema: &mut Value, numbers: &[f64]) {
+    if is_number_list(schema) {
+        let whole = schema["items"]["type"] == "integer";
+        let fits = |k: &str, ok: &dyn Fn(u64) -> bool| schema[k].as_u64().is_none_or(ok);
+        let n = numbers.len() as u64;
+        if (!whole || numbers.iter().all(|v| v.fract() == 0.0))
+            && fits("minItems", &|m| n >= m)
+            && fits("maxItems", &|m| n <= m)
+        {
+            schema["enum"] = json!([numbers]);
+        }
+        return;
+    }
+    if let Some(props) = schema.get_mut("properties").and_then(Value::as_object_mut) {
+        for p in props.values_mut() {
+            set_list(p, numbers);
+        }
+    }
+    if let Some(branches) = schema.get_mut("anyOf").and_then(Value::as_array_mut) {
+        for b in branches {
+            set_list(b, numbers);
+        }
+    }
+}
+
+/// Whether every call of `spec` would name a thing of a kind (`topic`, `service`,
+/// `action`) of which the robot has none and `request` writes none: a goal for a robot
+/// with no action server ("move the joints to …" on an arm with none went to
+/// `ros_action_send_goal`, its action named "ros_action_send_goal"). Then the tool
+/// reaches nothing, and is not written. With no names at all (a graph that did not
+/// answer), nothing is ruled out.
+pub(crate) fn reaches_nothing(spec: &ToolSpec, names: &[(String, String)], request: &str) -> bool {
+    if names.is_empty() || !written_names(request).is_empty() {
+        return false;
+    }
+    let props = spec.parameters["properties"].as_object();
+    crate::tool::schema::required(&spec.parameters)
+        .iter()
+        .filter(|k| ["topic", "service", "action"].contains(&k.as_str()))
+        .filter(|k| props.is_some_and(|p| p.get(k.as_str()).is_some()))
+        .any(|k| !names.iter().any(|(kind, _)| kind == k))
 }
 
 /// Most characters of an optional free-text argument in a turn's grammar, unless the
@@ -897,6 +1002,59 @@ mod tests {
         assert!(bound[0].parameters["properties"]["count"]
             .get("enum")
             .is_none());
+    }
+
+    #[test]
+    fn a_list_of_numbers_written_is_the_list_a_tool_takes() {
+        let schema = || {
+            json!({"type": "object", "properties": {
+                "topic": {"type": "string"},
+                "message": {"type": "object", "properties": {
+                    "data": {"type": "array", "items": {"type": "number"}}}}}})
+        };
+        let mut s = schema();
+        hold_number_list(&mut s, "set the three valves to 0.5, -1 and 2 please");
+        assert_eq!(
+            s["properties"]["message"]["properties"]["data"]["enum"],
+            json!([[0.5, -1.0, 2.0]])
+        );
+        // Two numbers, or number words, are no list.
+        let mut s = schema();
+        hold_number_list(&mut s, "set valve 2 to 0.5, all three of them");
+        assert_eq!(s, schema());
+        // Two lists to fill (two points) are the model's.
+        let points = json!({"type": "object", "properties": {
+            "a": {"type": "array", "items": {"type": "number"}},
+            "b": {"type": "array", "items": {"type": "number"}}}});
+        let mut s = points.clone();
+        hold_number_list(&mut s, "from 1 2 to 4 6");
+        assert_eq!(s, points);
+    }
+
+    #[test]
+    fn a_tool_that_takes_a_kind_the_robot_has_none_of_reaches_nothing() {
+        let goal = spec(
+            "ros_action_send_goal",
+            json!({"type": "object", "required": ["action"],
+                   "properties": {"action": {"type": "string"}, "goal": {"type": "object"}}}),
+        );
+        let topics = vec![("topic".to_string(), "/lamp/level".to_string())];
+        assert!(reaches_nothing(
+            &goal,
+            &topics,
+            "send the lamp to full brightness"
+        ));
+        // An action written is asked for, to be reported missing if need be.
+        assert!(!reaches_nothing(
+            &goal,
+            &topics,
+            "send a goal to /lamp/fade"
+        ));
+        let mut with_action = topics.clone();
+        with_action.push(("action".into(), "/lamp/fade".into()));
+        assert!(!reaches_nothing(&goal, &with_action, "fade the lamp out"));
+        // A graph that gave no names rules nothing out.
+        assert!(!reaches_nothing(&goal, &[], "fade the lamp out"));
     }
 
     #[test]

@@ -264,10 +264,16 @@ impl Intent {
         }
         // A request that asks for acts, none of them this tool's own or its target's,
         // asks another tool to act on what it names: "forget the dock" does not ask to
-        // drive there.
+        // drive there. A motion is the exception: a generic tool moves the robot through
+        // the target it names ("drive the joints to …" publishes on a joint command), so
+        // a motion asked of a target the words name is asked of it (below).
         let own = acts_of(&name_words(&spec.name));
         let asks_own = own.iter().any(|a| self.asked.contains(a));
-        if !self.asked.is_empty() && !asks_own {
+        let motion = self
+            .asked
+            .iter()
+            .all(|a| matches!(a, Act::Move | Act::Turn));
+        if !self.asked.is_empty() && !asks_own && !motion {
             return false;
         }
         if !known.is_empty() && !targets_known(call, known) {
