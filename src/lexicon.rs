@@ -247,6 +247,19 @@ pub fn numbers(text: &str) -> Vec<f64> {
     out
 }
 
+/// The numbers `text` writes in digits, each once and in order, a sign with it: a list
+/// as written ("0, -1.2, 1.5"). Unlike `numbers`, number words are left out ("the six
+/// joints to 0, 1, 2" lists three numbers, not four) and a negative number does not
+/// count as its magnitude too.
+pub(crate) fn digit_list(text: &str) -> Vec<f64> {
+    text.split_whitespace()
+        .map(|w| w.trim_matches(|c: char| matches!(c, ',' | ';' | ':' | '(' | ')' | '[' | ']')))
+        .filter(|w| w.chars().any(|c| c.is_ascii_digit()))
+        .filter_map(|w| w.parse::<f64>().ok())
+        .filter(|v| v.is_finite())
+        .collect()
+}
+
 /// An exponent starts at `j` (`e`, an optional sign, then a digit).
 fn exponent_at(bytes: &[u8], j: usize) -> bool {
     let sign = matches!(bytes.get(j + 1), Some(b'-' | b'+'));

@@ -97,18 +97,6 @@ pub fn bind(
 /// be a joint's index and its angle.
 const LIST_NUMBERS: usize = 3;
 
-/// The numbers `request` writes in digits, in order (number words left out: "the six
-/// joints to 0, 1, 2" lists three numbers, not four).
-fn digit_numbers(request: &str) -> Vec<f64> {
-    request
-        .split_whitespace()
-        .map(|w| w.trim_matches(|c: char| matches!(c, ',' | ';' | ':' | '(' | ')' | '[' | ']')))
-        .filter(|w| w.chars().any(|c| c.is_ascii_digit()))
-        .filter_map(|w| w.parse::<f64>().ok())
-        .filter(|v| v.is_finite())
-        .collect()
-}
-
 /// The one argument of `schema` (in each of its branches) that takes a list of numbers
 /// held to the list `request` writes, in its order, when it writes `LIST_NUMBERS` or
 /// more: "move the joints to 0, -1.2, 1.5, -1.9, -1.57 and 0" is that list of six
@@ -116,7 +104,7 @@ fn digit_numbers(request: &str) -> Vec<f64> {
 /// such arguments (two points) is left to the model, as is a list the argument's bounds
 /// or item type do not allow.
 fn hold_number_list(schema: &mut Value, request: &str) {
-    let numbers = digit_numbers(request);
+    let numbers = crate::lexicon::digit_list(request);
     if numbers.len() >= LIST_NUMBERS {
         hold_list_in(schema, &numbers);
     }
@@ -192,7 +180,7 @@ pub(crate) fn reaches_nothing(spec: &ToolSpec, names: &[(String, String)], reque
     let props = spec.parameters["properties"].as_object();
     crate::tool::schema::required(&spec.parameters)
         .iter()
-        .filter(|k| ["topic", "service", "action"].contains(&k.as_str()))
+        .filter(|k| super::meant::ACTED_ON.contains(&k.as_str()))
         .filter(|k| props.is_some_and(|p| p.get(k.as_str()).is_some()))
         .any(|k| !names.iter().any(|(kind, _)| kind == k))
 }

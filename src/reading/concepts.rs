@@ -280,14 +280,15 @@ pub(crate) fn says_in_names(word: &str) -> Vec<&'static str> {
         .filter(|(prefix, english)| word != english && word_matches(word, prefix))
         .map(|(_, english)| english.as_str())
         .collect();
+    out.sort_unstable();
     out.dedup();
     out
 }
 
 /// `words` (folded) with the English name words each says (`says_in_names`) after it.
-pub(crate) fn with_name_words(words: &[String]) -> Vec<String> {
+pub(crate) fn with_name_words<'a>(words: impl IntoIterator<Item = &'a String>) -> Vec<String> {
     words
-        .iter()
+        .into_iter()
         .flat_map(|w| {
             std::iter::once(w.clone()).chain(says_in_names(w).into_iter().map(String::from))
         })

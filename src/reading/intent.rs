@@ -161,8 +161,7 @@ impl Intent {
     pub(crate) fn says(&self, words: &[String]) -> bool {
         // A word in another language says the English word of names it says
         // ("cierra": `close`).
-        let asking: Vec<String> = self.asking_words().cloned().collect();
-        let said = with_name_words(&asking);
+        let said = with_name_words(self.asking_words());
         words.iter().any(|w| {
             w.len() > 2
                 && said

@@ -39,7 +39,7 @@ const MEANT_NAME_MIN: f64 = 0.6;
 const MEANT_GAP: f64 = 0.05;
 
 /// The kinds of names an actuator acts on.
-const ACTED_ON: &[&str] = &["topic", "service", "action"];
+pub(crate) const ACTED_ON: &[&str] = &["topic", "service", "action"];
 
 /// Names every node has, which no operator asks for by meaning: its parameter and type
 /// services, and the graph's own topics. `bound` holds no service argument to one the
