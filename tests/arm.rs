@@ -372,7 +372,8 @@ fn check_gripper() {
 }
 
 /// The agent with the real default model on the arm, one request in each of the six
-/// languages, none of them from the arm's suite: each is answered by a call of a tool
+/// languages and two more (a gripper asked of in Italian, the count of a setting),
+/// none of them from the arm's suite: each is answered by a call of a tool
 /// that holds the fact, and the answer states a fact of that call's result. The agent
 /// reads the arm's prompt file only; nothing in the product was written for this robot.
 fn check_agent_in_six_languages() {
@@ -388,7 +389,7 @@ fn check_agent_in_six_languages() {
     let mut agent = build_with(&args, refuse, Some(graph.clone()), estop).expect("the agent");
     graph.set_fence(agent.fence().clone());
     // (request, the tools that hold the fact, a fact of the result the answer states)
-    let cases: [(&str, &[&str], &str); 6] = [
+    let cases: [(&str, &[&str], &str); 8] = [
         (
             "What topics does this robot have?",
             &["ros_topic_list"],
@@ -418,6 +419,18 @@ fn check_agent_in_six_languages() {
             "Quais serviços o braço oferece?",
             &["ros_service_list"],
             "/arm/go_home",
+        ),
+        // A name's word in the request's own language ("pinza": `gripper`), and a
+        // setting said whole whose answer is its count.
+        (
+            "Quanto è aperta la pinza adesso?",
+            &["ros_topic_echo"],
+            "0.085",
+        ),
+        (
+            "tell me how many named poses are stored",
+            &["ros_param_get"],
+            "(4)",
         ),
     ];
     let mut failures = Vec::new();
